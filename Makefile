@@ -1,0 +1,87 @@
+# capsmech — build the Fortran kernel, set up the Python environment, test, demo.
+# Two commands do everything on a fresh Debian machine: `make demo` and `make test`.
+
+SHELL := /bin/bash
+.DEFAULT_GOAL := build
+
+FC      ?= gfortran
+ifeq ($(origin FC),default)
+FC      := gfortran
+endif
+HDF5_INC ?= /usr/include/hdf5/serial
+HDF5_LIB ?= /usr/lib/x86_64-linux-gnu/hdf5/serial
+# Portable by default (any x86-64); `make bench` rebuilds with OPT='-O3 -march=native'.
+OPT     ?= -O2
+FFLAGS  ?= $(OPT) -fopenmp -std=f2018 -Wall -Wextra -Wimplicit-interface -fimplicit-none \
+           -ffree-line-length-132 -Wno-maybe-uninitialized -Wno-compare-reals
+LDLIBS  := -L$(HDF5_LIB) -lhdf5hl_fortran -lhdf5_hl -lhdf5_fortran -lhdf5 -llapack -lblas
+
+BUILD   := build/kernel
+BIN     := bin
+VENV    := .venv
+PY      := $(VENV)/bin/python
+
+# Modules in dependency order (one concept per module, file name = module name).
+MODULES := capsim_kinds vector_algebra hdf5_writer sphere_mesh triangle_quadrature membrane_law \
+           membrane_forces stokes_single_layer surface_diagnostics
+MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
+
+.PHONY: build setup system-deps venv test demo bench validate clean
+
+build: system-deps $(BIN)/kernel_probe $(BIN)/hdf5_writer_check
+
+system-deps:
+	@bash scripts/setup-system.sh
+
+# Each module may use any module before it: compiling in list order is the dependency rule.
+$(BUILD)/%.o: kernel/src/%.f90 | $(BUILD)
+	$(FC) $(FFLAGS) -I$(HDF5_INC) -J$(BUILD) -c $< -o $@
+
+$(BUILD)/kernel_probe.o: kernel/tests/kernel_probe.f90 $(MOD_OBJS) | $(BUILD)
+	$(FC) $(FFLAGS) -I$(HDF5_INC) -J$(BUILD) -c $< -o $@
+
+$(BUILD)/hdf5_writer_check.o: kernel/tests/hdf5_writer_check.f90 $(MOD_OBJS) | $(BUILD)
+	$(FC) $(FFLAGS) -I$(HDF5_INC) -J$(BUILD) -c $< -o $@
+
+# Serialise module compilation in list order (a module's .mod must exist before its users).
+$(foreach i,$(shell seq 2 $(words $(MODULES))),$(eval $(BUILD)/$(word $(i),$(MODULES)).o: $(BUILD)/$(word $(shell expr $(i) - 1),$(MODULES)).o))
+
+$(BUILD)/capsim.o: kernel/src/capsim.f90 $(MOD_OBJS) | $(BUILD)
+	$(FC) $(FFLAGS) -I$(HDF5_INC) -J$(BUILD) -c $< -o $@
+
+$(BIN)/%: $(BUILD)/%.o $(MOD_OBJS) | $(BIN)
+	$(FC) $(FFLAGS) $^ -o $@ $(LDLIBS)
+
+$(BUILD) $(BIN):
+	mkdir -p $@
+
+$(PY): requirements.txt analysis/pyproject.toml
+	python3 -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --upgrade pip
+	$(VENV)/bin/pip install --quiet -r requirements.txt
+	$(VENV)/bin/pip install --quiet --no-deps -e analysis
+	touch $(PY)
+
+venv: $(PY)
+
+setup: build venv
+
+test: setup
+	$(PY) -m pytest
+
+demo: setup
+	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
+
+bench: system-deps venv
+	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'
+	$(PY) bench/bench_single_layer.py
+	$(MAKE) clean-kernel
+
+validate: setup
+	$(PY) -m pytest -m validate
+
+clean-kernel:
+	rm -rf build $(BIN)
+
+clean: clean-kernel
+	rm -rf $(VENV) demo

@@ -1,0 +1,313 @@
+"""Command-line interface: ``capsmech simulate ...`` and ``capsmech show CASE.h5``.
+
+``simulate`` passes all its arguments through to the ``capsim`` kernel, streams
+the kernel's output, returns the kernel's exit code, and then summarises the
+case file named by ``--out`` if the run wrote one. ``show`` prints a case
+file's parameters, status and steady values, and with ``--plot OUT.png`` draws
+the deformation history and the shear-plane profile.
+
+Errors in reading a case file, or a missing kernel, print
+``capsmech: error: <message>`` to stderr and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from capsmech import __version__
+from capsmech.io import CaseFileError, CaseResult, read_case
+from capsmech.paths import capsim_executable
+
+#: Exit status for errors reported by capsmech itself (argparse uses the same).
+EXIT_ERROR = 2
+
+
+# ---------------------------------------------------------------------------
+# Pure formatting helpers
+# ---------------------------------------------------------------------------
+
+
+def _fmt(value: float) -> str:
+    """Format a number compactly (6 significant digits); NaN prints as 'n/a'."""
+    return "n/a" if isinstance(value, float) and math.isnan(value) else f"{value:.6g}"
+
+
+def _units(text: str) -> str:
+    """Return ``'[text]'``, with ``'[-]'`` for an empty (dimensionless) unit."""
+    return f"[{text or '-'}]"
+
+
+def format_summary(case: CaseResult) -> str:
+    """Return a human-readable summary of a case.
+
+    Parameters
+    ----------
+    case : CaseResult
+        The case to describe.
+
+    Returns
+    -------
+    str
+        Multi-line text: file, flow, law and parameters, mesh, status and
+        message, steady scalars with units, wall time and threads, versions.
+    """
+    mesh = ""
+    if case.mesh:
+        mesh = f" ({case.mesh['nodes'].shape[0]} nodes, {case.mesh['triangles'].shape[0]} triangles)"
+    lines = [
+        f"case        {case.path}",
+        f"flow        {case.flow}",
+        f"law         {case.law}   nu_s = {_fmt(case.nu_s)}   C = {_fmt(case.C)}",
+        f"Ca_s        {_fmt(case.Ca_s)}",
+        f"a/l         {_fmt(case.a_over_l)}",
+        f"mesh        level {case.mesh_level}{mesh}",
+        f"dt          {_fmt(case.dt)} {_units(case.unit('history/t'))}",
+        f"status      {case.status}",
+        f"message     {case.message}",
+    ]
+    if case.steady:
+        lines.append("steady:")
+        width = max(len(name) for name in case.steady)
+        for name in sorted(case.steady):
+            value = case.steady[name]
+            lines.append(f"  {name:<{width}} = {_fmt(value):>12} {_units(case.unit('steady/' + name))}")
+    else:
+        lines.append("steady      none (run did not reach steady state)")
+    lines += [
+        f"wall time   {case.wall_time_s:.3g} s on {case.threads} thread(s)",
+        f"code        {case.code_version} (schema {case.schema_version})",
+    ]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------
+# Plotting
+# ---------------------------------------------------------------------------
+
+
+def _axis_label(case: CaseResult, group: str, name: str) -> str:
+    """Return an axis label ``'name [units]'`` for dataset ``group/name``."""
+    return f"{name} {_units(case.unit(f'{group}/{name}'))}"
+
+
+def plot_case(case: CaseResult, out: str | Path) -> Path:
+    """Draw a 2-panel PNG: deformation history and shear-plane profile.
+
+    Left: D12 against t (or L1 and L2 against t when D12 is absent), with the
+    steady value as a dashed line when there is one. Right: the contour in
+    the shear plane x = 0, z against y, equal aspect.
+
+    Parameters
+    ----------
+    case : CaseResult
+        The case to plot.
+    out : str or Path
+        PNG file to write; its parent directory is created if needed.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend needed
+
+    out = Path(out)
+    fig = Figure(figsize=(10, 4.2), layout="constrained")
+    ax_h, ax_p = fig.subplots(1, 2)
+
+    names = ["D12"] if "D12" in case.history else [n for n in ("L1", "L2") if n in case.history]
+    if "t" in case.history and names:
+        t = case.history["t"]
+        for name in names:
+            ax_h.plot(t, case.history[name], label=name)
+            if name in case.steady:
+                ax_h.axhline(case.steady[name], ls="--", lw=0.8, color="0.4", label=f"steady {name}")
+        ax_h.set_xlabel(_axis_label(case, "history", "t"))
+        ax_h.set_ylabel(", ".join(_axis_label(case, "history", n) for n in names))
+        ax_h.legend(loc="best", fontsize="small")
+    else:
+        ax_h.text(0.5, 0.5, "no history", ha="center", va="center", transform=ax_h.transAxes)
+    ax_h.set_title("deformation history")
+    ax_h.grid(True, alpha=0.3)
+
+    if case.profile:
+        y = list(case.profile["y"]) + [case.profile["y"][0]]  # close the contour
+        z = list(case.profile["z"]) + [case.profile["z"][0]]
+        ax_p.plot(y, z, "-", lw=1.5)
+        ax_p.set_aspect("equal", adjustable="datalim")
+        ax_p.set_xlabel(_axis_label(case, "profile", "y"))
+        ax_p.set_ylabel(_axis_label(case, "profile", "z"))
+    else:
+        ax_p.text(0.5, 0.5, "no profile", ha="center", va="center", transform=ax_p.transAxes)
+    ax_p.set_title("profile in the shear plane x = 0")
+    ax_p.grid(True, alpha=0.3)
+
+    fig.suptitle(f"{case.flow}, {case.law}, Ca_s = {_fmt(case.Ca_s)}: {case.status}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Subcommands
+# ---------------------------------------------------------------------------
+
+
+def out_path_from_args(args: Sequence[str]) -> Path | None:
+    """Return the case file named by ``--out PATH`` or ``--out=PATH`` in kernel arguments.
+
+    Parameters
+    ----------
+    args : sequence of str
+        Arguments passed through to capsim.
+
+    Returns
+    -------
+    Path or None
+        The last ``--out`` value, or None when there is none.
+    """
+    found: Path | None = None
+    for i, arg in enumerate(args):
+        if arg == "--out" and i + 1 < len(args):
+            found = Path(args[i + 1])
+        elif arg.startswith("--out="):
+            found = Path(arg.split("=", 1)[1])
+    return found
+
+
+def cmd_show(case_path: str | Path, plot: str | Path | None = None) -> int:
+    """Print a case summary, and optionally write its plot.
+
+    Parameters
+    ----------
+    case_path : str or Path
+        Case file to read.
+    plot : str or Path, optional
+        PNG file to write.
+
+    Returns
+    -------
+    int
+        0 on success.
+
+    Raises
+    ------
+    CaseFileError, FileNotFoundError
+        If the case file cannot be read.
+    """
+    case = read_case(case_path)
+    print(format_summary(case))
+    if plot is not None:
+        print(f"plot        {plot_case(case, plot)}")
+    return 0
+
+
+def cmd_simulate(kernel_args: Sequence[str]) -> int:
+    """Run the capsim kernel with ``kernel_args``, streaming its output.
+
+    The parent directory of ``--out`` is created first. After the run, the
+    case file named by ``--out`` is summarised if this run wrote it.
+
+    Parameters
+    ----------
+    kernel_args : sequence of str
+        Arguments passed unchanged to ``bin/capsim``.
+
+    Returns
+    -------
+    int
+        The kernel's exit code (or 2 if it succeeded but its case file is unreadable).
+    """
+    exe = capsim_executable()
+    out = out_path_from_args(kernel_args)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    sys.stdout.flush()
+    with subprocess.Popen(
+        [str(exe), *kernel_args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        bufsize=1,
+    ) as proc:
+        assert proc.stdout is not None
+        try:
+            for line in proc.stdout:
+                sys.stdout.write(line)
+                sys.stdout.flush()
+            code = proc.wait()
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            return 130
+    if out is not None and out.is_file() and out.stat().st_mtime >= started - 1.0:
+        print()
+        try:
+            cmd_show(out)
+        except CaseFileError as exc:
+            print(f"capsmech: error: {exc}", file=sys.stderr)
+            return code if code != 0 else EXIT_ERROR
+    return code
+
+
+# ---------------------------------------------------------------------------
+# Entry point
+# ---------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of the ``capsmech`` command."""
+    parser = argparse.ArgumentParser(
+        prog="capsmech",
+        description="Run the capsim kernel and inspect its HDF5 case files.",
+    )
+    parser.add_argument("--version", action="version", version=f"capsmech {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub.add_parser(
+        "simulate",
+        add_help=False,
+        help="run bin/capsim with all following arguments (try: simulate --help)",
+        description="Run bin/capsim; every argument is passed through to it.",
+    )
+    show = sub.add_parser("show", help="summarise a case file, optionally plot it")
+    show.add_argument("case", metavar="CASE.h5", help="case file written by capsim")
+    show.add_argument("--plot", metavar="OUT.png", help="write a 2-panel PNG (history, profile)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``capsmech`` command line.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name; defaults to ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        Exit status: the kernel's for ``simulate``, 0 for a successful
+        ``show``, 2 for errors.
+    """
+    parser = build_parser()
+    args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+    if args.command != "simulate" and rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    try:
+        if args.command == "simulate":
+            return cmd_simulate(rest)
+        return cmd_show(args.case, args.plot)
+    except (CaseFileError, FileNotFoundError) as exc:
+        print(f"capsmech: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

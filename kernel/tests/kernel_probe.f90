@@ -1,0 +1,281 @@
+!> kernel_probe: measures one numerical property of a kernel module and prints it as
+!> "key value" lines. pytest (tests/kernel) runs it and asserts the physics, so every
+!> tolerance lives in one visible place.
+!>
+!>   kernel_probe mesh LEVEL
+!>   kernel_probe uniaxial LAW NU_S C LAMBDA1
+!>   kernel_probe fd-forces LAW NU_S C LEVEL
+!>   kernel_probe laplace LAW NU_S C LAMBDA LEVEL
+!>   kernel_probe translate LEVEL
+program kernel_probe
+   use capsim_kinds, only: dp, pi
+   use sphere_mesh, only: surface_mesh_t, icosphere
+   use membrane_law, only: membrane_law_t, make_membrane_law
+   use membrane_forces, only: membrane_reference_t, membrane_nodal_forces
+   use stokes_single_layer, only: single_layer_t, triangle_areas, node_areas
+   use surface_diagnostics, only: area_and_volume
+   implicit none
+
+   character(len=64) :: command
+   call get_command_argument(1, command)
+   select case (command)
+   case ('mesh')
+      call probe_mesh(int_arg(2))
+   case ('uniaxial')
+      call probe_uniaxial(law_arg(2), real_arg(5))
+   case ('fd-forces')
+      call probe_fd_forces(law_arg(2), int_arg(5))
+   case ('laplace')
+      call probe_laplace(law_arg(2), real_arg(5), int_arg(6))
+   case ('translate')
+      call probe_translate(int_arg(2))
+   case default
+      write (*, '(a)') 'usage: kernel_probe mesh|uniaxial|fd-forces|laplace|translate ...'
+      error stop 2
+   end select
+
+contains
+
+   integer function int_arg(k)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      call get_command_argument(k, s)
+      read (s, *) int_arg
+   end function int_arg
+
+   real(dp) function real_arg(k)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      call get_command_argument(k, s)
+      read (s, *) real_arg
+   end function real_arg
+
+   type(membrane_law_t) function law_arg(k)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      integer :: stat
+      character(len=:), allocatable :: errmsg
+      call get_command_argument(k, s)
+      call make_membrane_law(trim(s), real_arg(k + 1), real_arg(k + 2), law_arg, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+   end function law_arg
+
+   subroutine sphere(level, mesh, x)
+      integer, intent(in) :: level
+      type(surface_mesh_t), intent(out) :: mesh
+      real(dp), allocatable, intent(out) :: x(:, :)
+      integer :: stat
+      character(len=:), allocatable :: errmsg
+      call icosphere(level, mesh, x, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+   end subroutine sphere
+
+   subroutine probe_mesh(level)
+      integer, intent(in) :: level
+      type(surface_mesh_t) :: mesh
+      real(dp), allocatable :: x(:, :)
+      integer :: t, k, a, b, unmatched
+      real(dp) :: area, volume, hmin, hmax, h
+      integer, allocatable :: directed(:, :)
+      call sphere(level, mesh, x)
+      call area_and_volume(mesh, x, area, volume)
+      ! Closed, consistently oriented 2-manifold: every directed edge (a,b) has exactly one (b,a).
+      allocate (directed(2, 3 * mesh%n_tri))
+      hmin = huge(1.0_dp)
+      hmax = 0
+      do t = 1, mesh%n_tri
+         do k = 1, 3
+            a = mesh%tri(k, t)
+            b = mesh%tri(mod(k, 3) + 1, t)
+            directed(:, 3 * (t - 1) + k) = [a, b]
+            h = norm2(x(:, a) - x(:, b))
+            hmin = min(hmin, h)
+            hmax = max(hmax, h)
+         end do
+      end do
+      unmatched = 0
+      do k = 1, size(directed, 2)
+         if (count(directed(1, :) == directed(2, k) .and. directed(2, :) == directed(1, k)) /= 1) &
+            unmatched = unmatched + 1
+      end do
+      write (*, '(a,i0)') 'n_nodes ', mesh%n_nodes
+      write (*, '(a,i0)') 'n_tri ', mesh%n_tri
+      write (*, '(a,i0)') 'unmatched_edges ', unmatched
+      write (*, '(a,es24.16)') 'area ', area
+      write (*, '(a,es24.16)') 'volume ', volume
+      write (*, '(a,es24.16)') 'h_min ', hmin
+      write (*, '(a,es24.16)') 'h_max ', hmax
+      write (*, '(a,es24.16)') 'max_radius_error ', maxval(abs(norm2(x, dim=1) - 1.0_dp))
+   end subroutine probe_mesh
+
+   !> One triangle under uniform in-plane stretch x = diag(lambda1, lambda2) X. The tension is
+   !> measured from the element's nodal forces by virtual work, T1 = -(1/(A0 lambda2)) sum F.dx/dlambda1,
+   !> and lambda2 is found by bisection so that T2 = 0 (uniaxial tension).
+   subroutine probe_uniaxial(law, lambda1)
+      type(membrane_law_t), intent(in) :: law
+      real(dp), intent(in) :: lambda1
+      real(dp) :: lo, hi, mid, t1, t2, t1_law, t2_law
+      integer :: it
+      lo = 0.2_dp
+      hi = 1.5_dp
+      do it = 1, 200
+         mid = 0.5_dp * (lo + hi)
+         call fe_tensions(law, lambda1, mid, t1, t2)
+         if (t2 > 0.0_dp) then
+            hi = mid
+         else
+            lo = mid
+         end if
+      end do
+      call fe_tensions(law, lambda1, mid, t1, t2)
+      call law%tensions(lambda1, mid, t1_law, t2_law)
+      write (*, '(a,es24.16)') 'lambda2 ', mid
+      write (*, '(a,es24.16)') 't1 ', t1
+      write (*, '(a,es24.16)') 't2 ', t2
+      write (*, '(a,es24.16)') 't1_law ', t1_law
+      write (*, '(a,es24.16)') 't2_law ', t2_law
+   end subroutine probe_uniaxial
+
+   subroutine fe_tensions(law, l1, l2, t1, t2)
+      type(membrane_law_t), intent(in) :: law
+      real(dp), intent(in) :: l1, l2
+      real(dp), intent(out) :: t1, t2
+      type(surface_mesh_t) :: mesh
+      type(membrane_reference_t) :: ref
+      real(dp) :: xr(3, 3), x(3, 3), force(3, 3), energy
+      mesh%n_nodes = 3
+      mesh%n_tri = 1
+      mesh%tri = reshape([1, 2, 3], [3, 1])
+      call mesh%build_adjacency()
+      ! A generic (not axis-aligned) triangle, so that the test does not rely on symmetry.
+      xr = reshape([0.0_dp, 0.0_dp, 0.0_dp, 1.0_dp, 0.2_dp, 0.0_dp, 0.3_dp, 0.9_dp, 0.0_dp], [3, 3])
+      call ref%init(mesh, xr)
+      x = xr
+      x(1, :) = l1 * xr(1, :)
+      x(2, :) = l2 * xr(2, :)
+      call membrane_nodal_forces(ref, mesh, law, x, force, energy)
+      t1 = -sum(force(1, :) * xr(1, :)) / (ref%area0(1) * l2)
+      t2 = -sum(force(2, :) * xr(2, :)) / (ref%area0(1) * l1)
+   end subroutine fe_tensions
+
+   !> Forces against central finite differences of the energy, and invariance under rigid motion.
+   subroutine probe_fd_forces(law, level)
+      type(membrane_law_t), intent(in) :: law
+      integer, intent(in) :: level
+      type(surface_mesh_t) :: mesh
+      type(membrane_reference_t) :: ref
+      real(dp), allocatable :: xr(:, :), x(:, :), force(:, :), f2(:, :), xp(:, :), noise(:, :)
+      real(dp) :: energy, ep, em, fd, err, scale, eps, rot(3, 3), c, s, torque(3)
+      integer :: i, k, sample
+      call sphere(level, mesh, xr)
+      call ref%init(mesh, xr)
+      allocate (noise(3, mesh%n_nodes), force(3, mesh%n_nodes), f2(3, mesh%n_nodes))
+      call random_seed_fixed()
+      call random_number(noise)
+      ! A large, non-uniform deformation: stretch along z, shear, plus nodal noise.
+      x = xr
+      x(3, :) = 1.4_dp * xr(3, :) + 0.3_dp * xr(2, :)
+      x(1, :) = 0.8_dp * xr(1, :)
+      x = x + 0.05_dp * (noise - 0.5_dp)
+      call membrane_nodal_forces(ref, mesh, law, x, force, energy)
+      scale = maxval(abs(force))
+      eps = 1.0e-6_dp
+      err = 0
+      xp = x
+      do sample = 1, min(mesh%n_nodes, 40)
+         i = 1 + mod(37 * sample, mesh%n_nodes)
+         do k = 1, 3
+            xp(k, i) = x(k, i) + eps
+            call membrane_nodal_forces(ref, mesh, law, xp, f2, ep)
+            xp(k, i) = x(k, i) - eps
+            call membrane_nodal_forces(ref, mesh, law, xp, f2, em)
+            xp(k, i) = x(k, i)
+            fd = -(ep - em) / (2 * eps)
+            err = max(err, abs(fd - force(k, i)))
+         end do
+      end do
+      write (*, '(a,es24.16)') 'fd_max_error_rel ', err / scale
+      torque = 0
+      do i = 1, mesh%n_nodes
+         torque = torque + [x(2, i) * force(3, i) - x(3, i) * force(2, i), &
+                            x(3, i) * force(1, i) - x(1, i) * force(3, i), &
+                            x(1, i) * force(2, i) - x(2, i) * force(1, i)]
+      end do
+      write (*, '(a,es24.16)') 'net_force_rel ', norm2(sum(force, dim=2)) / scale
+      write (*, '(a,es24.16)') 'net_torque_rel ', norm2(torque) / scale
+      ! Rigid motion of the reference state: zero force.
+      c = cos(0.7_dp)
+      s = sin(0.7_dp)
+      rot = reshape([c, s, 0.0_dp, -s * c, c * c, s, s * s, -s * c, c], [3, 3])
+      x = matmul(rot, xr)
+      do i = 1, mesh%n_nodes
+         x(:, i) = x(:, i) + [0.3_dp, -1.2_dp, 2.0_dp]
+      end do
+      call membrane_nodal_forces(ref, mesh, law, x, force, energy)
+      write (*, '(a,es24.16)') 'rigid_max_force ', maxval(abs(force))
+      write (*, '(a,es24.16)') 'rigid_energy ', energy
+   end subroutine probe_fd_forces
+
+   !> Sphere of reference radius 1 inflated to radius lambda: the force density must be the
+   !> Laplace pressure 2 T / R along the inward normal, T the isotropic tension of the law.
+   subroutine probe_laplace(law, lambda, level)
+      type(membrane_law_t), intent(in) :: law
+      real(dp), intent(in) :: lambda
+      integer, intent(in) :: level
+      type(surface_mesh_t) :: mesh
+      type(membrane_reference_t) :: ref
+      real(dp), allocatable :: xr(:, :), x(:, :), force(:, :), tri_area(:), area(:), fn(:), ft(:)
+      real(dp) :: energy, t1, t2, pressure
+      integer :: i
+      call sphere(level, mesh, xr)
+      call ref%init(mesh, xr)
+      x = lambda * xr
+      allocate (force(3, mesh%n_nodes), tri_area(mesh%n_tri), area(mesh%n_nodes))
+      allocate (fn(mesh%n_nodes), ft(mesh%n_nodes))
+      call membrane_nodal_forces(ref, mesh, law, x, force, energy)
+      call triangle_areas(mesh, x, tri_area)
+      call node_areas(mesh, tri_area, area)
+      call law%tensions(lambda, lambda, t1, t2)
+      pressure = 2.0_dp * t1 / lambda
+      do i = 1, mesh%n_nodes
+         fn(i) = -dot_product(force(:, i), xr(:, i)) / area(i)
+         ft(i) = norm2(force(:, i) + fn(i) * area(i) * xr(:, i)) / area(i)
+      end do
+      write (*, '(a,es24.16)') 'pressure_exact ', pressure
+      write (*, '(a,es24.16)') 'pressure_mean ', sum(fn * area) / sum(area)
+      write (*, '(a,es24.16)') 'pressure_max_rel_error ', maxval(abs(fn / pressure - 1.0_dp))
+      write (*, '(a,es24.16)') 'pressure_rms_rel_error ', sqrt(sum(area * (fn / pressure - 1.0_dp)**2) / sum(area))
+      write (*, '(a,es24.16)') 'tangential_max_rel ', maxval(ft) / pressure
+   end subroutine probe_laplace
+
+   !> Unit sphere with uniform force density f = e_z: translates at U = 2/3 (mu = a = 1).
+   subroutine probe_translate(level)
+      integer, intent(in) :: level
+      type(surface_mesh_t) :: mesh
+      type(single_layer_t) :: sl
+      real(dp), allocatable :: x(:, :), f(:, :), u(:, :)
+      real(dp) :: exact
+      call sphere(level, mesh, x)
+      call sl%init(mesh, 6, 1)
+      allocate (f(3, mesh%n_nodes), u(3, mesh%n_nodes))
+      f = 0
+      f(3, :) = 1
+      call sl%velocity(mesh, x, f, u)
+      exact = 2.0_dp / 3.0_dp
+      write (*, '(a,es24.16)') 'u_exact ', exact
+      write (*, '(a,es24.16)') 'u_mean ', sum(u(3, :)) / mesh%n_nodes
+      write (*, '(a,es24.16)') 'max_rel_error ', maxval(norm2(u - spread([0.0_dp, 0.0_dp, exact], 2, mesh%n_nodes), &
+                                                          dim=1)) / exact
+      write (*, '(a,es24.16)') 'pi_check ', pi
+   end subroutine probe_translate
+
+   subroutine random_seed_fixed()
+      integer :: n
+      integer, allocatable :: seed(:)
+      call random_seed(size=n)
+      allocate (seed(n))
+      seed = 20261122
+      call random_seed(put=seed)
+   end subroutine random_seed_fixed
+
+end program kernel_probe

@@ -1,0 +1,39 @@
+"""Fixtures that locate and run the kernel executables built by `make build`."""
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _executable(name: str) -> Path:
+    path = REPO / "bin" / name
+    if not path.exists():
+        pytest.fail(f"{path} is missing: run `make build` in {REPO} first")
+    return path
+
+
+def run_probe(*args: object) -> dict[str, float]:
+    """Run `bin/kernel_probe ARGS` and parse its "key value" lines."""
+    result = subprocess.run(
+        [str(_executable("kernel_probe")), *map(str, args)],
+        capture_output=True, text=True, check=True,
+    )
+    values: dict[str, float] = {}
+    for line in result.stdout.splitlines():
+        key, value = line.split()
+        values[key] = float(value)
+    return values
+
+
+@pytest.fixture(scope="session")
+def probe():
+    return run_probe
+
+
+@pytest.fixture(scope="session")
+def capsim() -> Path:
+    return _executable("capsim")
