@@ -23,12 +23,13 @@ PY      := $(VENV)/bin/python
 
 # Modules in dependency order (one concept per module, file name = module name).
 MODULES := capsim_kinds vector_algebra hdf5_writer sphere_mesh triangle_quadrature membrane_law \
-           membrane_forces stokes_single_layer surface_diagnostics
+           membrane_forces stokes_single_layer surface_diagnostics background_flow run_options \
+           case_output capsule_dynamics
 MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
 
 .PHONY: build setup system-deps venv test demo bench validate clean
 
-build: system-deps $(BIN)/kernel_probe $(BIN)/hdf5_writer_check
+build: system-deps $(BIN)/capsim $(BIN)/kernel_probe $(BIN)/hdf5_writer_check
 
 system-deps:
 	@bash scripts/setup-system.sh
@@ -71,6 +72,7 @@ test: setup
 
 demo: setup
 	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
+	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
 
 bench: system-deps venv
 	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'

@@ -25,6 +25,8 @@ module stokes_single_layer
       !> local vertex (1..3) at which the target sits (0 for a near, non-touching triangle).
       integer, allocatable :: corr_start(:), corr_tri(:), corr_vertex(:)
       type(quadrature_rule_t) :: near_rule
+      !> Subdivision levels of the near rule; -1 keeps the vertex rule on the next ring.
+      integer :: near_levels = 0
       type(quadrature_rule_t) :: duffy(3)
       ! Work arrays, allocated once (no allocation inside the time loop).
       real(dp), allocatable :: xs(:), ys(:), zs(:), qx(:), qy(:), qz(:)
@@ -46,7 +48,8 @@ contains
       integer :: i, p, q, t, k, j, n_corr, pass
 
       self%n_nodes = mesh%n_nodes
-      self%near_rule = dunavant7_rule(near_levels)
+      self%near_levels = near_levels
+      self%near_rule = dunavant7_rule(max(near_levels, 0))
       do k = 1, 3
          self%duffy(k) = duffy_rule(duffy_order, k)
       end do
@@ -155,37 +158,44 @@ contains
       !$omp parallel do default(none) shared(sl, mesh, x, f, u, n) private(i, acc, corr) schedule(static)
       do i = 1, n
          acc = 0.0_dp
-         call add_stokeslets(sl, x(:, i), 1, i - 1, acc)
-         call add_stokeslets(sl, x(:, i), i + 1, n, acc)
+         call add_stokeslets(n, sl%xs, sl%ys, sl%zs, sl%qx, sl%qy, sl%qz, x(:, i), 1, i - 1, acc)
+         call add_stokeslets(n, sl%xs, sl%ys, sl%zs, sl%qx, sl%qy, sl%qz, x(:, i), i + 1, n, acc)
          call near_correction(sl, mesh, x, f, i, corr)
          u(:, i) = (acc + corr) / (8.0_dp * pi)
       end do
       !$omp end parallel do
    end subroutine pair_sum_and_corrections
 
-   !> Hot loop: point Stokeslets j = j1..j2 at target xt, accumulated into acc.
-   pure subroutine add_stokeslets(sl, xt, j1, j2, acc)
-      type(single_layer_t), intent(in) :: sl
-      real(dp), intent(in) :: xt(3)
-      integer, intent(in) :: j1, j2
+   !> Hot loop: point Stokeslets j = j1..j2 at target xt, accumulated into acc. Explicit-shape
+   !> contiguous arrays and scalar target coordinates let the compiler vectorise it.
+   pure subroutine add_stokeslets(n, xs, ys, zs, qx, qy, qz, xt, j1, j2, acc)
+      integer, intent(in) :: n, j1, j2
+      real(dp), intent(in) :: xs(n), ys(n), zs(n), qx(n), qy(n), qz(n), xt(3)
       real(dp), intent(inout) :: acc(3)
       integer :: j
-      real(dp) :: dx, dy, dz, rinv, rinv3, proj, ax, ay, az
+      real(dp) :: x1, x2, x3, dx, dy, dz, rinv, rinv3, proj, ax, ay, az
+      x1 = xt(1)
+      x2 = xt(2)
+      x3 = xt(3)
       ax = 0.0_dp
       ay = 0.0_dp
       az = 0.0_dp
+      ! OpenMP simd lets the sums be reassociated (vectorised) without -ffast-math elsewhere.
+      !$omp simd reduction(+:ax, ay, az) private(dx, dy, dz, rinv, rinv3, proj)
       do j = j1, j2
-         dx = xt(1) - sl%xs(j)
-         dy = xt(2) - sl%ys(j)
-         dz = xt(3) - sl%zs(j)
+         dx = x1 - xs(j)
+         dy = x2 - ys(j)
+         dz = x3 - zs(j)
          rinv = 1.0_dp / sqrt(dx * dx + dy * dy + dz * dz)
          rinv3 = rinv * rinv * rinv
-         proj = (dx * sl%qx(j) + dy * sl%qy(j) + dz * sl%qz(j)) * rinv3
-         ax = ax + sl%qx(j) * rinv + dx * proj
-         ay = ay + sl%qy(j) * rinv + dy * proj
-         az = az + sl%qz(j) * rinv + dz * proj
+         proj = (dx * qx(j) + dy * qy(j) + dz * qz(j)) * rinv3
+         ax = ax + qx(j) * rinv + dx * proj
+         ay = ay + qy(j) * rinv + dy * proj
+         az = az + qz(j) * rinv + dz * proj
       end do
-      acc = acc + [ax, ay, az]
+      acc(1) = acc(1) + ax
+      acc(2) = acc(2) + ay
+      acc(3) = acc(3) + az
    end subroutine add_stokeslets
 
    !> Accurate integral minus vertex-rule contribution over the correction triangles of node i.
@@ -195,8 +205,8 @@ contains
       real(dp), intent(in) :: x(:, :), f(:, :)
       integer, intent(in) :: i
       real(dp), intent(out) :: corr(3)
-      integer :: p, t, k, m, v(3), corner
-      real(dp) :: xv(3, 3), fv(3, 3), y(3), fy(3), area
+      integer :: p, t, m, v(3), corner
+      real(dp) :: xv(3, 3), fv(3, 3), area
 
       corr = 0.0_dp
       do p = sl%corr_start(i), sl%corr_start(i + 1) - 1
@@ -210,20 +220,31 @@ contains
             if (v(m) /= i) corr = corr - (area / 3.0_dp) * stokeslet(x(:, i) - xv(:, m), fv(:, m))
          end do
          if (corner > 0) then
-            do k = 1, size(sl%duffy(corner)%weight)
-               y = matmul(xv, sl%duffy(corner)%bary(:, k))
-               fy = matmul(fv, sl%duffy(corner)%bary(:, k))
-               corr = corr + area * sl%duffy(corner)%weight(k) * stokeslet(x(:, i) - y, fy)
-            end do
-         else
-            do k = 1, size(sl%near_rule%weight)
-               y = matmul(xv, sl%near_rule%bary(:, k))
-               fy = matmul(fv, sl%near_rule%bary(:, k))
-               corr = corr + area * sl%near_rule%weight(k) * stokeslet(x(:, i) - y, fy)
-            end do
+            corr = corr + area * rule_integral(sl%duffy(corner), x(:, i), xv, fv)
+         else if (sl%near_levels >= 0) then
+            corr = corr + area * rule_integral(sl%near_rule, x(:, i), xv, fv)
          end if
       end do
    end subroutine near_correction
+
+   !> sum_q w_q J(xt - y_q) . f(y_q) over a barycentric rule on the triangle (xv, fv).
+   pure function rule_integral(rule, xt, xv, fv) result(acc)
+      type(quadrature_rule_t), intent(in) :: rule
+      real(dp), intent(in) :: xt(3), xv(3, 3), fv(3, 3)
+      real(dp) :: acc(3)
+      integer :: q
+      real(dp) :: b1, b2, b3, r(3), g(3), rinv
+      acc = 0.0_dp
+      do q = 1, size(rule%weight)
+         b1 = rule%bary(1, q)
+         b2 = rule%bary(2, q)
+         b3 = rule%bary(3, q)
+         r = xt - (b1 * xv(:, 1) + b2 * xv(:, 2) + b3 * xv(:, 3))
+         g = b1 * fv(:, 1) + b2 * fv(:, 2) + b3 * fv(:, 3)
+         rinv = 1.0_dp / sqrt(r(1)**2 + r(2)**2 + r(3)**2)
+         acc = acc + (rule%weight(q) * rinv) * (g + r * ((r(1) * g(1) + r(2) * g(2) + r(3) * g(3)) * rinv**2))
+      end do
+   end function rule_integral
 
    pure function stokeslet(r, g) result(w)
       real(dp), intent(in) :: r(3), g(3)

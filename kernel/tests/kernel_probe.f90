@@ -6,7 +6,8 @@
 !>   kernel_probe uniaxial LAW NU_S C LAMBDA1
 !>   kernel_probe fd-forces LAW NU_S C LEVEL
 !>   kernel_probe laplace LAW NU_S C LAMBDA LEVEL
-!>   kernel_probe translate LEVEL
+!>   kernel_probe translate LEVEL DUFFY_ORDER NEAR_LEVELS
+!>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
 program kernel_probe
    use capsim_kinds, only: dp, pi
    use sphere_mesh, only: surface_mesh_t, icosphere
@@ -27,8 +28,10 @@ program kernel_probe
       call probe_fd_forces(law_arg(2), int_arg(5))
    case ('laplace')
       call probe_laplace(law_arg(2), real_arg(5), int_arg(6))
+   case ('bench')
+      call probe_bench(int_arg(2), int_arg(3))
    case ('translate')
-      call probe_translate(int_arg(2))
+      call probe_translate(int_arg(2), int_arg(3), int_arg(4))
    case default
       write (*, '(a)') 'usage: kernel_probe mesh|uniaxial|fd-forces|laplace|translate ...'
       error stop 2
@@ -249,14 +252,14 @@ contains
    end subroutine probe_laplace
 
    !> Unit sphere with uniform force density f = e_z: translates at U = 2/3 (mu = a = 1).
-   subroutine probe_translate(level)
-      integer, intent(in) :: level
+   subroutine probe_translate(level, duffy_order, near_levels)
+      integer, intent(in) :: level, duffy_order, near_levels
       type(surface_mesh_t) :: mesh
       type(single_layer_t) :: sl
       real(dp), allocatable :: x(:, :), f(:, :), u(:, :)
       real(dp) :: exact
       call sphere(level, mesh, x)
-      call sl%init(mesh, 6, 1)
+      call sl%init(mesh, duffy_order, near_levels)
       allocate (f(3, mesh%n_nodes), u(3, mesh%n_nodes))
       f = 0
       f(3, :) = 1
@@ -268,6 +271,46 @@ contains
                                                           dim=1)) / exact
       write (*, '(a,es24.16)') 'pi_check ', pi
    end subroutine probe_translate
+
+   !> Timing of the hot path on a sheared capsule: one velocity evaluation (forces, single
+   !> layer, volume-flux correction) and one RK2 step, on the current OpenMP thread count.
+   subroutine probe_bench(level, repeats)
+      use omp_lib, only: omp_get_wtime, omp_get_max_threads
+      use capsule_dynamics, only: capsule_t
+      use run_options, only: run_options_t
+      integer, intent(in) :: level, repeats
+      type(capsule_t) :: cap
+      type(run_options_t) :: opts
+      integer :: k, stat
+      character(len=:), allocatable :: errmsg
+      real(dp) :: t0, t_velocity, t_step
+      real(dp), allocatable :: u(:, :)
+      opts%flow = 'shear'
+      opts%law = 'NH'
+      opts%ca = 0.1_dp
+      opts%level = level
+      call cap%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      allocate (u(3, cap%mesh%n_nodes))
+      ! A deformed state: a few steps first.
+      do k = 1, 3
+         call cap%rk2_step()
+      end do
+      t0 = omp_get_wtime()
+      do k = 1, repeats
+         call cap%velocity(cap%x, u)
+      end do
+      t_velocity = (omp_get_wtime() - t0) / repeats
+      t0 = omp_get_wtime()
+      do k = 1, repeats
+         call cap%rk2_step()
+      end do
+      t_step = (omp_get_wtime() - t0) / repeats
+      write (*, '(a,i0)') 'threads ', omp_get_max_threads()
+      write (*, '(a,i0)') 'n_nodes ', cap%mesh%n_nodes
+      write (*, '(a,es24.16)') 'velocity_s ', t_velocity
+      write (*, '(a,es24.16)') 'rk2_step_s ', t_step
+   end subroutine probe_bench
 
    subroutine random_seed_fixed()
       integer :: n

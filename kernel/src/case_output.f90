@@ -1,0 +1,185 @@
+!> Files of one run: the HDF5 case file (written whole to a temporary name, then renamed)
+!> and the binary checkpoint from which a killed run resumes.
+module case_output
+   use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
+   use capsim_kinds, only: dp, code_version, schema_version
+   use hdf5_writer, only: h5_file_t
+   use sphere_mesh, only: surface_mesh_t
+   use run_options, only: run_options_t
+   use membrane_law, only: membrane_law_t
+   implicit none
+   private
+   public :: n_history, history_names, case_summary_t, write_case_file, write_checkpoint, read_checkpoint, &
+             replace_file
+
+   !> Columns of the history table, in the order the dynamics records them.
+   integer, parameter :: n_history = 10
+   character(len=*), parameter :: history_names(n_history) = [character(len=16) :: &
+                                                              't', 'area', 'volume', 'D12', 'L1', 'L2', 'L3', &
+                                                              'theta', 'energy', 'max_stretch']
+   character(len=*), parameter :: history_units(n_history) = [character(len=16) :: &
+                                                              '1/gamma_dot', 'a^2', 'a^3', '1', 'a', 'a', 'a', &
+                                                              'rad', 'G_s a^2', '1']
+
+   !> What the run ends with: status, its reason, and timing.
+   type :: case_summary_t
+      character(len=32) :: status = 'failed'
+      character(len=:), allocatable :: message
+      real(dp) :: wall_time_s = 0
+      integer :: threads = 1
+      real(dp) :: dt = 0
+      real(dp) :: volume_change = 0
+   end type case_summary_t
+
+   interface
+      integer(c_int) function c_rename(old, new) bind(c, name='rename')
+         import :: c_char, c_int
+         character(kind=c_char), intent(in) :: old(*), new(*)
+      end function c_rename
+   end interface
+
+contains
+
+   !> Atomic replacement (POSIX rename): readers see the old file or the new one, never half.
+   subroutine replace_file(from, to, stat, errmsg)
+      character(len=*), intent(in) :: from, to
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      stat = 0
+      errmsg = ''
+      if (c_rename(from//c_null_char, to//c_null_char) /= 0) then
+         stat = 1
+         errmsg = 'cannot rename "'//from//'" to "'//to//'"'
+      end if
+   end subroutine replace_file
+
+   !> The case file as in DESIGN.md. `steady_row` (a history row) is given only for steady runs;
+   !> no steady numbers are written otherwise.
+   subroutine write_case_file(opts, law, summary, mesh, x_ref, x, history, profile_y, profile_z, &
+                              steady_row, stat, errmsg)
+      type(run_options_t), intent(in) :: opts
+      type(membrane_law_t), intent(in) :: law
+      type(case_summary_t), intent(in) :: summary
+      type(surface_mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: x_ref(:, :), x(:, :), history(:, :), profile_y(:), profile_z(:)
+      real(dp), intent(in), optional :: steady_row(:)
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      type(h5_file_t) :: f
+      character(len=:), allocatable :: tmp, close_msg
+      integer :: k, close_stat
+
+      tmp = trim(opts%out)//'.tmp'
+      call f%create(tmp, stat, errmsg)
+      if (stat /= 0) return
+      call write_all()
+      call f%close(close_stat, close_msg)
+      if (stat == 0 .and. close_stat /= 0) then
+         stat = close_stat
+         errmsg = close_msg
+      end if
+      if (stat /= 0) return
+      call replace_file(tmp, trim(opts%out), stat, errmsg)
+
+   contains
+
+      subroutine write_all()
+         call f%write_attr('/', 'schema_version', schema_version, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'code_version', code_version, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'flow', trim(opts%flow), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'law', law%name(), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'nu_s', law%nu_s, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'C', law%c, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'K_s_over_G_s', law%dilation_modulus(), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'Ca_s', opts%ca, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'mesh_level', opts%level, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'n_nodes', mesh%n_nodes, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'dt', summary%dt, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'status', trim(summary%status), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'message', summary%message, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'wall_time_s', summary%wall_time_s, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'threads', summary%threads, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'volume_change_rel', summary%volume_change, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'volume_correction', merge(1, 0, opts%volume_correction), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'length_scale', 'a (capsule radius)', stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'time_scale', '1/gamma_dot', stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'force_scale', 'G_s (surface shear modulus)', stat, errmsg)
+         if (stat == 0) call f%make_group('/history', stat, errmsg)
+         do k = 1, n_history
+            if (stat == 0) call f%write_dataset('/history/'//trim(history_names(k)), history(k, :), &
+                                                trim(history_units(k)), stat, errmsg)
+         end do
+         if (present(steady_row)) then
+            if (stat == 0) call f%make_group('/steady', stat, errmsg)
+            do k = 1, n_history
+               if (stat == 0) call f%write_dataset('/steady/'//trim(history_names(k)), steady_row(k), &
+                                                   trim(history_units(k)), stat, errmsg)
+            end do
+         end if
+         if (stat == 0) call f%make_group('/mesh', stat, errmsg)
+         if (stat == 0) call f%write_dataset('/mesh/reference_nodes', x_ref, 'a', stat, errmsg)
+         if (stat == 0) call f%write_dataset('/mesh/nodes', x, 'a', stat, errmsg)
+         if (stat == 0) call f%write_dataset('/mesh/triangles', mesh%tri - 1, '1', stat, errmsg)
+         if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
+         if (stat == 0) call f%make_group('/profile', stat, errmsg)
+         if (stat == 0) call f%write_attr('/profile', 'plane', 'x = x_centroid (shear plane yz)', stat, errmsg)
+         if (stat == 0) call f%write_dataset('/profile/y', profile_y, 'a', stat, errmsg)
+         if (stat == 0) call f%write_dataset('/profile/z', profile_z, 'a', stat, errmsg)
+      end subroutine write_all
+
+   end subroutine write_case_file
+
+   !> Binary checkpoint: signature, step, time, positions and the history so far.
+   subroutine write_checkpoint(path, signature, step, t, x, history, n_rec, stat, errmsg)
+      character(len=*), intent(in) :: path, signature
+      integer, intent(in) :: step, n_rec
+      real(dp), intent(in) :: t, x(:, :), history(:, :)
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      integer :: unit
+      character(len=256) :: iomsg
+      open (newunit=unit, file=path//'.tmp', access='stream', form='unformatted', status='replace', &
+            action='write', iostat=stat, iomsg=iomsg)
+      if (stat /= 0) then
+         errmsg = 'cannot write checkpoint "'//path//'.tmp": '//trim(iomsg)
+         return
+      end if
+      write (unit) len(signature), signature, step, t, size(x, 2), x, n_rec, history(:, 1:n_rec)
+      close (unit)
+      call replace_file(path//'.tmp', path, stat, errmsg)
+   end subroutine write_checkpoint
+
+   !> Reads a checkpoint if one exists for the same options; `found` is false otherwise.
+   subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, found)
+      character(len=*), intent(in) :: path, signature
+      integer, intent(inout) :: step, n_rec
+      real(dp), intent(inout) :: t, x(:, :), history(:, :)
+      logical, intent(out) :: found
+      integer :: unit, ios, sig_len, n_nodes, n_rec_file
+      character(len=:), allocatable :: sig_file
+      found = .false.
+      open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', &
+            iostat=ios)
+      if (ios /= 0) return
+      read (unit, iostat=ios) sig_len
+      if (ios == 0 .and. sig_len == len(signature)) then
+         allocate (character(len=sig_len) :: sig_file)
+         read (unit, iostat=ios) sig_file
+         if (ios == 0 .and. sig_file == signature) then
+            read (unit, iostat=ios) step, t, n_nodes
+            if (ios == 0 .and. n_nodes == size(x, 2)) then
+               read (unit, iostat=ios) x, n_rec_file
+               if (ios == 0 .and. n_rec_file <= size(history, 2)) then
+                  read (unit, iostat=ios) history(:, 1:n_rec_file)
+                  if (ios == 0) then
+                     n_rec = n_rec_file
+                     found = .true.
+                  end if
+               end if
+            end if
+         end if
+      end if
+      close (unit)
+   end subroutine read_checkpoint
+
+end module case_output

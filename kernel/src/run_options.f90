@@ -1,0 +1,341 @@
+!> Run parameters of capsim: read from the command line (and optionally a namelist file),
+!> validated field by field. Errors come back as (stat, errmsg) naming the field; the program
+!> turns them into one line on stderr and exit code 2.
+module run_options
+   use capsim_kinds, only: dp
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   implicit none
+   private
+   public :: run_options_t, parse_command_line, option_signature, usage_text
+
+   integer, parameter :: path_len = 1024
+
+   type :: run_options_t
+      character(len=16) :: flow = ''
+      character(len=16) :: law = ''
+      real(dp) :: nu_s = 0.5_dp
+      real(dp) :: c = 1.0_dp
+      real(dp) :: ca = -huge(1.0_dp)
+      integer :: level = 3
+      !> Time step; 0 selects dt_factor * Ca * h_min.
+      real(dp) :: dt = 0.0_dp
+      real(dp) :: dt_factor = 0.5_dp
+      real(dp) :: t_max = 60.0_dp
+      integer :: threads = 0
+      character(len=path_len) :: out = ''
+      !> Steady: area varies by less than steady_tol * 4 pi a**2 over one time unit, and D12
+      !> by less than shape_tol * D12 (+1e-4 absolute).
+      real(dp) :: steady_tol = 1.0e-3_dp
+      real(dp) :: shape_tol = 5.0e-3_dp
+      !> Continuous elongation is declared when L1 exceeds this [a].
+      real(dp) :: max_length = 3.0_dp
+      real(dp) :: record_every = 0.05_dp
+      !> Wall-clock seconds between checkpoints.
+      real(dp) :: checkpoint_every = 10.0_dp
+      !> Remove the discretisation's spurious net flux through the membrane (see capsule_dynamics).
+      logical :: volume_correction = .true.
+      logical :: quiet = .false.
+      logical :: show_help = .false.
+   end type run_options_t
+
+   character(len=*), parameter :: usage_text = &
+      'usage: capsim --flow shear --law NH|SK|GH [--nu-s X] [--C X] --ca X [--level N] [--dt X]'// &
+      ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
+      ' --out FILE.h5'// &
+      '  (or --namelist FILE with group &capsim)'
+
+contains
+
+   subroutine parse_command_line(opts, stat, errmsg)
+      type(run_options_t), intent(out) :: opts
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      integer :: k, n, eq
+      character(len=path_len) :: arg, key, value
+      logical :: has_value
+
+      stat = 0
+      errmsg = ''
+      n = command_argument_count()
+      ! A namelist file is read first so that flags given beside it override it.
+      k = 1
+      do while (k <= n)
+         call get_command_argument(k, arg)
+         if (trim(arg) == '--namelist') then
+            if (k == n) then
+               call fail('--namelist', 'needs a file name')
+               return
+            end if
+            call get_command_argument(k + 1, value)
+            call read_namelist(trim(value), opts, stat, errmsg)
+            if (stat /= 0) return
+         end if
+         k = k + 1
+      end do
+      k = 1
+      do while (k <= n)
+         call get_command_argument(k, arg)
+         eq = index(arg, '=')
+         if (arg(1:2) /= '--') then
+            call fail(trim(arg), 'unexpected argument (options start with --)')
+            return
+         end if
+         if (eq > 0) then
+            key = arg(:eq - 1)
+            value = arg(eq + 1:)
+            has_value = .true.
+         else
+            key = arg
+            has_value = .false.
+         end if
+         select case (trim(key))
+         case ('--help', '-h')
+            opts%show_help = .true.
+            k = k + 1
+            cycle
+         case ('--quiet')
+            opts%quiet = .true.
+            k = k + 1
+            cycle
+         end select
+         if (.not. has_value) then
+            if (k == n) then
+               call fail(trim(key), 'needs a value')
+               return
+            end if
+            call get_command_argument(k + 1, value)
+            k = k + 1
+         end if
+         k = k + 1
+         select case (trim(key))
+         case ('--namelist')
+            continue
+         case ('--flow')
+            opts%flow = value(:len(opts%flow))
+         case ('--law')
+            opts%law = value(:len(opts%law))
+         case ('--out')
+            opts%out = value
+         case ('--nu-s')
+            call read_real(key, value, opts%nu_s)
+         case ('--C')
+            call read_real(key, value, opts%c)
+         case ('--ca')
+            call read_real(key, value, opts%ca)
+         case ('--dt')
+            call read_real(key, value, opts%dt)
+         case ('--dt-factor')
+            call read_real(key, value, opts%dt_factor)
+         case ('--t-max')
+            call read_real(key, value, opts%t_max)
+         case ('--steady-tol')
+            call read_real(key, value, opts%steady_tol)
+         case ('--max-length')
+            call read_real(key, value, opts%max_length)
+         case ('--record-every')
+            call read_real(key, value, opts%record_every)
+         case ('--checkpoint-every')
+            call read_real(key, value, opts%checkpoint_every)
+         case ('--volume-correction')
+            select case (trim(value))
+            case ('on', '1', 'yes')
+               opts%volume_correction = .true.
+            case ('off', '0', 'no')
+               opts%volume_correction = .false.
+            case default
+               call fail(trim(key), 'expected on or off, got "'//trim(value)//'"')
+            end select
+         case ('--level')
+            call read_int(key, value, opts%level)
+         case ('--threads')
+            call read_int(key, value, opts%threads)
+         case default
+            call fail(trim(key), 'unknown option')
+         end select
+         if (stat /= 0) return
+      end do
+      if (opts%show_help) return
+      call validate(opts, stat, errmsg)
+
+   contains
+
+      subroutine fail(field, reason)
+         character(len=*), intent(in) :: field, reason
+         stat = 2
+         errmsg = field//': '//reason
+      end subroutine fail
+
+      subroutine read_real(field, text, x)
+         character(len=*), intent(in) :: field, text
+         real(dp), intent(inout) :: x
+         integer :: ios
+         read (text, *, iostat=ios) x
+         if (ios /= 0 .or. len_trim(text) == 0) then
+            call fail(trim(field), 'not a number: "'//trim(text)//'"')
+         else if (.not. ieee_is_finite(x)) then
+            call fail(trim(field), 'must be finite (got "'//trim(text)//'")')
+         end if
+      end subroutine read_real
+
+      subroutine read_int(field, text, i)
+         character(len=*), intent(in) :: field, text
+         integer, intent(inout) :: i
+         integer :: ios
+         read (text, *, iostat=ios) i
+         if (ios /= 0 .or. len_trim(text) == 0 .or. verify(trim(adjustl(text)), '+-0123456789') /= 0) &
+            call fail(trim(field), 'not an integer: "'//trim(text)//'"')
+      end subroutine read_int
+
+   end subroutine parse_command_line
+
+   subroutine read_namelist(path, opts, stat, errmsg)
+      character(len=*), intent(in) :: path
+      type(run_options_t), intent(inout) :: opts
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      character(len=16) :: flow, law
+      character(len=path_len) :: out
+      real(dp) :: nu_s, c, ca, dt, t_max
+      integer :: level, threads, unit, ios
+      character(len=256) :: iomsg
+      namelist /capsim/ flow, law, nu_s, c, ca, level, dt, t_max, threads, out
+
+      stat = 0
+      errmsg = ''
+      flow = opts%flow
+      law = opts%law
+      nu_s = opts%nu_s
+      c = opts%c
+      ca = opts%ca
+      level = opts%level
+      dt = opts%dt
+      t_max = opts%t_max
+      threads = opts%threads
+      out = opts%out
+      open (newunit=unit, file=path, status='old', action='read', iostat=ios, iomsg=iomsg)
+      if (ios /= 0) then
+         stat = 2
+         errmsg = '--namelist: cannot open "'//path//'": '//trim(iomsg)
+         return
+      end if
+      read (unit, nml=capsim, iostat=ios, iomsg=iomsg)
+      close (unit)
+      if (ios /= 0) then
+         stat = 2
+         errmsg = '--namelist: cannot read group &capsim in "'//path//'": '//trim(iomsg)
+         return
+      end if
+      opts%flow = flow
+      opts%law = law
+      opts%nu_s = nu_s
+      opts%c = c
+      opts%ca = ca
+      opts%level = level
+      opts%dt = dt
+      opts%t_max = t_max
+      opts%threads = threads
+      opts%out = out
+   end subroutine read_namelist
+
+   subroutine validate(opts, stat, errmsg)
+      type(run_options_t), intent(in) :: opts
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      integer :: unit, ios
+      character(len=256) :: iomsg
+
+      stat = 2
+      errmsg = ''
+      select case (trim(opts%flow))
+      case ('shear')
+      case ('')
+         errmsg = '--flow: missing (expected shear)'
+         return
+      case ('tube')
+         errmsg = '--flow: tube flow is not available yet in this version (expected shear)'
+         return
+      case default
+         errmsg = '--flow: unknown flow "'//trim(opts%flow)//'" (expected shear)'
+         return
+      end select
+      select case (trim(opts%law))
+      case ('NH', 'SK', 'GH')
+      case ('')
+         errmsg = '--law: missing (expected NH, SK or GH)'
+         return
+      case default
+         errmsg = '--law: unknown membrane law "'//trim(opts%law)//'" (expected NH, SK or GH)'
+         return
+      end select
+      if (.not. (opts%nu_s > -1.0_dp .and. opts%nu_s < 1.0_dp)) then
+         errmsg = '--nu-s: must lie in (-1, 1), got '//real_text(opts%nu_s)
+      else if (.not. (opts%c > -0.5_dp)) then
+         errmsg = '--C: must be > -0.5 so that K_s = (1 + 2C) G_s > 0, got '//real_text(opts%c)
+      else if (opts%ca == -huge(1.0_dp)) then
+         errmsg = '--ca: missing (capillary number Ca_s > 0)'
+      else if (.not. (opts%ca > 0.0_dp)) then
+         errmsg = '--ca: must be > 0, got '//real_text(opts%ca)
+      else if (opts%ca > 100.0_dp) then
+         errmsg = '--ca: must be <= 100 (no membrane law supports a larger value), got '//real_text(opts%ca)
+      else if (opts%level < 1 .or. opts%level > 5) then
+         errmsg = '--level: must be between 1 and 5 (level 4 = 2562 nodes), got '//int_text(opts%level)
+      else if (opts%dt < 0.0_dp) then
+         errmsg = '--dt: must be > 0 (or 0 for automatic), got '//real_text(opts%dt)
+      else if (.not. (opts%dt_factor > 0.0_dp)) then
+         errmsg = '--dt-factor: must be > 0, got '//real_text(opts%dt_factor)
+      else if (.not. (opts%t_max > 0.0_dp)) then
+         errmsg = '--t-max: must be > 0, got '//real_text(opts%t_max)
+      else if (opts%dt > 0.0_dp .and. opts%dt > opts%t_max) then
+         errmsg = '--dt: must not exceed --t-max'
+      else if (opts%threads < 0) then
+         errmsg = '--threads: must be >= 0 (0 = OpenMP default), got '//int_text(opts%threads)
+      else if (.not. (opts%steady_tol > 0.0_dp)) then
+         errmsg = '--steady-tol: must be > 0, got '//real_text(opts%steady_tol)
+      else if (.not. (opts%max_length > 1.0_dp)) then
+         errmsg = '--max-length: must be > 1 (capsule radii), got '//real_text(opts%max_length)
+      else if (.not. (opts%record_every > 0.0_dp)) then
+         errmsg = '--record-every: must be > 0, got '//real_text(opts%record_every)
+      else if (.not. (opts%checkpoint_every > 0.0_dp)) then
+         errmsg = '--checkpoint-every: must be > 0 seconds, got '//real_text(opts%checkpoint_every)
+      else if (len_trim(opts%out) == 0) then
+         errmsg = '--out: missing (path of the HDF5 case file to write)'
+      end if
+      if (len(errmsg) > 0) return
+      ! Fail now, not after hours of computing, if the output cannot be written.
+      open (newunit=unit, file=trim(opts%out)//'.tmp', status='replace', action='write', iostat=ios, iomsg=iomsg)
+      if (ios /= 0) then
+         errmsg = '--out: cannot write "'//trim(opts%out)//'": '//trim(iomsg)
+         return
+      end if
+      close (unit, status='delete')
+      stat = 0
+   end subroutine validate
+
+   !> Everything that determines the result: a checkpoint is resumed only if this matches.
+   function option_signature(opts) result(sig)
+      type(run_options_t), intent(in) :: opts
+      character(len=:), allocatable :: sig
+      character(len=512) :: buf
+      write (buf, '(a,1x,a,6(1x,es23.16),1x,i0,3(1x,es23.16),1x,l1)') trim(opts%flow), trim(opts%law), &
+         opts%nu_s, opts%c, opts%ca, opts%dt, opts%dt_factor, opts%steady_tol, opts%level, &
+         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction
+      sig = trim(buf)
+   end function option_signature
+
+   function real_text(x) result(s)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: s
+      character(len=32) :: buf
+      write (buf, '(g0.6)') x
+      s = trim(adjustl(buf))
+   end function real_text
+
+   function int_text(i) result(s)
+      integer, intent(in) :: i
+      character(len=:), allocatable :: s
+      character(len=16) :: buf
+      write (buf, '(i0)') i
+      s = trim(buf)
+   end function int_text
+
+end module run_options
