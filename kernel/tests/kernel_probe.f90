@@ -7,6 +7,8 @@
 !>   kernel_probe fd-forces LAW NU_S C LEVEL
 !>   kernel_probe laplace LAW NU_S C LAMBDA LEVEL
 !>   kernel_probe translate LEVEL DUFFY_ORDER NEAR_LEVELS
+!>   kernel_probe axi-fd LAW NU_S C N_ELEMENTS
+!>   kernel_probe axi-laplace LAW NU_S C LAMBDA N_ELEMENTS
 !>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
 program kernel_probe
    use capsim_kinds, only: dp, pi
@@ -28,6 +30,10 @@ program kernel_probe
       call probe_fd_forces(law_arg(2), int_arg(5))
    case ('laplace')
       call probe_laplace(law_arg(2), real_arg(5), int_arg(6))
+   case ('axi-fd')
+      call probe_axi_fd(law_arg(2), int_arg(5))
+   case ('axi-laplace')
+      call probe_axi_laplace(law_arg(2), real_arg(5), int_arg(6))
    case ('bench')
       call probe_bench(int_arg(2), int_arg(3))
    case ('translate')
@@ -311,6 +317,93 @@ contains
       write (*, '(a,es24.16)') 'velocity_s ', t_velocity
       write (*, '(a,es24.16)') 'rk2_step_s ', t_step
    end subroutine probe_bench
+
+   !> Unit-sphere meridian with n elements, equal steps in polar angle, front pole first.
+   function sphere_meridian(n) result(rz)
+      integer, intent(in) :: n
+      real(dp) :: rz(2, n + 1)
+      integer :: k
+      do k = 0, n
+         rz(:, k + 1) = [sin(pi * k / n), cos(pi * k / n)]
+      end do
+      rz(1, 1) = 0.0_dp
+      rz(1, n + 1) = 0.0_dp
+   end function sphere_meridian
+
+   !> Axisymmetric ring forces against finite differences of the energy, rigid axial
+   !> translation, and the volume gradient against finite differences of the volume.
+   subroutine probe_axi_fd(law, n)
+      use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_area_volume, &
+                                       meridian_volume_gradient
+      type(membrane_law_t), intent(in) :: law
+      integer, intent(in) :: n
+      type(meridian_reference_t) :: ref
+      real(dp) :: rz0(2, n + 1), rz(2, n + 1), xp(2, n + 1), force(2, n + 1), f2(2, n + 1), grad(2, n + 1)
+      real(dp) :: noise(2, n + 1), energy, ep, em, err, err_v, eps, a, v, vp, vm, scale
+      integer :: k, c
+      rz0 = sphere_meridian(n)
+      call ref%init(rz0)
+      call random_seed_fixed()
+      call random_number(noise)
+      rz(1, :) = 0.8_dp * rz0(1, :)
+      rz(2, :) = 1.5_dp * rz0(2, :) + 0.2_dp * rz0(1, :)**2
+      rz = rz + 0.02_dp * (noise - 0.5_dp)
+      rz(1, 1) = 0.0_dp
+      rz(1, n + 1) = 0.0_dp
+      call meridian_forces(ref, law, rz, force, energy)
+      call meridian_volume_gradient(rz, grad)
+      scale = maxval(abs(force))
+      eps = 1.0e-6_dp
+      err = 0
+      err_v = 0
+      do k = 1, n + 1
+         do c = 1, 2
+            if (c == 1 .and. (k == 1 .or. k == n + 1)) cycle     ! poles stay on the axis
+            xp = rz
+            xp(c, k) = rz(c, k) + eps
+            call meridian_forces(ref, law, xp, f2, ep)
+            call meridian_area_volume(xp, a, vp)
+            xp(c, k) = rz(c, k) - eps
+            call meridian_forces(ref, law, xp, f2, em)
+            call meridian_area_volume(xp, a, vm)
+            err = max(err, abs(-(ep - em) / (2 * eps) - force(c, k)))
+            err_v = max(err_v, abs((vp - vm) / (2 * eps) - grad(c, k)))
+         end do
+      end do
+      write (*, '(a,es24.16)') 'fd_max_error_rel ', err / scale
+      write (*, '(a,es24.16)') 'volume_gradient_error ', err_v
+      write (*, '(a,es24.16)') 'net_axial_force_rel ', abs(sum(force(2, :))) / scale
+      xp = rz0
+      xp(2, :) = xp(2, :) + 0.7_dp
+      call meridian_forces(ref, law, xp, f2, energy)
+      write (*, '(a,es24.16)') 'rigid_max_force ', maxval(abs(f2))
+      call meridian_area_volume(rz0, a, v)
+      write (*, '(a,es24.16)') 'sphere_area ', a
+      write (*, '(a,es24.16)') 'sphere_volume ', v
+   end subroutine probe_axi_fd
+
+   !> Inflated sphere, axisymmetric: force density F_k/A_k against the Laplace pressure 2T/R.
+   subroutine probe_axi_laplace(law, lambda, n)
+      use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_node_areas
+      type(membrane_law_t), intent(in) :: law
+      real(dp), intent(in) :: lambda
+      integer, intent(in) :: n
+      type(meridian_reference_t) :: ref
+      real(dp) :: rz0(2, n + 1), force(2, n + 1), area(n + 1), fn(n + 1), energy, t1, t2, pressure
+      integer :: k
+      rz0 = sphere_meridian(n)
+      call ref%init(rz0)
+      call meridian_forces(ref, law, lambda * rz0, force, energy)
+      call meridian_node_areas(lambda * rz0, area)
+      call law%tensions(lambda, lambda, t1, t2)
+      pressure = 2.0_dp * t1 / lambda
+      do k = 1, n + 1
+         fn(k) = -dot_product(force(:, k), rz0(:, k)) / area(k)
+      end do
+      ! Poles: only the axial component exists; it is the normal one there.
+      write (*, '(a,es24.16)') 'pressure_max_rel_error_interior ', maxval(abs(fn(2:n) / pressure - 1.0_dp))
+      write (*, '(a,es24.16)') 'pressure_rel_error_pole ', abs(fn(1) / pressure - 1.0_dp)
+   end subroutine probe_axi_laplace
 
    subroutine random_seed_fixed()
       integer :: n
