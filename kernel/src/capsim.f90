@@ -4,18 +4,19 @@ program capsim
    use, intrinsic :: iso_fortran_env, only: error_unit
    use omp_lib, only: omp_set_num_threads, omp_get_max_threads
    use capsim_kinds, only: dp
+   use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t, parse_command_line, usage_text
-   use case_output, only: case_summary_t, write_case_file
+   use case_output, only: case_summary_t, open_case_file, close_case_file
+   use capsule_model, only: capsule_model_t
    use capsule_dynamics, only: capsule_t
-   use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
+   use axisymmetric_tube, only: axisymmetric_tube_t
    implicit none
 
    type(run_options_t) :: opts
-   type(capsule_t) :: capsule
+   class(capsule_model_t), allocatable :: model
    type(case_summary_t) :: summary
-   type(shape_measures_t) :: final_shape
+   type(h5_file_t) :: f
    character(len=:), allocatable :: errmsg, checkpoint_path
-   real(dp), allocatable :: profile_y(:), profile_z(:)
    integer :: stat, steady_index, unit, ios
    integer(8) :: clock_start, clock_end, clock_rate
 
@@ -28,28 +29,37 @@ program capsim
    if (opts%threads > 0) call omp_set_num_threads(opts%threads)
    call system_clock(clock_start, clock_rate)
 
-   call capsule%init(opts, stat, errmsg)
+   if (trim(opts%flow) == 'tube') then
+      allocate (axisymmetric_tube_t :: model)
+   else
+      allocate (capsule_t :: model)
+   end if
+   select type (model)
+   type is (capsule_t)
+      call model%init(opts, stat, errmsg)
+   type is (axisymmetric_tube_t)
+      call model%init(opts, stat, errmsg)
+   end select
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
    if (.not. opts%quiet) then
-      write (*, '(a,i0,a,i0,a,es9.2,a,i0,a)') 'capsim: ', capsule%mesh%n_nodes, ' nodes, ', capsule%mesh%n_tri, &
-         ' triangles, dt = ', capsule%dt, ', ', omp_get_max_threads(), ' threads'
+      write (*, '(a,i0,a,es9.2,a,i0,a)') 'capsim: ', model%state_size(), ' degrees of freedom, dt = ', model%dt, &
+         ', ', omp_get_max_threads(), ' threads'
    end if
    checkpoint_path = trim(opts%out)//'.ckpt'
-   call capsule%run(opts, checkpoint_path, summary, steady_index)
+   call model%run(opts, checkpoint_path, summary, steady_index)
    call system_clock(clock_end)
    summary%wall_time_s = real(clock_end - clock_start, dp) / clock_rate
    summary%threads = omp_get_max_threads()
 
-   call shape_measures(capsule%mesh, capsule%x, final_shape)
-   call shear_plane_contour(capsule%mesh, capsule%x, final_shape%centroid, profile_y, profile_z)
    if (steady_index > 0) then
-      call write_case_file(opts, capsule%law, summary, capsule%mesh, capsule%x_ref, capsule%x, &
-                           capsule%history(:, 1:capsule%n_rec), profile_y, profile_z, &
-                           capsule%history(:, steady_index), stat=stat, errmsg=errmsg)
+      call open_case_file(opts, model%law, summary, model%history_names, model%history_units, &
+                          model%history(:, 1:model%n_rec), f, stat, errmsg, model%history(:, steady_index))
    else
-      call write_case_file(opts, capsule%law, summary, capsule%mesh, capsule%x_ref, capsule%x, &
-                           capsule%history(:, 1:capsule%n_rec), profile_y, profile_z, stat=stat, errmsg=errmsg)
+      call open_case_file(opts, model%law, summary, model%history_names, model%history_units, &
+                          model%history(:, 1:model%n_rec), f, stat, errmsg)
    end if
+   if (stat == 0) call model%write_geometry(f, stat, errmsg)
+   if (stat == 0) call close_case_file(f, opts, stat, errmsg)
    if (stat /= 0) call die('capsim: error: writing the case file: '//errmsg, 1)
    ! The case file is complete: the checkpoint has served its purpose.
    open (newunit=unit, file=checkpoint_path, status='old', iostat=ios)

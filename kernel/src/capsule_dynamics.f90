@@ -1,45 +1,41 @@
-!> One capsule in Stokes flow: the membrane (P1 forces) coupled to the fluid (single layer,
-!> viscosity ratio 1), advanced by RK2 (Heun) until a steady state, a continuous elongation,
-!> a mesh breakdown or the time limit.
+!> One capsule in unbounded simple shear flow, 3D: the membrane (P1 forces) coupled to the
+!> fluid (single layer, viscosity ratio 1), advanced by RK2 (Heun). The time loop and the
+!> classification of the run are capsule_model's.
 !>
 !> Non-dimensional velocity of the membrane nodes (lengths in a, time in 1/gamma_dot,
 !> forces in G_s):  v = v_inf + 1/(8 pi Ca) integral J . f dS,  f = F/A_node, F = -dE/dx.
 module capsule_dynamics
-   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use capsim_kinds, only: dp, pi
    use vector_algebra, only: cross
+   use hdf5_writer, only: h5_file_t
    use sphere_mesh, only: surface_mesh_t, icosphere
-   use membrane_law, only: membrane_law_t, make_membrane_law
+   use membrane_law, only: make_membrane_law
    use membrane_forces, only: membrane_reference_t, membrane_nodal_forces, principal_stretches
    use stokes_single_layer, only: single_layer_t, triangle_areas, node_areas
-   use surface_diagnostics, only: shape_measures_t, shape_measures
+   use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
-   use run_options, only: run_options_t, option_signature
-   use case_output, only: n_history, case_summary_t, write_checkpoint, read_checkpoint
+   use run_options, only: run_options_t
+   use capsule_model, only: capsule_model_t
    implicit none
    private
-   public :: capsule_t, t_min_steady
+   public :: capsule_t
 
-   !> Column indices of the history table (names in case_output).
-   integer, parameter, public :: h_t = 1, h_area = 2, h_volume = 3, h_d12 = 4, h_l1 = 5, h_l2 = 6, h_l3 = 7, &
-                                 h_theta = 8, h_energy = 9, h_stretch = 10
-   !> A steady state is not declared before this time: the first unit holds the start-up.
-   real(dp), parameter :: t_min_steady = 2.0_dp
-   !> Largest principal stretch a P1 triangle may reach before the mesh is declared broken.
-   real(dp), parameter :: max_element_stretch = 15.0_dp
+   !> Columns of the history table.
+   integer, parameter :: h_t = 1, h_area = 2, h_volume = 3, h_d12 = 4, h_l1 = 5, h_l2 = 6, h_l3 = 7, &
+                         h_theta = 8, h_energy = 9, h_stretch = 10
+   character(len=*), parameter :: shear_history_names(10) = [character(len=16) :: &
+                                  't', 'area', 'volume', 'D12', 'L1', 'L2', 'L3', 'theta', 'energy', 'max_stretch']
+   character(len=*), parameter :: shear_history_units(10) = [character(len=16) :: &
+                                  '1/gamma_dot', 'a^2', 'a^3', '1', 'a', 'a', 'a', 'rad', 'G_s a^2', '1']
 
-   type :: capsule_t
+   type, extends(capsule_model_t) :: capsule_t
       type(surface_mesh_t) :: mesh
-      type(membrane_law_t) :: law
       type(membrane_reference_t) :: ref
       type(single_layer_t) :: single_layer
       integer :: flow = flow_shear
-      real(dp) :: ca = 0, dt = 0, t = 0, h_min = 0, energy = 0
-      integer :: step = 0
+      real(dp) :: ca = 0, h_min = 0, energy = 0
       real(dp), allocatable :: x_ref(:, :), x(:, :)
       logical :: volume_correction = .true.
-      real(dp), allocatable :: history(:, :)
-      integer :: n_rec = 0
       ! Work arrays allocated once by init: the time loop allocates nothing.
       real(dp), allocatable :: x_pred(:, :), u0(:, :), u1(:, :), force(:, :), density(:, :), v_inf(:, :)
       real(dp), allocatable :: tri_area(:), node_area(:)
@@ -48,7 +44,12 @@ module capsule_dynamics
       procedure :: velocity
       procedure :: rk2_step
       procedure :: record
-      procedure :: run
+      procedure :: reset
+      procedure :: state_size
+      procedure :: get_state
+      procedure :: set_state
+      procedure :: progress_text
+      procedure :: write_geometry
    end type capsule_t
 
 contains
@@ -58,7 +59,7 @@ contains
       type(run_options_t), intent(in) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      integer :: n, t, k, capacity
+      integer :: n, t, k
       real(dp) :: h
 
       call icosphere(opts%level, self%mesh, self%x_ref, stat, errmsg)
@@ -89,9 +90,12 @@ contains
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.02_dp)
       end if
-      capacity = ceiling(opts%t_max / max(opts%record_every, self%dt)) + 16
-      allocate (self%history(n_history, capacity))
-      self%history = 0
+      call self%allocate_history(shear_history_names, shear_history_units, opts%t_max, opts%record_every)
+      self%col_length = h_l1
+      self%col_stretch = h_stretch
+      self%col_shape = [h_d12]
+      self%area_scale = 4 * pi
+      self%length_limit = opts%max_length
    end subroutine init
 
    !> Membrane velocity at positions x.
@@ -174,172 +178,64 @@ contains
       self%history(:, self%n_rec) = [self%t, m%area, m%volume, m%d12, m%l1, m%l2, m%l3, m%theta, energy, stretch]
    end subroutine record
 
-   !> Advance until a final status; checkpoints to `checkpoint_path` every
-   !> opts%checkpoint_every wall seconds and resumes from it if it matches the options.
-   subroutine run(self, opts, checkpoint_path, summary, steady_index)
+   subroutine reset(self)
       class(capsule_t), intent(inout) :: self
-      type(run_options_t), intent(in) :: opts
-      character(len=*), intent(in) :: checkpoint_path
-      type(case_summary_t), intent(inout) :: summary
-      integer, intent(out) :: steady_index
-      integer(8) :: clock_start, clock_now, clock_rate, clock_ckpt, clock_print
-      real(dp) :: t_next_record, v0
-      character(len=:), allocatable :: signature, errmsg
-      logical :: resumed, decided
-      integer :: stat
+      self%x = self%x_ref
+   end subroutine reset
 
-      steady_index = 0
-      summary%dt = self%dt
-      signature = option_signature(opts)
-      call read_checkpoint(checkpoint_path, signature, self%step, self%t, self%x, self%history, self%n_rec, resumed)
-      if (resumed) then
-         if (.not. opts%quiet) write (*, '(a,f0.3)') 'capsim: resumed from checkpoint at t = ', self%t
-      else
-         self%x = self%x_ref
-         self%t = 0
-         self%step = 0
-         self%n_rec = 0
-         call self%record()
-      end if
-      v0 = self%history(h_volume, 1)
-      t_next_record = next_record_time(self%history(h_t, self%n_rec), opts%record_every)
-      call system_clock(clock_start, clock_rate)
-      clock_ckpt = clock_start
-      clock_print = clock_start
-      decided = .false.
-      do while (self%t < opts%t_max - 0.5_dp * self%dt)
-         call self%rk2_step()
-         if (.not. all(ieee_is_finite(self%x))) then
-            summary%status = 'failed'
-            summary%message = 'non-finite node positions at t = '//num(self%t)//' (time step too large?)'
-            decided = .true.
-            exit
-         end if
-         if (self%t >= t_next_record - 1.0e-9_dp) then
-            call self%record()
-            t_next_record = next_record_time(self%t, opts%record_every)
-            call classify(self, opts, summary, decided)
-            if (decided) exit
-         end if
-         call system_clock(clock_now)
-         if (real(clock_now - clock_ckpt, dp) / clock_rate >= opts%checkpoint_every) then
-            call write_checkpoint(checkpoint_path, signature, self%step, self%t, self%x, self%history, &
-                                  self%n_rec, stat, errmsg)
-            if (stat /= 0 .and. .not. opts%quiet) write (*, '(a)') 'capsim: warning: '//errmsg
-            clock_ckpt = clock_now
-         end if
-         if (.not. opts%quiet .and. real(clock_now - clock_print, dp) / clock_rate >= 2.0_dp) then
-            write (*, '(a,f9.3,a,f0.1,a,f8.5,a,f8.4,a,f7.3)') 'capsim: t = ', self%t, ' / ', opts%t_max, &
-               '  D12 = ', self%history(h_d12, self%n_rec), '  L1/a = ', self%history(h_l1, self%n_rec), &
-               '  area/4pi = ', self%history(h_area, self%n_rec) / (4 * pi)
-            flush (6)
-            clock_print = clock_now
-         end if
+   pure integer function state_size(self)
+      class(capsule_t), intent(in) :: self
+      state_size = size(self%x)
+   end function state_size
+
+   !> Positions as one vector (checkpoints); explicit loops, no temporary.
+   subroutine get_state(self, state)
+      class(capsule_t), intent(in) :: self
+      real(dp), intent(out) :: state(:)
+      integer :: i
+      do i = 1, size(self%x, 2)
+         state(3 * i - 2:3 * i) = self%x(:, i)
       end do
-      if (.not. decided) call classify_at_time_limit(self, opts, summary)
-      if (trim(summary%status) == 'steady') steady_index = self%n_rec
-      summary%volume_change = self%history(h_volume, self%n_rec) / v0 - 1.0_dp
-   end subroutine run
+   end subroutine get_state
 
-   !> Steady, continuous elongation or mesh breakdown, from the history so far.
-   subroutine classify(self, opts, summary, decided)
-      type(capsule_t), intent(in) :: self
-      type(run_options_t), intent(in) :: opts
-      type(case_summary_t), intent(inout) :: summary
-      logical, intent(out) :: decided
-      integer :: first, n
-      real(dp) :: t_now, area_var, d12_var, d12_now, growth
-
-      decided = .false.
-      n = self%n_rec
-      t_now = self%history(h_t, n)
-      if (self%history(h_l1, n) > opts%max_length) then
-         summary%status = 'continuous_elongation'
-         summary%message = 'L1/a exceeded '//num(opts%max_length)//' at t = '//num(t_now)// &
-                           ': the capsule elongates without reaching a steady shape'
-         decided = .true.
-         return
-      end if
-      first = window_start(self, t_now - 1.0_dp)
-      if (self%history(h_stretch, n) > max_element_stretch) then
-         growth = self%history(h_l1, n) - self%history(h_l1, first)
-         if (growth > 0.01_dp) then
-            summary%status = 'continuous_elongation'
-            summary%message = 'mesh broke down at t = '//num(t_now)//' while L1/a grew by '//num(growth)// &
-                              ' over the last time unit: no steady shape'
-         else
-            summary%status = 'failed'
-            summary%message = 'mesh breakdown at t = '//num(t_now)//' (element stretch above '// &
-                              num(max_element_stretch)//')'
-         end if
-         decided = .true.
-         return
-      end if
-      if (t_now < t_min_steady .or. self%history(h_t, 1) > t_now - 1.0_dp) return
-      area_var = maxval(self%history(h_area, first:n)) - minval(self%history(h_area, first:n))
-      d12_var = maxval(self%history(h_d12, first:n)) - minval(self%history(h_d12, first:n))
-      d12_now = self%history(h_d12, n)
-      if (area_var < opts%steady_tol * 4 * pi .and. d12_var < opts%shape_tol * d12_now + 1.0e-4_dp) then
-         summary%status = 'steady'
-         summary%message = 'over the last time unit area varied by '//num(area_var / (4 * pi))// &
-                           ' x 4 pi a^2 and D12 by '//num(d12_var)
-         decided = .true.
-      end if
-   end subroutine classify
-
-   !> At t_max: continuous elongation if L1 still grows without slowing down (growth over the
-   !> last time unit at least half that over the one before) after a run long enough to judge.
-   subroutine classify_at_time_limit(self, opts, summary)
-      type(capsule_t), intent(in) :: self
-      type(run_options_t), intent(in) :: opts
-      type(case_summary_t), intent(inout) :: summary
-      real(dp), parameter :: min_time_to_judge = 5.0_dp
-      integer :: last, mid, first
-      real(dp) :: t_now, growth_last, growth_before
-      last = self%n_rec
-      t_now = self%history(h_t, last)
-      mid = window_start(self, t_now - 1.0_dp)
-      first = window_start(self, t_now - 2.0_dp)
-      growth_last = self%history(h_l1, last) - self%history(h_l1, mid)
-      growth_before = self%history(h_l1, mid) - self%history(h_l1, first)
-      if (t_now >= min_time_to_judge .and. growth_last > opts%shape_tol * self%history(h_l1, last) .and. &
-          growth_last >= 0.5_dp * growth_before) then
-         summary%status = 'continuous_elongation'
-         summary%message = 'L1/a still growing at t_max = '//num(opts%t_max)//' (by '//num(growth_last)// &
-                           ' over the last time unit, not slowing down): no steady shape'
-      else
-         summary%status = 'max_time'
-         summary%message = 'no steady state by t_max = '//num(opts%t_max)
-      end if
-   end subroutine classify_at_time_limit
-
-   !> Records fall on the first step at or after each multiple of `every`; computed from the
-   !> last record alone, so that a resumed run records at the same steps as an uninterrupted one.
-   pure real(dp) function next_record_time(t_last, every)
-      real(dp), intent(in) :: t_last, every
-      next_record_time = (floor(t_last / every + 1.0e-6_dp) + 1) * every
-   end function next_record_time
-
-   pure integer function window_start(self, t_from)
-      type(capsule_t), intent(in) :: self
-      real(dp), intent(in) :: t_from
-      integer :: k
-      window_start = 1
-      do k = self%n_rec, 1, -1
-         if (self%history(h_t, k) < t_from - 1.0e-9_dp) then
-            window_start = k + 1
-            exit
-         end if
+   subroutine set_state(self, state)
+      class(capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: state(:)
+      integer :: i
+      do i = 1, size(self%x, 2)
+         self%x(:, i) = state(3 * i - 2:3 * i)
       end do
-      window_start = min(window_start, self%n_rec)
-   end function window_start
+   end subroutine set_state
 
-   pure function num(x) result(s)
-      real(dp), intent(in) :: x
-      character(len=:), allocatable :: s
-      character(len=32) :: buf
-      write (buf, '(es10.3)') x
-      s = trim(adjustl(buf))
-   end function num
+   function progress_text(self) result(text)
+      class(capsule_t), intent(in) :: self
+      character(len=:), allocatable :: text
+      character(len=80) :: buf
+      write (buf, '(a,f8.5,a,f8.4,a,f7.3)') 'D12 = ', self%history(h_d12, self%n_rec), '  L1/a = ', &
+         self%history(h_l1, self%n_rec), '  area/4pi = ', self%history(h_area, self%n_rec) / (4 * pi)
+      text = trim(buf)
+   end function progress_text
+
+   !> /mesh (reference and current nodes, triangles 0-based) and /profile (shear-plane contour).
+   subroutine write_geometry(self, f, stat, errmsg)
+      class(capsule_t), intent(in) :: self
+      type(h5_file_t), intent(inout) :: f
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      type(shape_measures_t) :: m
+      real(dp), allocatable :: y(:), z(:)
+      call shape_measures(self%mesh, self%x, m)
+      call shear_plane_contour(self%mesh, self%x, m%centroid, y, z)
+      call f%write_attr('/', 'n_nodes', self%mesh%n_nodes, stat, errmsg)
+      if (stat == 0) call f%make_group('/mesh', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/reference_nodes', self%x_ref, 'a', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/nodes', self%x, 'a', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/triangles', self%mesh%tri - 1, '1', stat, errmsg)
+      if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
+      if (stat == 0) call f%make_group('/profile', stat, errmsg)
+      if (stat == 0) call f%write_attr('/profile', 'plane', 'x = x_centroid (shear plane yz)', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/profile/y', y, 'a', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/profile/z', z, 'a', stat, errmsg)
+   end subroutine write_geometry
 
 end module capsule_dynamics

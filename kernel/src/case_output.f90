@@ -4,22 +4,11 @@ module case_output
    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
    use capsim_kinds, only: dp, code_version, schema_version
    use hdf5_writer, only: h5_file_t
-   use sphere_mesh, only: surface_mesh_t
    use run_options, only: run_options_t
    use membrane_law, only: membrane_law_t
    implicit none
    private
-   public :: n_history, history_names, case_summary_t, write_case_file, write_checkpoint, read_checkpoint, &
-             replace_file
-
-   !> Columns of the history table, in the order the dynamics records them.
-   integer, parameter :: n_history = 10
-   character(len=*), parameter :: history_names(n_history) = [character(len=16) :: &
-                                                              't', 'area', 'volume', 'D12', 'L1', 'L2', 'L3', &
-                                                              'theta', 'energy', 'max_stretch']
-   character(len=*), parameter :: history_units(n_history) = [character(len=16) :: &
-                                                              '1/gamma_dot', 'a^2', 'a^3', '1', 'a', 'a', 'a', &
-                                                              'rad', 'G_s a^2', '1']
+   public :: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint, replace_file
 
    !> What the run ends with: status, its reason, and timing.
    type :: case_summary_t
@@ -53,87 +42,79 @@ contains
       end if
    end subroutine replace_file
 
-   !> The case file as in DESIGN.md. `steady_row` (a history row) is given only for steady runs;
-   !> no steady numbers are written otherwise.
-   subroutine write_case_file(opts, law, summary, mesh, x_ref, x, history, profile_y, profile_z, &
-                              steady_row, stat, errmsg)
+   !> Creates OUT.tmp and writes the root attributes, /history and, for a steady run only
+   !> (`steady_row` present), /steady. The caller adds its geometry (/mesh, /profile) to the
+   !> open file and calls close_case_file, which renames OUT.tmp to OUT.
+   subroutine open_case_file(opts, law, summary, names, units, history, f, stat, errmsg, steady_row)
       type(run_options_t), intent(in) :: opts
       type(membrane_law_t), intent(in) :: law
       type(case_summary_t), intent(in) :: summary
-      type(surface_mesh_t), intent(in) :: mesh
-      real(dp), intent(in) :: x_ref(:, :), x(:, :), history(:, :), profile_y(:), profile_z(:)
-      real(dp), intent(in), optional :: steady_row(:)
+      character(len=*), intent(in) :: names(:), units(:)
+      real(dp), intent(in) :: history(:, :)
+      type(h5_file_t), intent(inout) :: f
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      type(h5_file_t) :: f
-      character(len=:), allocatable :: tmp, close_msg
-      integer :: k, close_stat
+      real(dp), intent(in), optional :: steady_row(:)
+      integer :: k
+      logical :: tube
 
-      tmp = trim(opts%out)//'.tmp'
-      call f%create(tmp, stat, errmsg)
+      tube = trim(opts%flow) == 'tube'
+      call f%create(trim(opts%out)//'.tmp', stat, errmsg)
       if (stat /= 0) return
-      call write_all()
-      call f%close(close_stat, close_msg)
-      if (stat == 0 .and. close_stat /= 0) then
-         stat = close_stat
-         errmsg = close_msg
-      end if
-      if (stat /= 0) return
-      call replace_file(tmp, trim(opts%out), stat, errmsg)
-
-   contains
-
-      subroutine write_all()
-         call f%write_attr('/', 'schema_version', schema_version, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'code_version', code_version, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'flow', trim(opts%flow), stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'law', law%name(), stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'nu_s', law%nu_s, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'C', law%c, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'K_s_over_G_s', law%dilation_modulus(), stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'Ca_s', opts%ca, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'mesh_level', opts%level, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'n_nodes', mesh%n_nodes, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'dt', summary%dt, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'status', trim(summary%status), stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'message', summary%message, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'wall_time_s', summary%wall_time_s, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'threads', summary%threads, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'volume_change_rel', summary%volume_change, stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'volume_correction', merge(1, 0, opts%volume_correction), stat, errmsg)
+      call f%write_attr('/', 'schema_version', schema_version, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'code_version', code_version, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'flow', trim(opts%flow), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'law', law%name(), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'nu_s', law%nu_s, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'C', law%c, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'K_s_over_G_s', law%dilation_modulus(), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'Ca_s', opts%ca, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'mesh_level', opts%level, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'dt', summary%dt, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'status', trim(summary%status), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'message', summary%message, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'wall_time_s', summary%wall_time_s, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'threads', summary%threads, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'volume_change_rel', summary%volume_change, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'volume_correction', merge(1, 0, opts%volume_correction), stat, errmsg)
+      if (tube) then
+         if (stat == 0) call f%write_attr('/', 'a_over_l', opts%a_over_l, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'model', trim(opts%model), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'length_scale', 'l (tube radius)', stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'time_scale', 'l/V (V mean velocity)', stat, errmsg)
+      else
          if (stat == 0) call f%write_attr('/', 'length_scale', 'a (capsule radius)', stat, errmsg)
          if (stat == 0) call f%write_attr('/', 'time_scale', '1/gamma_dot', stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'force_scale', 'G_s (surface shear modulus)', stat, errmsg)
-         if (stat == 0) call f%make_group('/history', stat, errmsg)
-         do k = 1, n_history
-            if (stat == 0) call f%write_dataset('/history/'//trim(history_names(k)), history(k, :), &
-                                                trim(history_units(k)), stat, errmsg)
+      end if
+      if (stat == 0) call f%write_attr('/', 'force_scale', 'G_s (surface shear modulus)', stat, errmsg)
+      if (stat == 0) call f%make_group('/history', stat, errmsg)
+      do k = 1, size(names)
+         if (stat == 0) call f%write_dataset('/history/'//trim(names(k)), history(k, :), trim(units(k)), stat, errmsg)
+      end do
+      if (present(steady_row)) then
+         if (stat == 0) call f%make_group('/steady', stat, errmsg)
+         do k = 1, size(names)
+            if (stat == 0) call f%write_dataset('/steady/'//trim(names(k)), steady_row(k), trim(units(k)), stat, errmsg)
          end do
-         if (present(steady_row)) then
-            if (stat == 0) call f%make_group('/steady', stat, errmsg)
-            do k = 1, n_history
-               if (stat == 0) call f%write_dataset('/steady/'//trim(history_names(k)), steady_row(k), &
-                                                   trim(history_units(k)), stat, errmsg)
-            end do
-         end if
-         if (stat == 0) call f%make_group('/mesh', stat, errmsg)
-         if (stat == 0) call f%write_dataset('/mesh/reference_nodes', x_ref, 'a', stat, errmsg)
-         if (stat == 0) call f%write_dataset('/mesh/nodes', x, 'a', stat, errmsg)
-         if (stat == 0) call f%write_dataset('/mesh/triangles', mesh%tri - 1, '1', stat, errmsg)
-         if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
-         if (stat == 0) call f%make_group('/profile', stat, errmsg)
-         if (stat == 0) call f%write_attr('/profile', 'plane', 'x = x_centroid (shear plane yz)', stat, errmsg)
-         if (stat == 0) call f%write_dataset('/profile/y', profile_y, 'a', stat, errmsg)
-         if (stat == 0) call f%write_dataset('/profile/z', profile_z, 'a', stat, errmsg)
-      end subroutine write_all
+      end if
+   end subroutine open_case_file
 
-   end subroutine write_case_file
+   !> Closes the case file and moves it to its final name: the file is whole or absent.
+   subroutine close_case_file(f, opts, stat, errmsg)
+      type(h5_file_t), intent(inout) :: f
+      type(run_options_t), intent(in) :: opts
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      call f%close(stat, errmsg)
+      if (stat /= 0) return
+      call replace_file(trim(opts%out)//'.tmp', trim(opts%out), stat, errmsg)
+   end subroutine close_case_file
 
-   !> Binary checkpoint: signature, step, time, positions and the history so far.
+   !> Binary checkpoint: signature, step, time, model state and the history so far.
    subroutine write_checkpoint(path, signature, step, t, x, history, n_rec, stat, errmsg)
       character(len=*), intent(in) :: path, signature
       integer, intent(in) :: step, n_rec
-      real(dp), intent(in) :: t, x(:, :), history(:, :)
+      real(dp), intent(in) :: t, x(:), history(:, :)
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
       integer :: unit
@@ -144,7 +125,7 @@ contains
          errmsg = 'cannot write checkpoint "'//path//'.tmp": '//trim(iomsg)
          return
       end if
-      write (unit) len(signature), signature, step, t, size(x, 2), x, n_rec, history(:, 1:n_rec)
+      write (unit) len(signature), signature, step, t, size(x), x, n_rec, history(:, 1:n_rec)
       close (unit)
       call replace_file(path//'.tmp', path, stat, errmsg)
    end subroutine write_checkpoint
@@ -153,7 +134,7 @@ contains
    subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, found)
       character(len=*), intent(in) :: path, signature
       integer, intent(inout) :: step, n_rec
-      real(dp), intent(inout) :: t, x(:, :), history(:, :)
+      real(dp), intent(inout) :: t, x(:), history(:, :)
       logical, intent(out) :: found
       integer :: unit, ios, sig_len, n_nodes, n_rec_file
       character(len=:), allocatable :: sig_file
@@ -167,7 +148,7 @@ contains
          read (unit, iostat=ios) sig_file
          if (ios == 0 .and. sig_file == signature) then
             read (unit, iostat=ios) step, t, n_nodes
-            if (ios == 0 .and. n_nodes == size(x, 2)) then
+            if (ios == 0 .and. n_nodes == size(x)) then
                read (unit, iostat=ios) x, n_rec_file
                if (ios == 0 .and. n_rec_file <= size(history, 2)) then
                   read (unit, iostat=ios) history(:, 1:n_rec_file)

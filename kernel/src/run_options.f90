@@ -13,6 +13,17 @@ module run_options
    type :: run_options_t
       character(len=16) :: flow = ''
       character(len=16) :: law = ''
+      !> Tube flow: size ratio a/l and the solver ('axi' fast path or '3d').
+      real(dp) :: a_over_l = -huge(1.0_dp)
+      character(len=16) :: model = 'axi'
+      !> Axisymmetric model: number of meridian elements from pole to pole, and the time
+      !> integrator ('implicit' pseudo-time for steady states, or 'rk2' time-accurate).
+      integer :: n_meridian = 48
+      character(len=16) :: integrator = 'rk2'
+      !> Largest implicit (pseudo-time) step [l/V]: large, so that the last steps are Newton's.
+      real(dp) :: dt_max = 1.0e4_dp
+      !> Step limit of pseudo-time (implicit) runs, which have no meaningful t_max.
+      integer :: max_steps = 300
       real(dp) :: nu_s = 0.5_dp
       real(dp) :: c = 1.0_dp
       real(dp) :: ca = -huge(1.0_dp)
@@ -39,7 +50,8 @@ module run_options
    end type run_options_t
 
    character(len=*), parameter :: usage_text = &
-      'usage: capsim --flow shear --law NH|SK|GH [--nu-s X] [--C X] --ca X [--level N] [--dt X]'// &
+      'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
+      ' [--model axi] [--n-meridian N] [--integrator implicit|rk2] [--level N] [--dt X]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -114,6 +126,14 @@ contains
             opts%flow = value(:len(opts%flow))
          case ('--law')
             opts%law = value(:len(opts%law))
+         case ('--model')
+            opts%model = value(:len(opts%model))
+         case ('--a-over-l')
+            call read_real(key, value, opts%a_over_l)
+         case ('--integrator')
+            opts%integrator = value(:len(opts%integrator))
+         case ('--n-meridian')
+            call read_int(key, value, opts%n_meridian)
          case ('--out')
             opts%out = value
          case ('--nu-s')
@@ -126,6 +146,8 @@ contains
             call read_real(key, value, opts%dt)
          case ('--dt-factor')
             call read_real(key, value, opts%dt_factor)
+         case ('--dt-max')
+            call read_real(key, value, opts%dt_max)
          case ('--t-max')
             call read_real(key, value, opts%t_max)
          case ('--steady-tol')
@@ -147,6 +169,8 @@ contains
             end select
          case ('--level')
             call read_int(key, value, opts%level)
+         case ('--max-steps')
+            call read_int(key, value, opts%max_steps)
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -193,17 +217,20 @@ contains
       type(run_options_t), intent(inout) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      character(len=16) :: flow, law
+      character(len=16) :: flow, law, model
       character(len=path_len) :: out
-      real(dp) :: nu_s, c, ca, dt, t_max
-      integer :: level, threads, unit, ios
+      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l
+      integer :: level, threads, unit, ios, n_meridian
       character(len=256) :: iomsg
-      namelist /capsim/ flow, law, nu_s, c, ca, level, dt, t_max, threads, out
+      namelist /capsim/ flow, law, model, nu_s, c, ca, a_over_l, level, n_meridian, dt, t_max, threads, out
 
       stat = 0
       errmsg = ''
       flow = opts%flow
       law = opts%law
+      model = opts%model
+      a_over_l = opts%a_over_l
+      n_meridian = opts%n_meridian
       nu_s = opts%nu_s
       c = opts%c
       ca = opts%ca
@@ -227,6 +254,9 @@ contains
       end if
       opts%flow = flow
       opts%law = law
+      opts%model = model
+      opts%a_over_l = a_over_l
+      opts%n_meridian = n_meridian
       opts%nu_s = nu_s
       opts%c = c
       opts%ca = ca
@@ -248,14 +278,29 @@ contains
       errmsg = ''
       select case (trim(opts%flow))
       case ('shear')
-      case ('')
-         errmsg = '--flow: missing (expected shear)'
-         return
       case ('tube')
-         errmsg = '--flow: tube flow is not available yet in this version (expected shear)'
+         if (opts%a_over_l == -huge(1.0_dp)) then
+            errmsg = '--a-over-l: missing (size ratio a/l of the capsule to the tube radius)'
+         else if (.not. (opts%a_over_l > 0.0_dp)) then
+            errmsg = '--a-over-l: must be > 0, got '//real_text(opts%a_over_l)
+         else if (opts%a_over_l > 1.3_dp) then
+            errmsg = '--a-over-l: must be <= 1.3 (larger capsules do not fit the model), got '// &
+                     real_text(opts%a_over_l)
+         else if (trim(opts%model) == '3d') then
+            errmsg = '--model: the 3d tube solver is not available yet in this version (use axi)'
+         else if (trim(opts%model) /= 'axi') then
+            errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
+         else if (trim(opts%integrator) /= 'implicit' .and. trim(opts%integrator) /= 'rk2') then
+            errmsg = '--integrator: unknown integrator "'//trim(opts%integrator)//'" (expected implicit or rk2)'
+         else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
+            errmsg = '--n-meridian: must be between 8 and 1024, got '//int_text(opts%n_meridian)
+         end if
+         if (len(errmsg) > 0) return
+      case ('')
+         errmsg = '--flow: missing (expected shear or tube)'
          return
       case default
-         errmsg = '--flow: unknown flow "'//trim(opts%flow)//'" (expected shear)'
+         errmsg = '--flow: unknown flow "'//trim(opts%flow)//'" (expected shear or tube)'
          return
       end select
       select case (trim(opts%law))
@@ -283,10 +328,14 @@ contains
          errmsg = '--dt: must be > 0 (or 0 for automatic), got '//real_text(opts%dt)
       else if (.not. (opts%dt_factor > 0.0_dp)) then
          errmsg = '--dt-factor: must be > 0, got '//real_text(opts%dt_factor)
+      else if (.not. (opts%dt_max > 0.0_dp)) then
+         errmsg = '--dt-max: must be > 0, got '//real_text(opts%dt_max)
       else if (.not. (opts%t_max > 0.0_dp)) then
          errmsg = '--t-max: must be > 0, got '//real_text(opts%t_max)
       else if (opts%dt > 0.0_dp .and. opts%dt > opts%t_max) then
          errmsg = '--dt: must not exceed --t-max'
+      else if (opts%max_steps < 1) then
+         errmsg = '--max-steps: must be >= 1, got '//int_text(opts%max_steps)
       else if (opts%threads < 0) then
          errmsg = '--threads: must be >= 0 (0 = OpenMP default), got '//int_text(opts%threads)
       else if (.not. (opts%steady_tol > 0.0_dp)) then
@@ -316,9 +365,10 @@ contains
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig
       character(len=512) :: buf
-      write (buf, '(a,1x,a,6(1x,es23.16),1x,i0,3(1x,es23.16),1x,l1)') trim(opts%flow), trim(opts%law), &
-         opts%nu_s, opts%c, opts%ca, opts%dt, opts%dt_factor, opts%steady_tol, opts%level, &
-         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction
+      write (buf, '(a,1x,a,6(1x,es23.16),1x,i0,3(1x,es23.16),1x,l1,1x,es23.16,1x,a,1x,i0)') trim(opts%flow), &
+         trim(opts%law), opts%nu_s, opts%c, opts%ca, opts%dt, opts%dt_factor, opts%steady_tol, opts%level, &
+         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction, opts%a_over_l + opts%dt_max, &
+         trim(opts%model)//'/'//trim(opts%integrator), opts%n_meridian
       sig = trim(buf)
    end function option_signature
 

@@ -121,7 +121,10 @@ def plot_case(case: CaseResult, out: str | Path) -> Path:
     fig = Figure(figsize=(10, 4.2), layout="constrained")
     ax_h, ax_p = fig.subplots(1, 2)
 
-    names = ["D12"] if "D12" in case.history else [n for n in ("L1", "L2") if n in case.history]
+    if case.flow == "tube":
+        names = [n for n in ("L_z", "L_p", "v_c") if n in case.history]
+    else:
+        names = ["D12"] if "D12" in case.history else [n for n in ("L1", "L2") if n in case.history]
     if "t" in case.history and names:
         t = case.history["t"]
         for name in names:
@@ -136,7 +139,16 @@ def plot_case(case: CaseResult, out: str | Path) -> Path:
     ax_h.set_title("deformation history")
     ax_h.grid(True, alpha=0.3)
 
-    if case.profile:
+    if "r" in case.profile:
+        # Meridian mirrored about the axis: the capsule as the microscope sees it, flow to the right.
+        r, z = case.profile["r"], case.profile["z"]
+        ax_p.plot(list(z) + list(z[::-1]), list(r) + list(-r[::-1]), "-", lw=1.5)
+        ax_p.axhline(1.0, color="0.3", lw=2)
+        ax_p.axhline(-1.0, color="0.3", lw=2)
+        ax_p.set_aspect("equal", adjustable="datalim")
+        ax_p.set_xlabel(_axis_label(case, "profile", "z"))
+        ax_p.set_ylabel(_axis_label(case, "profile", "r"))
+    elif case.profile:
         y = list(case.profile["y"]) + [case.profile["y"][0]]  # close the contour
         z = list(case.profile["z"]) + [case.profile["z"][0]]
         ax_p.plot(y, z, "-", lw=1.5)
@@ -145,7 +157,7 @@ def plot_case(case: CaseResult, out: str | Path) -> Path:
         ax_p.set_ylabel(_axis_label(case, "profile", "z"))
     else:
         ax_p.text(0.5, 0.5, "no profile", ha="center", va="center", transform=ax_p.transAxes)
-    ax_p.set_title("profile in the shear plane x = 0")
+    ax_p.set_title("meridian in the tube (wall at r = l)" if case.flow == "tube" else "profile in the shear plane x = 0")
     ax_p.grid(True, alpha=0.3)
 
     fig.suptitle(f"{case.flow}, {case.law}, Ca_s = {_fmt(case.Ca_s)}: {case.status}")

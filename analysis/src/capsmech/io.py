@@ -407,11 +407,31 @@ def _check_xyz(ds: h5py.Dataset, name: str, where: str) -> np.ndarray:
     return _readonly(np.asarray(ds[()]))
 
 
-def _read_mesh(f: h5py.File, where: str) -> dict[str, np.ndarray]:
-    """Read ``/mesh``: nodes, reference nodes and 0-based triangles, checked for consistency."""
+def _read_meridian_mesh(datasets: dict[str, h5py.Dataset], where: str) -> dict[str, np.ndarray]:
+    """Read the axisymmetric ``/mesh``: reference and current meridians, (n, 2) of (r, z)."""
+    out = {}
+    for name in ("reference_meridian", "meridian"):
+        if name not in datasets:
+            raise CaseFileError(f"{where}: '/mesh' has no dataset '{name}'")
+        ds = datasets[name]
+        if ds.ndim != 2 or ds.shape[1] != 2 or ds.dtype.kind not in "f":
+            raise CaseFileError(
+                f"{where}: dataset '/mesh/{name}' must be float of shape (n, 2), got {ds.dtype} {ds.shape}"
+            )
+        out[name] = _readonly(np.asarray(ds[()]))
+    if out["meridian"].shape != out["reference_meridian"].shape:
+        raise CaseFileError(f"{where}: '/mesh/meridian' and '/mesh/reference_meridian' differ in shape")
+    return out
+
+
+def _read_mesh(f: h5py.File, where: str, flow: str = "shear") -> dict[str, np.ndarray]:
+    """Read ``/mesh``: nodes, reference nodes and 0-based triangles (3D), or meridians (tube,
+    axisymmetric), checked for consistency."""
     datasets = _group_datasets(f, "mesh")
     if not datasets:
         return {}
+    if flow == "tube" and "meridian" in datasets:
+        return _read_meridian_mesh(datasets, where)
     for name in ("reference_nodes", "nodes", "triangles"):
         if name not in datasets:
             raise CaseFileError(f"{where}: '/mesh' has no dataset '{name}'")
@@ -442,23 +462,25 @@ def _read_mesh(f: h5py.File, where: str) -> dict[str, np.ndarray]:
     return {"reference_nodes": reference, "nodes": nodes, "triangles": triangles}
 
 
-def _read_profile(f: h5py.File, where: str) -> dict[str, np.ndarray]:
-    """Read ``/profile``: 1-D ``y`` and ``z`` of equal length."""
+def _read_profile(f: h5py.File, where: str, flow: str = "shear") -> dict[str, np.ndarray]:
+    """Read ``/profile``: 1-D ``y`` and ``z`` (shear plane) or ``r`` and ``z`` (tube meridian)
+    of equal length."""
     datasets = _group_datasets(f, "profile")
     if not datasets:
         return {}
-    for name in ("y", "z"):
+    first = "r" if flow == "tube" and "r" in datasets else "y"
+    for name in (first, "z"):
         if name not in datasets:
             raise CaseFileError(f"{where}: '/profile' has no dataset '{name}'")
         ds = datasets[name]
         if ds.ndim != 1 or ds.dtype.kind not in "f":
             raise CaseFileError(f"{where}: dataset '/profile/{name}' must be a 1-D float array")
-    if datasets["y"].shape != datasets["z"].shape:
+    if datasets[first].shape != datasets["z"].shape:
         raise CaseFileError(
-            f"{where}: '/profile/y' {datasets['y'].shape} and '/profile/z' "
+            f"{where}: '/profile/{first}' {datasets[first].shape} and '/profile/z' "
             f"{datasets['z'].shape} differ in length"
         )
-    return {name: _readonly(np.asarray(datasets[name][()])) for name in ("y", "z")}
+    return {name: _readonly(np.asarray(datasets[name][()])) for name in (first, "z")}
 
 
 def _read_open_case(f: h5py.File, where: str) -> CaseResult:
@@ -482,8 +504,8 @@ def _read_open_case(f: h5py.File, where: str) -> CaseResult:
         threads=attrs["threads"],
         history=_read_history(f, where),
         steady=_read_steady(f, where, attrs["status"]),
-        profile=_read_profile(f, where),
-        mesh=_read_mesh(f, where),
+        profile=_read_profile(f, where, attrs["flow"]),
+        mesh=_read_mesh(f, where, attrs["flow"]),
         units=units,
         path=where,
     )

@@ -1,0 +1,309 @@
+!> The time loop shared by every capsule model (3D in shear, axisymmetric in a tube):
+!> checkpoint and resume, periodic records, progress lines, and the classification of the
+!> run (steady, continuous elongation, mesh breakdown, failed, time limit).
+!>
+!> A model extends capsule_model_t: it advances its state by one RK2 step, appends one row
+!> of diagnostics to `history`, and says which history columns hold the time, area, volume,
+!> a length (for elongation), the largest element stretch (for breakdown) and the shape
+!> measures that must settle for a steady state.
+module capsule_model
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   use capsim_kinds, only: dp
+   use hdf5_writer, only: h5_file_t
+   use membrane_law, only: membrane_law_t
+   use run_options, only: run_options_t, option_signature
+   use case_output, only: case_summary_t, write_checkpoint, read_checkpoint
+   implicit none
+   private
+   public :: capsule_model_t, t_min_steady, max_element_stretch
+
+   !> A steady state is not declared before this time: the first units hold the start-up.
+   real(dp), parameter :: t_min_steady = 2.0_dp
+   !> Largest principal stretch (or inverse) an element may reach before the mesh is broken.
+   real(dp), parameter :: max_element_stretch = 15.0_dp
+
+   type, abstract :: capsule_model_t
+      type(membrane_law_t) :: law
+      real(dp) :: t = 0, dt = 0
+      !> Names and units of the history columns, as written to the case file.
+      character(len=16), allocatable :: history_names(:), history_units(:)
+      integer :: step = 0
+      real(dp), allocatable :: history(:, :)
+      integer :: n_rec = 0
+      !> History columns read by the classification.
+      integer :: col_t = 1, col_area = 2, col_volume = 3, col_length = 0, col_stretch = 0
+      integer, allocatable :: col_shape(:)
+      !> Area scale of the steady criterion (4 pi a**2) and elongation limit of col_length.
+      real(dp) :: area_scale = 1, length_limit = huge(1.0_dp)
+      !> Pseudo-time models (implicit steps that grow without bound) are steady when the
+      !> largest membrane velocity in the capsule frame, `residual`, falls below residual_tol.
+      logical :: pseudo_time = .false.
+      real(dp) :: residual = huge(1.0_dp), residual_tol = 1.0e-7_dp
+   contains
+      procedure(advance_iface), deferred :: rk2_step
+      procedure(advance_iface), deferred :: record
+      procedure(advance_iface), deferred :: reset
+      procedure(state_size_iface), deferred :: state_size
+      procedure(get_state_iface), deferred :: get_state
+      procedure(set_state_iface), deferred :: set_state
+      procedure(progress_iface), deferred :: progress_text
+      procedure(geometry_iface), deferred :: write_geometry
+      procedure :: run
+      procedure :: allocate_history
+   end type capsule_model_t
+
+   abstract interface
+      subroutine advance_iface(self)
+         import :: capsule_model_t
+         class(capsule_model_t), intent(inout) :: self
+      end subroutine advance_iface
+      pure integer function state_size_iface(self)
+         import :: capsule_model_t
+         class(capsule_model_t), intent(in) :: self
+      end function state_size_iface
+      subroutine get_state_iface(self, state)
+         import :: capsule_model_t, dp
+         class(capsule_model_t), intent(in) :: self
+         real(dp), intent(out) :: state(:)
+      end subroutine get_state_iface
+      subroutine set_state_iface(self, state)
+         import :: capsule_model_t, dp
+         class(capsule_model_t), intent(inout) :: self
+         real(dp), intent(in) :: state(:)
+      end subroutine set_state_iface
+      function progress_iface(self) result(text)
+         import :: capsule_model_t
+         class(capsule_model_t), intent(in) :: self
+         character(len=:), allocatable :: text
+      end function progress_iface
+      !> Writes /mesh and /profile into the open case file.
+      subroutine geometry_iface(self, f, stat, errmsg)
+         import :: capsule_model_t, h5_file_t
+         class(capsule_model_t), intent(in) :: self
+         type(h5_file_t), intent(inout) :: f
+         integer, intent(out) :: stat
+         character(len=:), allocatable, intent(out) :: errmsg
+      end subroutine geometry_iface
+   end interface
+
+contains
+
+   subroutine allocate_history(self, names, units, t_max, record_every)
+      class(capsule_model_t), intent(inout) :: self
+      character(len=*), intent(in) :: names(:), units(:)
+      real(dp), intent(in) :: t_max, record_every
+      self%history_names = names
+      self%history_units = units
+      allocate (self%history(size(names), ceiling(t_max / max(record_every, self%dt)) + 16))
+      self%history = 0
+      self%n_rec = 0
+   end subroutine allocate_history
+
+   !> Advance until a final status; checkpoints to `checkpoint_path` every
+   !> opts%checkpoint_every wall seconds and resumes from it if it matches the options.
+   subroutine run(self, opts, checkpoint_path, summary, steady_index)
+      class(capsule_model_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      character(len=*), intent(in) :: checkpoint_path
+      type(case_summary_t), intent(inout) :: summary
+      integer, intent(out) :: steady_index
+      integer(8) :: clock_start, clock_now, clock_rate, clock_ckpt, clock_print
+      real(dp) :: t_next_record, v0
+      real(dp), allocatable :: state(:)
+      character(len=:), allocatable :: signature, errmsg
+      logical :: resumed, decided
+      integer :: stat
+
+      steady_index = 0
+      summary%dt = self%dt
+      signature = option_signature(opts)
+      allocate (state(self%state_size()))
+      call read_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, self%n_rec, resumed)
+      if (resumed) then
+         call self%set_state(state)
+         if (.not. opts%quiet) write (*, '(a,f0.3)') 'capsim: resumed from checkpoint at t = ', self%t
+      else
+         call self%reset()
+         self%t = 0
+         self%step = 0
+         self%n_rec = 0
+         call self%record()
+      end if
+      v0 = self%history(self%col_volume, 1)
+      t_next_record = next_record_time(self%history(self%col_t, self%n_rec), opts%record_every)
+      call system_clock(clock_start, clock_rate)
+      clock_ckpt = clock_start
+      clock_print = clock_start
+      decided = .false.
+      do while (.not. out_of_time())
+         call self%rk2_step()
+         call self%get_state(state)
+         if (.not. all(ieee_is_finite(state))) then
+            summary%status = 'failed'
+            summary%message = 'non-finite node positions at t = '//num(self%t)//' (time step too large?)'
+            decided = .true.
+            exit
+         end if
+         if (self%t >= t_next_record - 1.0e-9_dp) then
+            call self%record()
+            t_next_record = next_record_time(self%t, opts%record_every)
+            call classify(self, opts, summary, decided)
+            if (decided) exit
+         end if
+         call system_clock(clock_now)
+         if (real(clock_now - clock_ckpt, dp) / clock_rate >= opts%checkpoint_every) then
+            call write_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, &
+                                  self%n_rec, stat, errmsg)
+            if (stat /= 0 .and. .not. opts%quiet) write (*, '(a)') 'capsim: warning: '//errmsg
+            clock_ckpt = clock_now
+         end if
+         if (.not. opts%quiet .and. real(clock_now - clock_print, dp) / clock_rate >= 2.0_dp) then
+            write (*, '(a,f9.3,a,f0.1,a)') 'capsim: t = ', self%t, ' / ', opts%t_max, '  '//self%progress_text()
+            flush (6)
+            clock_print = clock_now
+         end if
+      end do
+      if (.not. decided) then
+         ! The final state always closes the history.
+         if (self%history(self%col_t, self%n_rec) < self%t - 1.0e-12_dp) call self%record()
+         call classify_at_time_limit(self, opts, summary)
+      end if
+      if (trim(summary%status) == 'steady') steady_index = self%n_rec
+      summary%volume_change = self%history(self%col_volume, self%n_rec) / v0 - 1.0_dp
+
+   contains
+
+      !> Time-accurate models stop at t_max; pseudo-time models after max_steps steps.
+      logical function out_of_time()
+         if (self%pseudo_time) then
+            out_of_time = self%step >= opts%max_steps
+         else
+            out_of_time = self%t >= opts%t_max - 0.5_dp * self%dt
+         end if
+      end function out_of_time
+
+   end subroutine run
+
+   !> Steady, continuous elongation or mesh breakdown, from the history so far.
+   subroutine classify(self, opts, summary, decided)
+      class(capsule_model_t), intent(in) :: self
+      type(run_options_t), intent(in) :: opts
+      type(case_summary_t), intent(inout) :: summary
+      logical, intent(out) :: decided
+      integer :: first, n, k, c
+      real(dp) :: t_now, area_var, shape_var, growth
+      character(len=:), allocatable :: detail
+
+      decided = .false.
+      n = self%n_rec
+      t_now = self%history(self%col_t, n)
+      if (self%history(self%col_length, n) > self%length_limit) then
+         summary%status = 'continuous_elongation'
+         summary%message = 'the capsule length exceeded '//num(self%length_limit)//' at t = '//num(t_now)// &
+                           ': it elongates without reaching a steady shape'
+         decided = .true.
+         return
+      end if
+      first = window_start(self, t_now - 1.0_dp)
+      if (self%history(self%col_stretch, n) > max_element_stretch) then
+         growth = self%history(self%col_length, n) - self%history(self%col_length, first)
+         if (growth > 0.01_dp) then
+            summary%status = 'continuous_elongation'
+            summary%message = 'mesh broke down at t = '//num(t_now)//' while the length grew by '//num(growth)// &
+                              ' over the last time unit: no steady shape'
+         else
+            summary%status = 'failed'
+            summary%message = 'mesh breakdown at t = '//num(t_now)//' (element stretch above '// &
+                              num(max_element_stretch)//')'
+         end if
+         decided = .true.
+         return
+      end if
+      if (self%pseudo_time) then
+         if (self%residual < self%residual_tol) then
+            summary%status = 'steady'
+            summary%message = 'steady: the largest membrane velocity in the capsule frame is '//num(self%residual)// &
+                              ' (tolerance '//num(self%residual_tol)//')'
+            decided = .true.
+         end if
+         return
+      end if
+      if (t_now < t_min_steady .or. self%history(self%col_t, 1) > t_now - 1.0_dp) return
+      area_var = maxval(self%history(self%col_area, first:n)) - minval(self%history(self%col_area, first:n))
+      if (area_var >= opts%steady_tol * self%area_scale) return
+      detail = ''
+      do k = 1, size(self%col_shape)
+         c = self%col_shape(k)
+         shape_var = maxval(self%history(c, first:n)) - minval(self%history(c, first:n))
+         if (shape_var >= opts%shape_tol * abs(self%history(c, n)) + 1.0e-4_dp) return
+         detail = detail//', '//num(shape_var)
+      end do
+      summary%status = 'steady'
+      summary%message = 'over the last time unit the area varied by '//num(area_var / self%area_scale)// &
+                        ' of 4 pi a^2 and the shape measures by '//detail(3:)
+      decided = .true.
+   end subroutine classify
+
+   !> At t_max: continuous elongation if the length still grows without slowing down (growth
+   !> over the last time unit at least half that over the one before) after a run long
+   !> enough to judge; otherwise the time limit.
+   subroutine classify_at_time_limit(self, opts, summary)
+      class(capsule_model_t), intent(in) :: self
+      type(run_options_t), intent(in) :: opts
+      type(case_summary_t), intent(inout) :: summary
+      real(dp), parameter :: min_time_to_judge = 5.0_dp
+      integer :: last, mid, first
+      real(dp) :: t_now, growth_last, growth_before
+      last = self%n_rec
+      if (self%pseudo_time) then
+         summary%status = 'max_time'
+         summary%message = 'no steady state within '//num(real(opts%max_steps, dp))// &
+                           ' implicit steps (largest membrane velocity '//num(self%residual)//')'
+         return
+      end if
+      t_now = self%history(self%col_t, last)
+      mid = window_start(self, t_now - 1.0_dp)
+      first = window_start(self, t_now - 2.0_dp)
+      growth_last = self%history(self%col_length, last) - self%history(self%col_length, mid)
+      growth_before = self%history(self%col_length, mid) - self%history(self%col_length, first)
+      if (t_now >= min_time_to_judge .and. growth_last > opts%shape_tol * self%history(self%col_length, last) .and. &
+          growth_last >= 0.5_dp * growth_before) then
+         summary%status = 'continuous_elongation'
+         summary%message = 'the capsule length still grew at t_max = '//num(opts%t_max)//' (by '//num(growth_last)// &
+                           ' over the last time unit, not slowing down): no steady shape'
+      else
+         summary%status = 'max_time'
+         summary%message = 'no steady state by t_max = '//num(opts%t_max)
+      end if
+   end subroutine classify_at_time_limit
+
+   !> Records fall on the first step at or after each multiple of `every`; computed from the
+   !> last record alone, so that a resumed run records at the same steps as an uninterrupted one.
+   pure real(dp) function next_record_time(t_last, every)
+      real(dp), intent(in) :: t_last, every
+      next_record_time = (floor(t_last / every + 1.0e-6_dp) + 1) * every
+   end function next_record_time
+
+   pure integer function window_start(self, t_from)
+      class(capsule_model_t), intent(in) :: self
+      real(dp), intent(in) :: t_from
+      integer :: k
+      window_start = 1
+      do k = self%n_rec, 1, -1
+         if (self%history(self%col_t, k) < t_from - 1.0e-9_dp) then
+            window_start = k + 1
+            exit
+         end if
+      end do
+      window_start = min(window_start, self%n_rec)
+   end function window_start
+
+   pure function num(x) result(s)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: s
+      character(len=32) :: buf
+      write (buf, '(es10.3)') x
+      s = trim(adjustl(buf))
+   end function num
+
+end module capsule_model

@@ -1,0 +1,177 @@
+!> axi_probe: measures one property of the axisymmetric single-layer machinery
+!> (elliptic_integrals, ring_stokeslet) and prints it as "key value" lines; pytest
+!> (tests/kernel/test_ring_kernel.py) holds the references and the tolerances.
+!>
+!>   axi_probe ellip M1                     K, E, B, D from the complementary parameter m1 = 1 - m
+!>   axi_probe ellip-m M                    K(m), E(m)
+!>   axi_probe kernel R0 Z0 R Z             ring Stokeslet M (m_rr m_rz m_zr m_zz)
+!>   axi_probe log-coefficient R0           a in M = -a ln(rho) I + bounded
+!>   axi_probe segment R0 Z0 RA ZA RB ZB FAR FAZ FBR FBZ END    segment integral (u_r u_z)
+!>   axi_probe sphere N translate|pressure  unit sphere, N straight meridian segments: max error
+!>   axi_probe bench N REPEATS              seconds per sphere velocity and per segment integral
+program axi_probe
+   use capsim_kinds, only: dp, pi
+   use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
+   use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
+   implicit none
+
+   character(len=64) :: command
+   call get_command_argument(1, command)
+   select case (command)
+   case ('ellip')
+      call probe_ellip(real_arg(2))
+   case ('ellip-m')
+      write (*, '(a,es24.16)') 'k ', elliptic_k(real_arg(2))
+      write (*, '(a,es24.16)') 'e ', elliptic_e(real_arg(2))
+   case ('kernel')
+      call probe_kernel(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
+   case ('log-coefficient')
+      write (*, '(a,es24.16)') 'a ', ring_log_coefficient(real_arg(2))
+   case ('segment')
+      call probe_segment()
+   case ('sphere')
+      call probe_sphere(int_arg(2), string_arg(3))
+   case ('bench')
+      call probe_bench(int_arg(2), int_arg(3))
+   case default
+      write (*, '(a)') 'usage: axi_probe ellip|ellip-m|kernel|log-coefficient|segment|sphere|bench ...'
+      error stop 2
+   end select
+
+contains
+
+   integer function int_arg(k)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      call get_command_argument(k, s)
+      read (s, *) int_arg
+   end function int_arg
+
+   real(dp) function real_arg(k)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      call get_command_argument(k, s)
+      read (s, *) real_arg
+   end function real_arg
+
+   function string_arg(k) result(s)
+      integer, intent(in) :: k
+      character(len=64) :: s
+      call get_command_argument(k, s)
+   end function string_arg
+
+   subroutine probe_ellip(m1)
+      real(dp), intent(in) :: m1
+      real(dp) :: k, e, b, d
+      call elliptic_kebd_m1(m1, k, e, b, d)
+      write (*, '(a,es24.16)') 'k ', k
+      write (*, '(a,es24.16)') 'e ', e
+      write (*, '(a,es24.16)') 'b ', b
+      write (*, '(a,es24.16)') 'd ', d
+   end subroutine probe_ellip
+
+   subroutine probe_kernel(r0, z0, r, z)
+      real(dp), intent(in) :: r0, z0, r, z
+      real(dp) :: m(2, 2)
+      call ring_kernel(r0, z0, r, z, m)
+      write (*, '(a,es24.16)') 'm_rr ', m(1, 1)
+      write (*, '(a,es24.16)') 'm_rz ', m(1, 2)
+      write (*, '(a,es24.16)') 'm_zr ', m(2, 1)
+      write (*, '(a,es24.16)') 'm_zz ', m(2, 2)
+   end subroutine probe_kernel
+
+   subroutine probe_segment()
+      real(dp) :: u(2)
+      u = segment_integral(real_arg(2), real_arg(3), real_arg(4), real_arg(5), real_arg(6), &
+                           real_arg(7), [real_arg(8), real_arg(9)], [real_arg(10), real_arg(11)], &
+                           int_arg(12))
+      write (*, '(a,es24.16)') 'u_r ', u(1)
+      write (*, '(a,es24.16)') 'u_z ', u(2)
+   end subroutine probe_segment
+
+   !> Nodes on the unit sphere equally spaced in polar angle, P1 force density at the nodes.
+   subroutine sphere_nodes(n, mode, r, z, f)
+      integer, intent(in) :: n
+      character(len=*), intent(in) :: mode
+      real(dp), intent(out) :: r(0:n), z(0:n), f(2, 0:n)
+      integer :: i
+      do i = 0, n
+         r(i) = sin(pi * i / n)
+         z(i) = cos(pi * i / n)
+      end do
+      ! The poles exactly on the axis (sin(pi) is 1.2e-16, not 0).
+      r(0) = 0.0_dp
+      r(n) = 0.0_dp
+      select case (mode)
+      case ('translate')
+         f(1, :) = 0.0_dp           ! uniform Cartesian f = e_z
+         f(2, :) = 1.0_dp
+      case ('pressure')
+         f(1, :) = r                ! f = n, the outward normal of the exact sphere
+         f(2, :) = z
+      case default
+         error stop 'axi_probe sphere: mode is translate or pressure'
+      end select
+   end subroutine sphere_nodes
+
+   !> u at every node = 1/(8 pi) sum over segments, segment j from node j-1 to node j.
+   subroutine sphere_velocity(n, r, z, f, u)
+      integer, intent(in) :: n
+      real(dp), intent(in) :: r(0:n), z(0:n), f(2, 0:n)
+      real(dp), intent(out) :: u(2, 0:n)
+      integer :: i, j, target_end
+      !$omp parallel do default(none) shared(n, r, z, f, u) private(i, j, target_end) schedule(static)
+      do i = 0, n
+         u(:, i) = 0.0_dp
+         do j = 1, n
+            target_end = 0
+            if (i == j - 1) target_end = 1
+            if (i == j) target_end = 2
+            u(:, i) = u(:, i) + segment_integral(r(i), z(i), r(j - 1), z(j - 1), r(j), z(j), &
+                                                 f(:, j - 1), f(:, j), target_end)
+         end do
+         u(:, i) = u(:, i) / (8.0_dp * pi)
+      end do
+      !$omp end parallel do
+   end subroutine sphere_velocity
+
+   subroutine probe_sphere(n, mode)
+      integer, intent(in) :: n
+      character(len=*), intent(in) :: mode
+      real(dp) :: r(0:n), z(0:n), f(2, 0:n), u(2, 0:n), exact(2)
+      integer :: i
+      real(dp) :: err
+      call sphere_nodes(n, trim(mode), r, z, f)
+      call sphere_velocity(n, r, z, f, u)
+      ! U = 2 a f / (3 mu) for the translating sphere; a pressure on a closed surface drives no flow.
+      exact = 0.0_dp
+      if (trim(mode) == 'translate') exact = [0.0_dp, 2.0_dp / 3.0_dp]
+      err = 0.0_dp
+      do i = 0, n
+         err = max(err, norm2(u(:, i) - exact))
+      end do
+      write (*, '(a,i0)') 'n_segments ', n
+      write (*, '(a,es24.16)') 'max_error ', err
+      write (*, '(a,es24.16)') 'u_z_pole ', u(2, 0)
+      write (*, '(a,es24.16)') 'u_z_equator ', u(2, n / 2)
+   end subroutine probe_sphere
+
+   subroutine probe_bench(n, repeats)
+      use omp_lib, only: omp_get_wtime, omp_get_max_threads
+      integer, intent(in) :: n, repeats
+      real(dp) :: r(0:n), z(0:n), f(2, 0:n), u(2, 0:n), t0, t_eval
+      integer :: k
+      call sphere_nodes(n, 'pressure', r, z, f)
+      t0 = omp_get_wtime()
+      do k = 1, repeats
+         call sphere_velocity(n, r, z, f, u)
+      end do
+      t_eval = (omp_get_wtime() - t0) / repeats
+      write (*, '(a,i0)') 'threads ', omp_get_max_threads()
+      write (*, '(a,i0)') 'n_segments ', n
+      write (*, '(a,es24.16)') 'velocity_s ', t_eval
+      write (*, '(a,es24.16)') 'segment_integral_s ', t_eval / (real(n + 1, dp) * n)
+      write (*, '(a,es24.16)') 'checksum ', sum(abs(u))
+   end subroutine probe_bench
+
+end program axi_probe
