@@ -21,6 +21,7 @@ module axisymmetric_tube
    use ring_stokeslet, only: segment_integral
    use run_options, only: run_options_t
    use capsule_model, only: capsule_model_t
+   use case_output, only: case_summary_t
    implicit none
    private
    public :: axisymmetric_tube_t, tube_wall_elements
@@ -37,6 +38,8 @@ module axisymmetric_tube
    real(dp), parameter :: tube_half_length = 5.0_dp
    real(dp), parameter :: fine_size = 0.04_dp, coarse_size = 0.3_dp, wall_growth = 1.2_dp
    integer, parameter :: disk_elements = 10
+   !> Below this Ca the RK2 fallback would need dt ~ Ca h and wrinkle at the rear: no fallback.
+   real(dp), parameter :: fallback_min_ca = 0.01_dp
    !> Capsules this large start as a spheroid of this equatorial radius (they do not fit as
    !> spheres); their stresses are still measured from the spherical reference.
    real(dp), parameter :: predeform_from = 0.9_dp, predeform_radius = 0.8_dp
@@ -68,14 +71,13 @@ module axisymmetric_tube
       type(meridian_reference_t) :: ref
       real(dp) :: ca = 0, a = 0, h_min = 0, energy = 0, v_c = 0, volume0 = 0
       logical :: volume_correction = .true.
-      !> Linearly implicit Euler with a finite-difference Jacobian (pseudo-time: reaches the
-      !> same steady states as RK2 in far fewer steps) or Heun's RK2 (time-accurate).
-      logical :: implicit = .true.
-      real(dp) :: dt_max = 1.0e4_dp
-      integer :: steps_since_jacobian = huge(1)
-      real(dp) :: last_residual = huge(1.0_dp)
-      real(dp), allocatable :: jacobian(:, :), system(:, :), dofs(:), dofs_trial(:), res(:), res_trial(:)
+      !> Steady solver (Newton with continuation in Ca) or Heun's RK2 (time-accurate).
+      logical :: newton = .true.
+      real(dp), allocatable :: system(:, :), step_vector(:), border(:, :)
+      real(dp), allocatable :: dofs(:), dofs_trial(:), res(:), res_trial(:), rz_good(:, :)
       integer, allocatable :: pivot(:)
+      !> The bordered system's LU from the last Newton step, reused for the Ca predictor.
+      logical :: have_lu = .false.
       !> Reference (sphere of radius a/l) and initial (sphere or spheroid) meridians, current one.
       real(dp), allocatable :: rz_ref(:, :), rz_start(:, :), rz(:, :)
       !> Wall elements: end points and mid-points (r, z); factorised wall matrix.
@@ -91,6 +93,7 @@ module axisymmetric_tube
       procedure :: rk2_step
       procedure :: record
       procedure :: reset
+      procedure :: run
       procedure :: state_size
       procedure :: get_state
       procedure :: set_state
@@ -141,21 +144,16 @@ contains
       call factorise_wall(self, stat, errmsg)
       if (stat /= 0) return
 
-      self%implicit = trim(opts%integrator) /= 'rk2'
-      self%dt_max = opts%dt_max
+      self%newton = trim(opts%integrator) == 'newton'
       if (opts%dt > 0) then
          self%dt = opts%dt
-      else if (self%implicit) then
-         ! The implicit step starts at the explicit limit and grows (see rk2_step).
-         self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
       end if
-      self%pseudo_time = self%implicit
-      if (self%implicit) then
+      if (self%newton) then
          m = 2 * n - 2
-         allocate (self%jacobian(m, m), self%system(m, m), self%dofs(m), self%dofs_trial(m), self%res(m))
-         allocate (self%res_trial(m), self%pivot(m))
+         allocate (self%system(m + 2, m + 2), self%step_vector(m + 2), self%border(m, 2), self%pivot(m + 2))
+         allocate (self%dofs(m), self%dofs_trial(m), self%res(m), self%res_trial(m), self%rz_good(2, n))
       end if
       block
          real(dp) :: area
@@ -354,79 +352,263 @@ contains
       centroid_z = m / volume
    end function centroid_z
 
-   !> One step in the capsule frame, then the centroid put back at z = 0.
-   !> Explicit: Heun's RK2 (time-accurate). Implicit: pseudo-transient continuation,
-   !> (I - dt J) delta = dt u(x) with J = du/dx by forward differences, dt grown by the ratio
-   !> of successive residuals (switched evolution relaxation) until the step is Newton's
-   !> method for u(x) = 0. Why: at small Ca the rear of the capsule is under compression,
-   !> and a membrane without bending stiffness then has mesh-scale modes growing at a rate
-   !> ~10 V/l whatever Ca. Explicit steps (bound to dt ~ Ca h) let them grow into wrinkles;
-   !> implicit steps with dt >> 1/rate damp them (|1/(1 - dt rate)| < 1) and converge to the
-   !> steady shape the paper reports. Continuous elongation still shows: the residual then
-   !> grows, dt shrinks back and the capsule keeps stretching.
+   !> Heun's RK2 in the capsule frame (time-accurate), then the centroid put back at z = 0.
    subroutine rk2_step(self)
       class(axisymmetric_tube_t), intent(inout) :: self
-      real(dp) :: area, volume
-      if (self%implicit) then
-         call implicit_step(self)
-      else
-         call self%velocity(self%rz, self%u0)
-         self%rz_pred = self%rz + self%dt * self%u0
-         call self%velocity(self%rz_pred, self%u1)
-         self%rz = self%rz + 0.5_dp * self%dt * (self%u0 + self%u1)
-         self%t = self%t + self%dt
-      end if
-      call meridian_area_volume(self%rz, area, volume)
-      self%rz(2, :) = self%rz(2, :) - centroid_z(self%rz, volume)
+      call self%velocity(self%rz, self%u0)
+      self%rz_pred = self%rz + self%dt * self%u0
+      call self%velocity(self%rz_pred, self%u1)
+      self%rz = self%rz + 0.5_dp * self%dt * (self%u0 + self%u1)
+      call restore_volume_and_centre(self, self%rz)
+      self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
 
-   subroutine implicit_step(self)
+   !> Put the centroid back at z = 0 and, for the Newton updates (which conserve volume only
+   !> to first order), the volume back to its initial value by a uniform displacement along
+   !> the node normals (dV = sum_k dV/dx_k . delta_k).
+   subroutine restore_volume_and_centre(self, rz)
       type(axisymmetric_tube_t), intent(inout) :: self
-      integer, parameter :: jacobian_every = 4
-      real(dp), parameter :: fd_step = 1.0e-7_dp
-      integer :: m, j, info, k
-      real(dp) :: residual, area, volume, shift
+      real(dp), intent(inout) :: rz(:, :)
+      real(dp) :: area, volume, shift
+      call meridian_area_volume(rz, area, volume)
+      call meridian_volume_gradient(rz, self%grad)
+      self%grad(1, [1, size(rz, 2)]) = 0.0_dp
+      shift = (self%volume0 - volume) / sum(self%grad**2)
+      rz = rz + shift * self%grad
+      call meridian_area_volume(rz, area, volume)
+      rz(2, :) = rz(2, :) - centroid_z(rz, volume)
+   end subroutine restore_volume_and_centre
 
+   !> The steady shape as the root of u(x) = 0 (membrane at rest in the capsule frame), by
+   !> Newton's method with a finite-difference Jacobian and continuation in Ca from a nearly
+   !> rigid capsule. Why not time stepping: at small Ca the rear of the membrane is under
+   !> compression, and a membrane without bending stiffness then has mesh-scale modes that
+   !> grow at ~10 V/l whatever Ca (measured from the Jacobian's eigenvalues); explicit steps,
+   !> bound to dt ~ Ca h, let them wrinkle the rear long before the shape is steady.
+   !> Newton-type iterations (newton_solve) converge to the steady shape the paper reports.
+   !> When continuation cannot pass some Ca (the steady branch ends), the run is reported
+   !> as continuous elongation at that Ca.
+   subroutine newton_run(self, opts, summary, steady_index)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      type(case_summary_t), intent(inout) :: summary
+      integer, intent(out) :: steady_index
+      real(dp), parameter :: ca_start = 1.0e-4_dp, min_factor = 1.02_dp
+      real(dp) :: ca_target, ca_good, factor, ca_try
+      logical :: converged
+
+      steady_index = 0
+      ca_target = opts%ca
+      call self%reset()
+      self%t = 0
+      self%step = 0
+      self%n_rec = 0
+      self%ca = min(ca_target, ca_start)
+      call self%record()
+      call newton_solve(self, opts, converged)
+      if (.not. converged) then
+         summary%status = 'failed'
+         summary%message = 'Newton did not converge for the nearly rigid capsule at Ca = '//num(self%ca)
+         return
+      end if
+      ca_good = self%ca
+      self%rz_good = self%rz
+      factor = 2.0_dp
+      do while (ca_good < ca_target)
+         ca_try = min(ca_good * factor, ca_target)
+         call predict_shape(self, ca_good, ca_try)
+         self%ca = ca_try
+         call newton_solve(self, opts, converged)
+         if (converged) then
+            ca_good = ca_try
+            self%rz_good = self%rz
+            if (.not. opts%quiet) write (*, '(a,es10.3,a)') 'capsim: steady shape at Ca = ', ca_good, &
+               '  '//self%progress_text()
+            factor = min(factor**1.5_dp, 2.0_dp)
+         else
+            self%rz = self%rz_good
+            self%have_lu = .false.
+            factor = sqrt(factor)
+            if (factor < min_factor) exit
+         end if
+         if (self%n_rec >= size(self%history, 2) - 1) exit
+      end do
+      self%ca = ca_target
+      if (ca_good >= ca_target) then
+         summary%status = 'steady'
+         summary%message = 'steady: Newton residual (largest membrane velocity in the capsule frame) '// &
+                           num(self%residual)//' after continuation in Ca'
+         steady_index = self%n_rec
+      else
+         self%rz = self%rz_good
+         self%ca = ca_good
+         call self%record()
+         summary%status = 'continuous_elongation'
+         summary%message = 'no steady shape beyond Ca = '//num(ca_good)//' (L_z/l = '// &
+                           num(self%history(h_lz, self%n_rec))//'): the steady branch ends before Ca = '// &
+                           num(ca_target)
+      end if
+   end subroutine newton_run
+
+   !> Newton iterations on u(x) = 0 with a finite-difference Jacobian J. J is singular along
+   !> the inflation of the capsule (a uniform pressure moves no fluid) and nearly so along
+   !> its axial translation (only the tube's ends feel it): plain Newton followed those
+   !> directions into steps of the order of the capsule size. The step is therefore the
+   !> bordered system
+   !>     J delta + lambda_V g + lambda_z t = -u,   g . delta = 0,   t . delta = 0,
+   !> with g = dV/dx and t the uniform axial shift: delta keeps the volume and position, and
+   !> the multipliers absorb what no shape change can cancel. The residual is u with its
+   !> g and t components removed; a backtracking line search keeps every step downhill.
+   !> Tangent predictor for the continuation: from the steady shape at ca_from,
+   !> x(ca_to) ~ x + (ca_to - ca_from) dx/dCa with J dx/dCa = -du/dCa (bordered as in
+   !> newton_solve, with the LU of its last step); du/dCa by a difference in Ca at fixed shape.
+   !> Without it each doubling of Ca starts Newton half an elastic velocity away from the
+   !> root, which near the wall film takes ten or more damped steps.
+   subroutine predict_shape(self, ca_from, ca_to)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(in) :: ca_from, ca_to
+      real(dp), parameter :: rel_step = 1.0e-4_dp
+      integer :: m, info
+      if (.not. self%have_lu) return
       m = size(self%dofs)
-      call pack_dofs(self%rz, self%dofs)
+      self%ca = ca_from
       call self%velocity(self%rz, self%u0)
       call pack_dofs(self%u0, self%res)
-      residual = maxval(abs(self%res))
-      self%residual = residual
-      ! Switched evolution relaxation: the step follows the residual's decrease.
-      if (self%step > 0) self%dt = min(self%dt * min(max(self%last_residual / residual, 0.5_dp), 4.0_dp), &
-                                       self%dt_max)
-      if (self%steps_since_jacobian >= jacobian_every .or. residual > 0.5_dp * self%last_residual) then
+      self%ca = ca_from * (1.0_dp + rel_step)
+      call self%velocity(self%rz, self%u1)
+      call pack_dofs(self%u1, self%res_trial)
+      self%step_vector(1:m) = -(self%res_trial - self%res) / (ca_from * rel_step) * (ca_to - ca_from)
+      self%step_vector(m + 1:m + 2) = 0.0_dp
+      call dgetrs('N', m + 2, 1, self%system, m + 2, self%pivot, self%step_vector, m + 2, info)
+      if (info /= 0) return
+      call pack_dofs(self%rz, self%dofs)
+      call unpack_dofs(self%dofs + self%step_vector(1:m), self%rz)
+      call restore_volume_and_centre(self, self%rz)
+   end subroutine predict_shape
+
+   subroutine newton_solve(self, opts, converged)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      logical, intent(out) :: converged
+      integer, parameter :: max_iterations = 15
+      real(dp), parameter :: fd_step = 1.0e-6_dp
+      integer :: m, j, it, info
+      real(dp) :: residual, trial, alpha
+
+      converged = .false.
+      m = size(self%dofs)
+      call self%velocity(self%rz, self%u0)
+      call pack_dofs(self%u0, self%res)
+      call constraint_directions(self, self%rz)
+      residual = projected_residual(self, self%res)
+      do it = 1, max_iterations
+         self%residual = residual
+         if (residual < opts%newton_tol) then
+            converged = .true.
+            call self%record()
+            return
+         end if
+         call pack_dofs(self%rz, self%dofs)
          do j = 1, m
             self%dofs_trial = self%dofs
             self%dofs_trial(j) = self%dofs(j) + fd_step
             call unpack_dofs(self%dofs_trial, self%rz_pred)
             call self%velocity(self%rz_pred, self%u1)
             call pack_dofs(self%u1, self%res_trial)
-            self%jacobian(:, j) = (self%res_trial - self%res) / fd_step
+            self%system(1:m, j) = (self%res_trial - self%res) / fd_step
          end do
-         self%steps_since_jacobian = 0
-      end if
-      self%system = -self%dt * self%jacobian
-      do k = 1, m
-         self%system(k, k) = self%system(k, k) + 1.0_dp
+         self%system(1:m, m + 1:m + 2) = self%border
+         self%system(m + 1:m + 2, 1:m) = transpose(self%border)
+         self%system(m + 1:m + 2, m + 1:m + 2) = 0.0_dp
+         self%step_vector(1:m) = -self%res
+         self%step_vector(m + 1:m + 2) = 0.0_dp
+         call dgesv(m + 2, 1, self%system, m + 2, self%pivot, self%step_vector, m + 2, info)
+         if (info /= 0) return
+         self%have_lu = .true.
+         alpha = 1.0_dp
+         do
+            call unpack_dofs(self%dofs + alpha * self%step_vector(1:m), self%rz_pred)
+            call restore_volume_and_centre(self, self%rz_pred)
+            call self%velocity(self%rz_pred, self%u1)
+            call pack_dofs(self%u1, self%dofs_trial)
+            call constraint_directions(self, self%rz_pred)
+            trial = projected_residual(self, self%dofs_trial)
+            if (trial < (1.0_dp - 0.1_dp * alpha) * residual) exit
+            alpha = 0.5_dp * alpha
+            if (alpha < 1.0_dp / 64) return
+         end do
+         self%rz = self%rz_pred
+         self%res = self%dofs_trial
+         residual = trial
+         self%t = self%t + 1
+         self%step = self%step + 1
       end do
-      self%res_trial = self%dt * self%res
-      call dgesv(m, 1, self%system, m, self%pivot, self%res_trial, m, info)
-      if (info /= 0) self%res_trial = self%dt * self%res
-      call unpack_dofs(self%dofs + self%res_trial, self%rz)
-      ! Implicit Euler conserves the volume only to first order: restore it by a uniform
-      ! displacement along the node normals (dV = sum grad_k . delta_k).
-      call meridian_area_volume(self%rz, area, volume)
-      call meridian_volume_gradient(self%rz, self%grad)
-      self%grad(1, [1, size(self%rz, 2)]) = 0.0_dp
-      shift = (self%volume0 - volume) / sum(self%grad**2)
-      self%rz = self%rz + shift * self%grad
-      self%t = self%t + self%dt
-      self%steps_since_jacobian = self%steps_since_jacobian + 1
-      self%last_residual = residual
-   end subroutine implicit_step
+      self%residual = residual
+   end subroutine newton_solve
+
+   !> The two border columns at rz: the volume gradient and the uniform axial shift, orthonormalised.
+   subroutine constraint_directions(self, rz)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(in) :: rz(:, :)
+      integer :: m
+      m = size(self%dofs)
+      call meridian_volume_gradient(rz, self%grad)
+      call pack_dofs(self%grad, self%border(:, 1))
+      self%border(:, 2) = 0.0_dp
+      self%border(1, 2) = 1.0_dp
+      self%border(2:m - 1:2, 2) = 1.0_dp
+      self%border(m, 2) = 1.0_dp
+      self%border(:, 2) = self%border(:, 2) / norm2(self%border(:, 2))
+      self%border(:, 1) = self%border(:, 1) - dot_product(self%border(:, 1), self%border(:, 2)) * self%border(:, 2)
+      self%border(:, 1) = self%border(:, 1) / norm2(self%border(:, 1))
+   end subroutine constraint_directions
+
+   !> Largest component of u once its inflation and translation parts are removed.
+   pure real(dp) function projected_residual(self, u) result(r)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: u(:)
+      r = maxval(abs(u - matmul(self%border, matmul(transpose(self%border), u))))
+   end function projected_residual
+
+   !> Newton continuation (the default), falling back to the shared time loop (RK2) from the
+   !> last steady shape it found when continuation stops short of the requested Ca: confined
+   !> capsules at moderate Ca (a parachute forming near the wall film) are where Newton's
+   !> basin is narrow and where time stepping is cheap (dt ~ Ca h) and free of wrinkles
+   !> (the parachute relieves the rear's compression). The time loop then decides between
+   !> a steady state and continuous elongation by the dynamics.
+   subroutine run(self, opts, checkpoint_path, summary, steady_index)
+      class(axisymmetric_tube_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      character(len=*), intent(in) :: checkpoint_path
+      type(case_summary_t), intent(inout) :: summary
+      integer, intent(out) :: steady_index
+      character(len=:), allocatable :: newton_message
+      if (self%newton) then
+         summary%dt = 0
+         call newton_run(self, opts, summary, steady_index)
+         summary%volume_change = self%history(h_volume, self%n_rec) / self%history(h_volume, 1) - 1.0_dp
+         if (trim(summary%status) == 'steady' .or. opts%ca < fallback_min_ca) return
+         newton_message = summary%message
+         if (.not. opts%quiet) write (*, '(a)') 'capsim: '//newton_message//'; continuing by time stepping (RK2)'
+         self%rz_start = self%rz_good
+         self%ca = opts%ca
+         self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
+         call self%time_loop(opts, checkpoint_path, summary, steady_index)
+         summary%message = summary%message//' (time stepping from the shape of Newton continuation: '// &
+                           newton_message//')'
+      else
+         call self%time_loop(opts, checkpoint_path, summary, steady_index)
+      end if
+   end subroutine run
+
+   pure function num(x) result(text)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: text
+      character(len=32) :: buf
+      write (buf, '(es10.3)') x
+      text = trim(adjustl(buf))
+   end function num
 
    !> Degrees of freedom: (r, z) of every node but the poles' r (on the axis).
    pure subroutine pack_dofs(rz, q)

@@ -35,10 +35,8 @@ module capsule_model
       integer, allocatable :: col_shape(:)
       !> Area scale of the steady criterion (4 pi a**2) and elongation limit of col_length.
       real(dp) :: area_scale = 1, length_limit = huge(1.0_dp)
-      !> Pseudo-time models (implicit steps that grow without bound) are steady when the
-      !> largest membrane velocity in the capsule frame, `residual`, falls below residual_tol.
-      logical :: pseudo_time = .false.
-      real(dp) :: residual = huge(1.0_dp), residual_tol = 1.0e-7_dp
+      !> Largest membrane velocity in the capsule frame (steady solvers report it).
+      real(dp) :: residual = huge(1.0_dp)
    contains
       procedure(advance_iface), deferred :: rk2_step
       procedure(advance_iface), deferred :: record
@@ -48,7 +46,10 @@ module capsule_model
       procedure(set_state_iface), deferred :: set_state
       procedure(progress_iface), deferred :: progress_text
       procedure(geometry_iface), deferred :: write_geometry
-      procedure :: run
+      !> `run` is what the program calls; models with their own solver override it and may
+      !> still call `time_loop`, the shared explicit loop.
+      procedure :: run => time_loop
+      procedure :: time_loop
       procedure :: allocate_history
    end type capsule_model_t
 
@@ -101,7 +102,7 @@ contains
 
    !> Advance until a final status; checkpoints to `checkpoint_path` every
    !> opts%checkpoint_every wall seconds and resumes from it if it matches the options.
-   subroutine run(self, opts, checkpoint_path, summary, steady_index)
+   subroutine time_loop(self, opts, checkpoint_path, summary, steady_index)
       class(capsule_model_t), intent(inout) :: self
       type(run_options_t), intent(in) :: opts
       character(len=*), intent(in) :: checkpoint_path
@@ -135,7 +136,7 @@ contains
       clock_ckpt = clock_start
       clock_print = clock_start
       decided = .false.
-      do while (.not. out_of_time())
+      do while (self%t < opts%t_max - 0.5_dp * self%dt)
          call self%rk2_step()
          call self%get_state(state)
          if (.not. all(ieee_is_finite(state))) then
@@ -170,19 +171,7 @@ contains
       end if
       if (trim(summary%status) == 'steady') steady_index = self%n_rec
       summary%volume_change = self%history(self%col_volume, self%n_rec) / v0 - 1.0_dp
-
-   contains
-
-      !> Time-accurate models stop at t_max; pseudo-time models after max_steps steps.
-      logical function out_of_time()
-         if (self%pseudo_time) then
-            out_of_time = self%step >= opts%max_steps
-         else
-            out_of_time = self%t >= opts%t_max - 0.5_dp * self%dt
-         end if
-      end function out_of_time
-
-   end subroutine run
+   end subroutine time_loop
 
    !> Steady, continuous elongation or mesh breakdown, from the history so far.
    subroutine classify(self, opts, summary, decided)
@@ -219,15 +208,6 @@ contains
          decided = .true.
          return
       end if
-      if (self%pseudo_time) then
-         if (self%residual < self%residual_tol) then
-            summary%status = 'steady'
-            summary%message = 'steady: the largest membrane velocity in the capsule frame is '//num(self%residual)// &
-                              ' (tolerance '//num(self%residual_tol)//')'
-            decided = .true.
-         end if
-         return
-      end if
       if (t_now < t_min_steady .or. self%history(self%col_t, 1) > t_now - 1.0_dp) return
       area_var = maxval(self%history(self%col_area, first:n)) - minval(self%history(self%col_area, first:n))
       if (area_var >= opts%steady_tol * self%area_scale) return
@@ -255,12 +235,6 @@ contains
       integer :: last, mid, first
       real(dp) :: t_now, growth_last, growth_before
       last = self%n_rec
-      if (self%pseudo_time) then
-         summary%status = 'max_time'
-         summary%message = 'no steady state within '//num(real(opts%max_steps, dp))// &
-                           ' implicit steps (largest membrane velocity '//num(self%residual)//')'
-         return
-      end if
       t_now = self%history(self%col_t, last)
       mid = window_start(self, t_now - 1.0_dp)
       first = window_start(self, t_now - 2.0_dp)

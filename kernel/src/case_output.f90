@@ -1,14 +1,14 @@
 !> Files of one run: the HDF5 case file (written whole to a temporary name, then renamed)
 !> and the binary checkpoint from which a killed run resumes.
 module case_output
-   use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
    use capsim_kinds, only: dp, code_version, schema_version
+   use file_ops, only: replace_file
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t
    use membrane_law, only: membrane_law_t
    implicit none
    private
-   public :: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint, replace_file
+   public :: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint
 
    !> What the run ends with: status, its reason, and timing.
    type :: case_summary_t
@@ -20,27 +20,8 @@ module case_output
       real(dp) :: volume_change = 0
    end type case_summary_t
 
-   interface
-      integer(c_int) function c_rename(old, new) bind(c, name='rename')
-         import :: c_char, c_int
-         character(kind=c_char), intent(in) :: old(*), new(*)
-      end function c_rename
-   end interface
 
 contains
-
-   !> Atomic replacement (POSIX rename): readers see the old file or the new one, never half.
-   subroutine replace_file(from, to, stat, errmsg)
-      character(len=*), intent(in) :: from, to
-      integer, intent(out) :: stat
-      character(len=:), allocatable, intent(out) :: errmsg
-      stat = 0
-      errmsg = ''
-      if (c_rename(from//c_null_char, to//c_null_char) /= 0) then
-         stat = 1
-         errmsg = 'cannot rename "'//from//'" to "'//to//'"'
-      end if
-   end subroutine replace_file
 
    !> Creates OUT.tmp and writes the root attributes, /history and, for a steady run only
    !> (`steady_row` present), /steady. The caller adds its geometry (/mesh, /profile) to the

@@ -16,14 +16,12 @@ module run_options
       !> Tube flow: size ratio a/l and the solver ('axi' fast path or '3d').
       real(dp) :: a_over_l = -huge(1.0_dp)
       character(len=16) :: model = 'axi'
-      !> Axisymmetric model: number of meridian elements from pole to pole, and the time
-      !> integrator ('implicit' pseudo-time for steady states, or 'rk2' time-accurate).
+      !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
+      !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time-accurate).
       integer :: n_meridian = 48
-      character(len=16) :: integrator = 'rk2'
-      !> Largest implicit (pseudo-time) step [l/V]: large, so that the last steps are Newton's.
-      real(dp) :: dt_max = 1.0e4_dp
-      !> Step limit of pseudo-time (implicit) runs, which have no meaningful t_max.
-      integer :: max_steps = 300
+      character(len=16) :: integrator = 'newton'
+      !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
+      real(dp) :: newton_tol = 1.0e-8_dp
       real(dp) :: nu_s = 0.5_dp
       real(dp) :: c = 1.0_dp
       real(dp) :: ca = -huge(1.0_dp)
@@ -51,7 +49,7 @@ module run_options
 
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
-      ' [--model axi] [--n-meridian N] [--integrator implicit|rk2] [--level N] [--dt X]'// &
+      ' [--model axi] [--n-meridian N] [--integrator newton|rk2] [--level N] [--dt X]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -146,8 +144,8 @@ contains
             call read_real(key, value, opts%dt)
          case ('--dt-factor')
             call read_real(key, value, opts%dt_factor)
-         case ('--dt-max')
-            call read_real(key, value, opts%dt_max)
+         case ('--newton-tol')
+            call read_real(key, value, opts%newton_tol)
          case ('--t-max')
             call read_real(key, value, opts%t_max)
          case ('--steady-tol')
@@ -169,8 +167,6 @@ contains
             end select
          case ('--level')
             call read_int(key, value, opts%level)
-         case ('--max-steps')
-            call read_int(key, value, opts%max_steps)
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -290,8 +286,8 @@ contains
             errmsg = '--model: the 3d tube solver is not available yet in this version (use axi)'
          else if (trim(opts%model) /= 'axi') then
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
-         else if (trim(opts%integrator) /= 'implicit' .and. trim(opts%integrator) /= 'rk2') then
-            errmsg = '--integrator: unknown integrator "'//trim(opts%integrator)//'" (expected implicit or rk2)'
+         else if (trim(opts%integrator) /= 'newton' .and. trim(opts%integrator) /= 'rk2') then
+            errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected newton or rk2)'
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
             errmsg = '--n-meridian: must be between 8 and 1024, got '//int_text(opts%n_meridian)
          end if
@@ -328,14 +324,12 @@ contains
          errmsg = '--dt: must be > 0 (or 0 for automatic), got '//real_text(opts%dt)
       else if (.not. (opts%dt_factor > 0.0_dp)) then
          errmsg = '--dt-factor: must be > 0, got '//real_text(opts%dt_factor)
-      else if (.not. (opts%dt_max > 0.0_dp)) then
-         errmsg = '--dt-max: must be > 0, got '//real_text(opts%dt_max)
+      else if (.not. (opts%newton_tol > 0.0_dp)) then
+         errmsg = '--newton-tol: must be > 0, got '//real_text(opts%newton_tol)
       else if (.not. (opts%t_max > 0.0_dp)) then
          errmsg = '--t-max: must be > 0, got '//real_text(opts%t_max)
       else if (opts%dt > 0.0_dp .and. opts%dt > opts%t_max) then
          errmsg = '--dt: must not exceed --t-max'
-      else if (opts%max_steps < 1) then
-         errmsg = '--max-steps: must be >= 1, got '//int_text(opts%max_steps)
       else if (opts%threads < 0) then
          errmsg = '--threads: must be >= 0 (0 = OpenMP default), got '//int_text(opts%threads)
       else if (.not. (opts%steady_tol > 0.0_dp)) then
@@ -367,7 +361,7 @@ contains
       character(len=512) :: buf
       write (buf, '(a,1x,a,6(1x,es23.16),1x,i0,3(1x,es23.16),1x,l1,1x,es23.16,1x,a,1x,i0)') trim(opts%flow), &
          trim(opts%law), opts%nu_s, opts%c, opts%ca, opts%dt, opts%dt_factor, opts%steady_tol, opts%level, &
-         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction, opts%a_over_l + opts%dt_max, &
+         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction, opts%a_over_l + opts%newton_tol, &
          trim(opts%model)//'/'//trim(opts%integrator), opts%n_meridian
       sig = trim(buf)
    end function option_signature

@@ -5,6 +5,8 @@ import subprocess
 
 import pytest
 
+from capsmech.io import read_case
+
 BAD_TUBE_INPUTS = [
     (["--a-over-l", "0"], "--a-over-l"),
     (["--a-over-l", "-0.5"], "--a-over-l"),
@@ -33,3 +35,25 @@ def test_missing_a_over_l_is_named(capsim, tmp_path):
     result = subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--ca", "0.05",
                              "--out", str(tmp_path / "x.h5")], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "--a-over-l" in result.stderr
+
+
+def haberman_sayre_velocity(size_ratio: float) -> float:
+    """v_c/V of a rigid sphere on the axis of Poiseuille flow in a tube, with the wall
+    correction of Haberman & Sayre (1958): U/U_max = (1 - 2/3 k^2 - 0.20217 k^5)/(1 - 0.75857 k^5)."""
+    k = size_ratio
+    return 2.0 * (1 - 2.0 / 3.0 * k**2 - 0.20217 * k**5) / (1 - 0.75857 * k**5)
+
+
+@pytest.mark.parametrize("size_ratio", [0.2, 0.4])
+def test_stiff_capsule_moves_like_a_rigid_sphere(capsim, tmp_path, size_ratio):
+    # Ca_s = 1e-3: the membrane barely deforms, and the capsule must travel at the velocity
+    # of a freely suspended rigid sphere on the tube axis.
+    out = tmp_path / "stiff.h5"
+    subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--ca", "0.001", "--a-over-l", str(size_ratio),
+                    "--quiet", "--out", str(out)], check=True, timeout=600)
+    case = read_case(out)
+    assert case.status == "steady", case.message
+    assert case.steady_value("v_c") == pytest.approx(haberman_sayre_velocity(size_ratio), rel=0.01)
+    assert case.steady_value("L_z") == pytest.approx(2 * size_ratio, rel=2e-3)
+    assert case.steady_value("L_p") < 1e-3
+    assert abs(case.history["volume"][-1] / case.history["volume"][0] - 1) < 1e-6
