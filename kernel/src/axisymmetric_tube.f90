@@ -24,7 +24,7 @@ module axisymmetric_tube
    use case_output, only: case_summary_t
    implicit none
    private
-   public :: axisymmetric_tube_t, tube_wall_elements
+   public :: axisymmetric_tube_t, tube_wall_elements, velocity_jacobian, pack_dofs, unpack_dofs
 
    integer, parameter :: h_t = 1, h_area = 2, h_volume = 3, h_lz = 4, h_lp = 5, h_vc = 6, h_rmax = 7, &
                          h_energy = 8, h_stretch = 9
@@ -252,60 +252,205 @@ contains
       class(axisymmetric_tube_t), intent(inout) :: self
       real(dp), intent(in) :: rz(:, :)
       real(dp), intent(out) :: u(:, :)
-      integer :: n, i, k, e, info, end_flag
-      real(dp) :: acc(2), flux, norm_sum, rhs(2 * self%n_wall, 1)
+      integer :: n, i, k, info
+      real(dp) :: raw(2, size(rz, 2)), rhs(2 * self%n_wall, 1)
 
       n = size(rz, 2)
-      call meridian_forces(self%ref, self%law, rz, self%force, self%energy)
-      call meridian_node_areas(rz, self%node_area)
-      do k = 1, n
-         self%density(:, k) = self%force(:, k) / self%node_area(k)
-      end do
+      call membrane_density(self, rz, self%density, self%energy)
       ! Membrane single layer at the wall collocation points, then the wall traction.
-      !$omp parallel do default(none) shared(self, rz, rhs, n) private(i, e, acc) schedule(static)
+      !$omp parallel do default(none) shared(self, rz, rhs, n) private(i) schedule(static)
       do i = 1, self%n_wall
-         acc = 0.0_dp
-         do e = 1, n - 1
-            acc = acc + segment_integral(self%wall_mid(1, i), self%wall_mid(2, i), rz(1, e), rz(2, e), &
-                                         rz(1, e + 1), rz(2, e + 1), self%density(:, e), self%density(:, e + 1), 0)
-         end do
-         rhs(2 * i - 1:2 * i, 1) = -acc
+         rhs(2 * i - 1:2 * i, 1) = -membrane_single_layer(rz, self%density, self%wall_mid(:, i), 1, n - 1, 0)
       end do
       !$omp end parallel do
       call dgetrs('N', 2 * self%n_wall, 1, self%wall_lu, 2 * self%n_wall, self%wall_pivot, rhs, 2 * self%n_wall, info)
       self%wall_traction = rhs(:, 1)
-      ! Velocity of the membrane nodes.
-      !$omp parallel do default(none) shared(self, rz, u, n) private(k, e, i, acc, end_flag) schedule(static)
+      !$omp parallel do default(none) shared(self, rz, raw, n) private(k) schedule(static)
       do k = 1, n
-         acc = 0.0_dp
-         do e = 1, n - 1
-            end_flag = 0
-            if (k == e) end_flag = 1
-            if (k == e + 1) end_flag = 2
-            acc = acc + segment_integral(rz(1, k), rz(2, k), rz(1, e), rz(2, e), rz(1, e + 1), rz(2, e + 1), &
-                                         self%density(:, e), self%density(:, e + 1), end_flag)
-         end do
-         do i = 1, self%n_wall
-            acc = acc + wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), self%wall_traction(2 * i - 1:2 * i), &
-                                              rz(1, k), rz(2, k), .false.)
-         end do
-         u(:, k) = acc / (8.0_dp * pi * self%ca) + [0.0_dp, 2.0_dp * (1.0_dp - rz(1, k)**2)]
+         raw(:, k) = membrane_single_layer(rz, self%density, rz(:, k), 1, n - 1, k) + &
+                     wall_single_layer_at(self, self%wall_traction, rz(:, k))
       end do
       !$omp end parallel do
+      call finish_velocity(self, rz, raw, u, self%v_c)
+   end subroutine velocity
+
+   !> Force density f = F/A on the meridian (F = -dE/dx, A the dual-cell areas).
+   pure subroutine membrane_density(self, rz, density, energy)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :)
+      real(dp), intent(out) :: density(:, :), energy
+      real(dp) :: force(2, size(rz, 2)), area(size(rz, 2))
+      integer :: k
+      call meridian_forces(self%ref, self%law, rz, force, energy)
+      call meridian_node_areas(rz, area)
+      do k = 1, size(rz, 2)
+         density(:, k) = force(:, k) / area(k)
+      end do
+   end subroutine membrane_density
+
+   !> Sum over membrane elements e1..e2 of the ring single layer (without 1/(8 pi)) at point x;
+   !> `node` > 0 says that x is that meridian node (the log singularity sits at a segment end).
+   pure function membrane_single_layer(rz, density, x, e1, e2, node) result(acc)
+      real(dp), intent(in) :: rz(:, :), density(:, :), x(2)
+      integer, intent(in) :: e1, e2, node
+      real(dp) :: acc(2)
+      integer :: e, end_flag
+      acc = 0.0_dp
+      do e = e1, e2
+         end_flag = 0
+         if (node == e) end_flag = 1
+         if (node == e + 1) end_flag = 2
+         acc = acc + segment_integral(x(1), x(2), rz(1, e), rz(2, e), rz(1, e + 1), rz(2, e + 1), &
+                                      density(:, e), density(:, e + 1), end_flag)
+      end do
+   end function membrane_single_layer
+
+   !> Wall single layer (without 1/(8 pi)) of the wall traction g at point x.
+   pure function wall_single_layer_at(self, g, x) result(acc)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: g(:), x(2)
+      real(dp) :: acc(2)
+      integer :: i
+      acc = 0.0_dp
+      do i = 1, self%n_wall
+         acc = acc + wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), g(2 * i - 1:2 * i), x(1), x(2), .false.)
+      end do
+   end function wall_single_layer_at
+
+   !> From the raw single-layer sums to the membrane velocity in the capsule frame: scale by
+   !> 1/(8 pi Ca), add v_inf, keep the poles on the axis, remove the net flux (as in 3D),
+   !> subtract the centroid velocity v_c.
+   pure subroutine finish_velocity(self, rz, raw, u, v_c)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :), raw(:, :)
+      real(dp), intent(out) :: u(:, :), v_c
+      real(dp) :: grad(2, size(rz, 2)), flux, norm_sum
+      integer :: n, k
+      n = size(rz, 2)
+      do k = 1, n
+         u(:, k) = raw(:, k) / (8.0_dp * pi * self%ca) + [0.0_dp, 2.0_dp * (1.0_dp - rz(1, k)**2)]
+      end do
       u(1, [1, n]) = 0.0_dp
       if (self%volume_correction) then
-         ! As in 3D: remove the discretisation's net flux through the membrane.
-         call meridian_volume_gradient(rz, self%grad)
-         self%grad(1, [1, n]) = 0.0_dp
-         flux = sum(u * self%grad)
-         norm_sum = sum(norm2(self%grad, dim=1))
+         call meridian_volume_gradient(rz, grad)
+         grad(1, [1, n]) = 0.0_dp
+         flux = sum(u * grad)
+         norm_sum = sum(norm2(grad, dim=1))
          do k = 1, n
-            u(:, k) = u(:, k) - (flux / norm_sum) * self%grad(:, k) / norm2(self%grad(:, k))
+            u(:, k) = u(:, k) - (flux / norm_sum) * grad(:, k) / norm2(grad(:, k))
          end do
       end if
-      self%v_c = centroid_velocity(rz, u)
-      u(2, :) = u(2, :) - self%v_c
-   end subroutine velocity
+      v_c = centroid_velocity(rz, u)
+      u(2, :) = u(2, :) - v_c
+   end subroutine finish_velocity
+
+   !> Forward-difference Jacobian of the packed velocity at rz, column by column, but with
+   !> each column costing ~1/15 of a velocity evaluation: moving node k changes the force
+   !> density only at nodes k-1..k+1, so only elements k-2..k+1 change their single layer
+   !> (the difference is added to the stored sums), the wall traction follows from the
+   !> factorised wall matrix, and the wall's single layer at the unmoved nodes is a stored
+   !> matrix (wall traction -> node velocity) applied to it. Only the moved node's own sums
+   !> are recomputed in full. Agrees with brute-force differences to the quadrature noise.
+   subroutine velocity_jacobian(self, rz, fd_step, jacobian)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(in) :: rz(:, :), fd_step
+      real(dp), intent(out) :: jacobian(:, :)
+      integer :: n, nw, i, k, j, m, comp, info
+      real(dp) :: energy, v_c
+      real(dp), allocatable :: density0(:, :), raw0(:, :), b0(:), g0(:), influence(:, :), u0(:, :), packed0(:)
+
+      n = size(rz, 2)
+      nw = self%n_wall
+      m = 2 * n - 2
+      allocate (density0(2, n), raw0(2, n), b0(2 * nw), g0(2 * nw), influence(2 * n, 2 * nw), u0(2, n), packed0(m))
+      call membrane_density(self, rz, density0, energy)
+      !$omp parallel do default(none) shared(self, rz, density0, b0, n, nw) private(i) schedule(static)
+      do i = 1, nw
+         b0(2 * i - 1:2 * i) = membrane_single_layer(rz, density0, self%wall_mid(:, i), 1, n - 1, 0)
+      end do
+      !$omp end parallel do
+      ! influence(2k-1:2k, 2i-1:2i): wall element i's single layer at node k per unit traction.
+      !$omp parallel do default(none) shared(self, rz, influence, n, nw) private(i, k) schedule(static)
+      do k = 1, n
+         do i = 1, nw
+            influence(2 * k - 1:2 * k, 2 * i - 1) = wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), &
+                                                                          [1.0_dp, 0.0_dp], rz(1, k), rz(2, k), .false.)
+            influence(2 * k - 1:2 * k, 2 * i) = wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), &
+                                                                      [0.0_dp, 1.0_dp], rz(1, k), rz(2, k), .false.)
+         end do
+      end do
+      !$omp end parallel do
+      block
+         real(dp) :: rhs(2 * nw, 1)
+         rhs(:, 1) = -b0
+         call dgetrs('N', 2 * nw, 1, self%wall_lu, 2 * nw, self%wall_pivot, rhs, 2 * nw, info)
+         g0 = rhs(:, 1)
+         do k = 1, n
+            raw0(:, k) = membrane_single_layer(rz, density0, rz(:, k), 1, n - 1, k) + &
+                         matmul(influence(2 * k - 1:2 * k, :), g0)
+         end do
+      end block
+      call finish_velocity(self, rz, raw0, u0, v_c)
+      call pack_dofs(u0, packed0)
+
+      !$omp parallel do default(none) shared(self, rz, density0, raw0, b0, g0, influence, packed0, jacobian, fd_step, n, nw, m) &
+      !$omp private(j, k, comp) schedule(dynamic)
+      do j = 1, m
+         call dof_node(j, n, k, comp)
+         call one_column(j, k, comp)
+      end do
+      !$omp end parallel do
+
+   contains
+
+      subroutine one_column(col, node, c)
+         integer, intent(in) :: col, node, c
+         real(dp) :: rz1(2, n), density1(2, n), raw1(2, n), u1(2, n), packed1(m), rhs(2 * nw, 1), e1
+         real(dp) :: vc1
+         integer :: first, last, q, info1, w
+         rz1 = rz
+         rz1(c, node) = rz(c, node) + fd_step
+         call membrane_density(self, rz1, density1, e1)
+         first = max(1, node - 2)
+         last = min(n - 1, node + 1)
+         do w = 1, nw
+            rhs(2 * w - 1:2 * w, 1) = -(b0(2 * w - 1:2 * w) &
+                                        + membrane_single_layer(rz1, density1, self%wall_mid(:, w), first, last, 0) &
+                                        - membrane_single_layer(rz, density0, self%wall_mid(:, w), first, last, 0))
+         end do
+         call dgetrs('N', 2 * nw, 1, self%wall_lu, 2 * nw, self%wall_pivot, rhs, 2 * nw, info1)
+         do q = 1, n
+            if (q == node) then
+               raw1(:, q) = membrane_single_layer(rz1, density1, rz1(:, q), 1, n - 1, q) + &
+                            wall_single_layer_at(self, rhs(:, 1), rz1(:, q))
+            else
+               raw1(:, q) = raw0(:, q) + matmul(influence(2 * q - 1:2 * q, :), rhs(:, 1) - g0) &
+                            + membrane_single_layer(rz1, density1, rz1(:, q), first, last, q) &
+                            - membrane_single_layer(rz, density0, rz(:, q), first, last, q)
+            end if
+         end do
+         call finish_velocity(self, rz1, raw1, u1, vc1)
+         call pack_dofs(u1, packed1)
+         jacobian(:, col) = (packed1 - packed0) / fd_step
+      end subroutine one_column
+
+   end subroutine velocity_jacobian
+
+   !> Node and component (1 = r, 2 = z) of packed degree of freedom j (see pack_dofs).
+   pure subroutine dof_node(j, n, node, comp)
+      integer, intent(in) :: j, n
+      integer, intent(out) :: node, comp
+      if (j == 1) then
+         node = 1
+         comp = 2
+      else if (j == 2 * n - 2) then
+         node = n
+         comp = 2
+      else
+         node = 2 + (j - 2) / 2
+         comp = 1 + mod(j - 2, 2)
+      end if
+   end subroutine dof_node
 
    !> d/dt of the volume centroid's z for node velocities u: (1/V) [oint z (u.n) dS - z_c oint u.n dS],
    !> with P1 velocity on the straight elements (3-point Gauss per element).
@@ -493,7 +638,7 @@ contains
       logical, intent(out) :: converged
       integer, parameter :: max_iterations = 15
       real(dp), parameter :: fd_step = 1.0e-6_dp
-      integer :: m, j, it, info
+      integer :: m, it, info
       real(dp) :: residual, trial, alpha
 
       converged = .false.
@@ -510,14 +655,7 @@ contains
             return
          end if
          call pack_dofs(self%rz, self%dofs)
-         do j = 1, m
-            self%dofs_trial = self%dofs
-            self%dofs_trial(j) = self%dofs(j) + fd_step
-            call unpack_dofs(self%dofs_trial, self%rz_pred)
-            call self%velocity(self%rz_pred, self%u1)
-            call pack_dofs(self%u1, self%res_trial)
-            self%system(1:m, j) = (self%res_trial - self%res) / fd_step
-         end do
+         call velocity_jacobian(self, self%rz, fd_step, self%system(1:m, 1:m))
          self%system(1:m, m + 1:m + 2) = self%border
          self%system(m + 1:m + 2, 1:m) = transpose(self%border)
          self%system(m + 1:m + 2, m + 1:m + 2) = 0.0_dp

@@ -9,6 +9,7 @@
 !>   kernel_probe translate LEVEL DUFFY_ORDER NEAR_LEVELS
 !>   kernel_probe axi-fd LAW NU_S C N_ELEMENTS
 !>   kernel_probe axi-laplace LAW NU_S C LAMBDA N_ELEMENTS
+!>   kernel_probe tube-jacobian A_OVER_L CA   (incremental vs brute-force Jacobian)
 !>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
 program kernel_probe
    use capsim_kinds, only: dp, pi
@@ -34,6 +35,8 @@ program kernel_probe
       call probe_axi_fd(law_arg(2), int_arg(5))
    case ('axi-laplace')
       call probe_axi_laplace(law_arg(2), real_arg(5), int_arg(6))
+   case ('tube-jacobian')
+      call probe_tube_jacobian(real_arg(2), real_arg(3))
    case ('bench')
       call probe_bench(int_arg(2), int_arg(3))
    case ('translate')
@@ -404,6 +407,62 @@ contains
       write (*, '(a,es24.16)') 'pressure_max_rel_error_interior ', maxval(abs(fn(2:n) / pressure - 1.0_dp))
       write (*, '(a,es24.16)') 'pressure_rel_error_pole ', abs(fn(1) / pressure - 1.0_dp)
    end subroutine probe_axi_laplace
+
+   !> The Newton solver's incremental finite-difference Jacobian against columns computed by
+   !> full velocity evaluations, on a capsule deformed by a few RK2 steps.
+   subroutine probe_tube_jacobian(a_over_l, ca)
+      use omp_lib, only: omp_get_wtime
+      use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, pack_dofs
+      use run_options, only: run_options_t
+      real(dp), intent(in) :: a_over_l, ca
+      type(axisymmetric_tube_t) :: tube
+      type(run_options_t) :: opts
+      integer :: stat, k, m, j, node
+      character(len=:), allocatable :: errmsg
+      real(dp), allocatable :: jac(:, :), u0(:, :), u1(:, :), p0(:), p1(:), rz1(:, :)
+      real(dp) :: err, scale, t0, t_incremental, t_brute
+      opts%flow = 'tube'
+      opts%law = 'NH'
+      opts%ca = ca
+      opts%a_over_l = a_over_l
+      opts%integrator = 'rk2'
+      call tube%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      do k = 1, 20
+         call tube%rk2_step()
+      end do
+      m = 2 * size(tube%rz, 2) - 2
+      allocate (jac(m, m), u0(2, size(tube%rz, 2)), u1(2, size(tube%rz, 2)), p0(m), p1(m))
+      t0 = omp_get_wtime()
+      call velocity_jacobian(tube, tube%rz, 1.0e-6_dp, jac)
+      t_incremental = omp_get_wtime() - t0
+      call tube%velocity(tube%rz, u0)
+      call pack_dofs(u0, p0)
+      scale = maxval(abs(jac))
+      err = 0
+      t0 = omp_get_wtime()
+      ! Brute force on a sample of columns: poles, a node near each pole, the equator.
+      do j = 1, m
+         node = 2 + (j - 2) / 2
+         if (.not. (j <= 5 .or. j >= m - 4 .or. abs(node - size(tube%rz, 2) / 2) <= 1)) cycle
+         rz1 = tube%rz
+         if (j == 1) then
+            rz1(2, 1) = rz1(2, 1) + 1.0e-6_dp
+         else if (j == m) then
+            rz1(2, size(rz1, 2)) = rz1(2, size(rz1, 2)) + 1.0e-6_dp
+         else
+            rz1(1 + mod(j - 2, 2), node) = rz1(1 + mod(j - 2, 2), node) + 1.0e-6_dp
+         end if
+         call tube%velocity(rz1, u1)
+         call pack_dofs(u1, p1)
+         err = max(err, maxval(abs((p1 - p0) / 1.0e-6_dp - jac(:, j))))
+      end do
+      t_brute = omp_get_wtime() - t0
+      write (*, '(a,es24.16)') 'max_rel_difference ', err / scale
+      write (*, '(a,es24.16)') 'jacobian_scale ', scale
+      write (*, '(a,es24.16)') 'incremental_s ', t_incremental
+      write (*, '(a,es24.16)') 'one_velocity_s ', t_brute / 12
+   end subroutine probe_tube_jacobian
 
    subroutine random_seed_fixed()
       integer :: n

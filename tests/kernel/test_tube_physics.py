@@ -1,0 +1,60 @@
+"""Tube flow against the paper's findings (section 3.1). Minutes per case: `make validate`."""
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from capsmech.io import read_case
+
+pytestmark = pytest.mark.validate
+
+
+@pytest.fixture(scope="module")
+def tube_case(capsim, tmp_path_factory):
+    cache = {}
+    root = tmp_path_factory.mktemp("tube")
+
+    def run(law: str, nu_s: float, a_over_l: float, ca: float, *extra: str):
+        key = (law, nu_s, a_over_l, ca, extra)
+        if key not in cache:
+            out = root / f"case{len(cache)}.h5"
+            subprocess.run([str(capsim), "--flow", "tube", "--law", law, "--nu-s", str(nu_s),
+                            "--a-over-l", str(a_over_l), "--ca", str(ca), "--quiet", *extra,
+                            "--out", str(out)], check=True, timeout=3600)
+            cache[key] = read_case(out)
+        return cache[key]
+
+    return run
+
+
+def test_parachute_forms_and_length_grows_with_ca(tube_case):
+    low, high = tube_case("NH", 0.5, 0.9, 0.05), tube_case("NH", 0.5, 0.9, 0.1)
+    assert low.status == high.status == "steady", (low.message, high.message)
+    assert low.steady_value("L_p") > 0.01 and high.steady_value("L_p") > low.steady_value("L_p")
+    assert high.steady_value("L_z") > low.steady_value("L_z")
+    assert 1 < high.steady_value("v_c") < low.steady_value("v_c") * 1.05 < 2
+
+
+def test_velocity_falls_with_size_ratio(tube_case):
+    small, large = tube_case("NH", 0.5, 0.7, 0.05), tube_case("NH", 0.5, 0.9, 0.05)
+    assert small.status == large.status == "steady"
+    assert 1 < large.steady_value("v_c") < small.steady_value("v_c") < 2
+
+
+def test_nh_elongates_where_gh_stays_steady(tube_case):
+    # Paper section 3.1.2: NH at a/l = 0.85, Ca_s = 0.15 has no steady state; GH nu_s = 0.5 has.
+    nh = tube_case("NH", 0.5, 0.85, 0.15, "--t-max", "40")
+    gh = tube_case("GH", 0.5, 0.85, 0.15, "--t-max", "40")
+    assert nh.status == "continuous_elongation", nh.message
+    assert gh.status == "steady", gh.message
+
+
+def test_poisson_ratio_acts_at_the_rear_only(tube_case):
+    # Paper section 3.1.1: nu_s leaves the front unchanged and deepens the parachute as it falls.
+    stiff, soft = tube_case("GH", 0.5, 0.9, 0.07), tube_case("GH", 0.2, 0.9, 0.07)
+    assert stiff.status == soft.status == "steady"
+    assert soft.steady_value("L_p") > stiff.steady_value("L_p")
+    front = lambda case: case.profile["z"][0] - case.profile["z"][np.argmax(case.profile["r"])]
+    assert front(soft) == pytest.approx(front(stiff), abs=0.02)
