@@ -20,7 +20,7 @@ module axisymmetric_tube
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
    use run_options, only: run_options_t
-   use capsule_model, only: capsule_model_t
+   use capsule_model, only: capsule_model_t, flatten, unflatten, num
    use case_output, only: case_summary_t
    implicit none
    private
@@ -740,14 +740,6 @@ contains
       end if
    end subroutine run
 
-   pure function num(x) result(text)
-      real(dp), intent(in) :: x
-      character(len=:), allocatable :: text
-      character(len=32) :: buf
-      write (buf, '(es10.3)') x
-      text = trim(adjustl(buf))
-   end function num
-
    !> Degrees of freedom: (r, z) of every node but the poles' r (on the axis).
    pure subroutine pack_dofs(rz, q)
       real(dp), intent(in) :: rz(:, :)
@@ -804,19 +796,13 @@ contains
    subroutine get_state(self, state)
       class(axisymmetric_tube_t), intent(in) :: self
       real(dp), intent(out) :: state(:)
-      integer :: k
-      do k = 1, size(self%rz, 2)
-         state(2 * k - 1:2 * k) = self%rz(:, k)
-      end do
+      call flatten(self%rz, state)
    end subroutine get_state
 
    subroutine set_state(self, state)
       class(axisymmetric_tube_t), intent(inout) :: self
       real(dp), intent(in) :: state(:)
-      integer :: k
-      do k = 1, size(self%rz, 2)
-         self%rz(:, k) = state(2 * k - 1:2 * k)
-      end do
+      call unflatten(state, self%rz)
    end subroutine set_state
 
    function progress_text(self) result(text)

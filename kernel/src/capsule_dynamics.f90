@@ -15,7 +15,7 @@ module capsule_dynamics
    use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
    use run_options, only: run_options_t
-   use capsule_model, only: capsule_model_t
+   use capsule_model, only: capsule_model_t, flatten, unflatten
    implicit none
    private
    public :: capsule_t
@@ -188,23 +188,17 @@ contains
       state_size = size(self%x)
    end function state_size
 
-   !> Positions as one vector (checkpoints); explicit loops, no temporary.
+   !> Positions as one vector (checkpoints).
    subroutine get_state(self, state)
       class(capsule_t), intent(in) :: self
       real(dp), intent(out) :: state(:)
-      integer :: i
-      do i = 1, size(self%x, 2)
-         state(3 * i - 2:3 * i) = self%x(:, i)
-      end do
+      call flatten(self%x, state)
    end subroutine get_state
 
    subroutine set_state(self, state)
       class(capsule_t), intent(inout) :: self
       real(dp), intent(in) :: state(:)
-      integer :: i
-      do i = 1, size(self%x, 2)
-         self%x(:, i) = state(3 * i - 2:3 * i)
-      end do
+      call unflatten(state, self%x)
    end subroutine set_state
 
    function progress_text(self) result(text)

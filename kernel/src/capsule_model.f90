@@ -15,7 +15,7 @@ module capsule_model
    use case_output, only: case_summary_t, write_checkpoint, read_checkpoint
    implicit none
    private
-   public :: capsule_model_t, t_min_steady, max_element_stretch
+   public :: capsule_model_t, t_min_steady, max_element_stretch, flatten, unflatten, num
 
    !> A steady state is not declared before this time: the first units hold the start-up.
    real(dp), parameter :: t_min_steady = 2.0_dp
@@ -272,6 +272,28 @@ contains
       window_start = min(window_start, self%n_rec)
    end function window_start
 
+   !> Columns of a (m, n) array into one vector (checkpoint state), without a temporary.
+   pure subroutine flatten(a, v)
+      real(dp), intent(in) :: a(:, :)
+      real(dp), intent(out) :: v(:)
+      integer :: k, m
+      m = size(a, 1)
+      do k = 1, size(a, 2)
+         v((k - 1) * m + 1:k * m) = a(:, k)
+      end do
+   end subroutine flatten
+
+   pure subroutine unflatten(v, a)
+      real(dp), intent(in) :: v(:)
+      real(dp), intent(out) :: a(:, :)
+      integer :: k, m
+      m = size(a, 1)
+      do k = 1, size(a, 2)
+         a(:, k) = v((k - 1) * m + 1:k * m)
+      end do
+   end subroutine unflatten
+
+   !> A number as short text for messages.
    pure function num(x) result(s)
       real(dp), intent(in) :: x
       character(len=:), allocatable :: s

@@ -11,6 +11,7 @@
 !>   axi_probe bench N REPEATS              seconds per sphere velocity and per segment integral
 program axi_probe
    use capsim_kinds, only: dp, pi
+   use command_args, only: int_arg, real_arg, string_arg
    use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
    implicit none
@@ -40,25 +41,8 @@ program axi_probe
 
 contains
 
-   integer function int_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) int_arg
-   end function int_arg
 
-   real(dp) function real_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) real_arg
-   end function real_arg
 
-   function string_arg(k) result(s)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-   end function string_arg
 
    subroutine probe_ellip(m1)
       real(dp), intent(in) :: m1

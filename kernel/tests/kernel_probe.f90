@@ -13,6 +13,7 @@
 !>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
 program kernel_probe
    use capsim_kinds, only: dp, pi
+   use command_args, only: int_arg, real_arg, string_arg
    use sphere_mesh, only: surface_mesh_t, icosphere
    use membrane_law, only: membrane_law_t, make_membrane_law
    use membrane_forces, only: membrane_reference_t, membrane_nodal_forces
@@ -48,19 +49,7 @@ program kernel_probe
 
 contains
 
-   integer function int_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) int_arg
-   end function int_arg
 
-   real(dp) function real_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) real_arg
-   end function real_arg
 
    type(membrane_law_t) function law_arg(k)
       integer, intent(in) :: k

@@ -9,6 +9,7 @@
 program wall_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp, pi
+   use command_args, only: int_arg, real_arg, string_arg
    use vector_algebra, only: cross
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
@@ -36,27 +37,8 @@ program wall_probe
 
 contains
 
-   integer function int_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) int_arg
-   end function int_arg
 
-   real(dp) function real_arg(k)
-      integer, intent(in) :: k
-      character(len=64) :: s
-      call get_command_argument(k, s)
-      read (s, *) real_arg
-   end function real_arg
 
-   function string_arg(k) result(s)
-      integer, intent(in) :: k
-      character(len=:), allocatable :: s
-      character(len=1024) :: buffer
-      call get_command_argument(k, buffer)
-      s = trim(buffer)
-   end function string_arg
 
    type(tube_wall_t) function make_wall() result(wall)
       integer :: stat
