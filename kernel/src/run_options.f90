@@ -17,9 +17,10 @@ module run_options
       real(dp) :: a_over_l = -huge(1.0_dp)
       character(len=16) :: model = 'axi'
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
-      !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time-accurate).
+      !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
+      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise).
       integer :: n_meridian = 48
-      character(len=16) :: integrator = 'newton'
+      character(len=16) :: integrator = 'auto'
       !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
       real(dp) :: newton_tol = 1.0e-8_dp
       real(dp) :: nu_s = 0.5_dp
@@ -49,7 +50,7 @@ module run_options
 
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
-      ' [--model axi] [--n-meridian N] [--integrator newton|rk2] [--level N] [--dt X]'// &
+      ' [--model axi] [--n-meridian N] [--integrator auto|newton|rk2] [--level N] [--dt X]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -286,8 +287,8 @@ contains
             errmsg = '--model: the 3d tube solver is not available yet in this version (use axi)'
          else if (trim(opts%model) /= 'axi') then
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
-         else if (trim(opts%integrator) /= 'newton' .and. trim(opts%integrator) /= 'rk2') then
-            errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected newton or rk2)'
+         else if (all(trim(opts%integrator) /= [character(len=6) :: 'auto', 'newton', 'rk2'])) then
+            errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton or rk2)'
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
             errmsg = '--n-meridian: must be between 8 and 1024, got '//int_text(opts%n_meridian)
          end if
