@@ -96,6 +96,7 @@ contains
       self%col_shape = [h_d12]
       self%area_scale = 4 * pi
       self%length_limit = opts%max_length
+      self%shape_rel_tol = opts%shape_tol
    end subroutine init
 
    !> Membrane velocity at positions x.

@@ -35,6 +35,9 @@ module capsule_model
       integer, allocatable :: col_shape(:)
       !> Area scale of the steady criterion (4 pi a**2) and elongation limit of col_length.
       real(dp) :: area_scale = 1, length_limit = huge(1.0_dp)
+      !> A shape measure has settled when it varies over one time unit by less than
+      !> shape_rel_tol * |value| + shape_abs_tol.
+      real(dp) :: shape_rel_tol = 5.0e-3_dp, shape_abs_tol = 1.0e-4_dp
       !> Largest membrane velocity in the capsule frame (steady solvers report it).
       real(dp) :: residual = huge(1.0_dp)
    contains
@@ -215,7 +218,7 @@ contains
       do k = 1, size(self%col_shape)
          c = self%col_shape(k)
          shape_var = maxval(self%history(c, first:n)) - minval(self%history(c, first:n))
-         if (shape_var >= opts%shape_tol * abs(self%history(c, n)) + 1.0e-4_dp) return
+         if (shape_var >= self%shape_rel_tol * abs(self%history(c, n)) + self%shape_abs_tol) return
          detail = detail//', '//num(shape_var)
       end do
       summary%status = 'steady'
@@ -224,27 +227,35 @@ contains
       decided = .true.
    end subroutine classify
 
-   !> At t_max: continuous elongation if the length still grows without slowing down (growth
-   !> over the last time unit at least half that over the one before) after a run long
-   !> enough to judge; otherwise the time limit.
+   !> At t_max: continuous elongation if the length grew, by more than the steady tolerance,
+   !> in every one of the last `creep_units` time units (a capsule may creep in bursts, so
+   !> the rate itself is not required to hold); otherwise the time limit.
    subroutine classify_at_time_limit(self, opts, summary)
       class(capsule_model_t), intent(in) :: self
       type(run_options_t), intent(in) :: opts
       type(case_summary_t), intent(inout) :: summary
-      real(dp), parameter :: min_time_to_judge = 5.0_dp
-      integer :: last, mid, first
-      real(dp) :: t_now, growth_last, growth_before
+      integer, parameter :: creep_units = 5
+      integer :: last, k, newer, older
+      real(dp) :: t_now, growth, threshold, total
+      logical :: creeping
       last = self%n_rec
       t_now = self%history(self%col_t, last)
-      mid = window_start(self, t_now - 1.0_dp)
-      first = window_start(self, t_now - 2.0_dp)
-      growth_last = self%history(self%col_length, last) - self%history(self%col_length, mid)
-      growth_before = self%history(self%col_length, mid) - self%history(self%col_length, first)
-      if (t_now >= min_time_to_judge .and. growth_last > opts%shape_tol * self%history(self%col_length, last) .and. &
-          growth_last >= 0.5_dp * growth_before) then
+      creeping = t_now >= creep_units
+      total = 0.0_dp
+      do k = 1, creep_units
+         if (.not. creeping) exit
+         newer = window_start(self, t_now - (k - 1))
+         if (k == 1) newer = last
+         older = window_start(self, t_now - k)
+         growth = self%history(self%col_length, newer) - self%history(self%col_length, older)
+         threshold = self%shape_rel_tol * abs(self%history(self%col_length, newer)) + self%shape_abs_tol
+         creeping = growth > threshold
+         total = total + growth
+      end do
+      if (creeping) then
          summary%status = 'continuous_elongation'
-         summary%message = 'the capsule length still grew at t_max = '//num(opts%t_max)//' (by '//num(growth_last)// &
-                           ' over the last time unit, not slowing down): no steady shape'
+         summary%message = 'the capsule length grew in each of the last 5 time units up to t_max = '// &
+                           num(opts%t_max)//' (by '//num(total)//' in all): no steady shape'
       else
          summary%status = 'max_time'
          summary%message = 'no steady state by t_max = '//num(opts%t_max)
