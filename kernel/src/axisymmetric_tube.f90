@@ -33,9 +33,8 @@ module axisymmetric_tube
    character(len=*), parameter :: tube_history_units(9) = [character(len=16) :: &
                                   'l/V', 'l^2', 'l^3', 'l', 'l', 'V', 'l', 'G_s l^2', '1']
 
-   !> Tube length [l] and wall element sizes: fine over |z| < fine_half_length, growing
-   !> geometrically (ratio wall_growth) to coarse_size towards the end sections.
-   real(dp), parameter :: tube_half_length = 5.0_dp
+   !> Wall element sizes: fine over |z| < 2, growing geometrically (ratio wall_growth) to
+   !> coarse_size towards the end sections (the tube length is a run option).
    real(dp), parameter :: fine_size = 0.04_dp, coarse_size = 0.3_dp, wall_growth = 1.2_dp
    integer, parameter :: disk_elements = 10
    !> The automatic solver choice uses Newton below this Ca and RK2 time stepping above (see run).
@@ -69,7 +68,7 @@ module axisymmetric_tube
 
    type, extends(capsule_model_t) :: axisymmetric_tube_t
       type(meridian_reference_t) :: ref
-      real(dp) :: ca = 0, a = 0, h_min = 0, energy = 0, v_c = 0, volume0 = 0
+      real(dp) :: ca = 0, a = 0, h_min = 0, energy = 0, v_c = 0, volume0 = 0, tube_length = 10
       logical :: volume_correction = .true.
       !> Steady solver (Newton with continuation in Ca) or Heun's RK2 (time-accurate).
       logical :: newton = .true.
@@ -137,7 +136,8 @@ contains
       allocate (self%rz_pred(2, n), self%u0(2, n), self%u1(2, n), self%force(2, n), self%density(2, n))
       allocate (self%node_area(n), self%grad(2, n))
 
-      call tube_wall_elements(self%wall_a, self%wall_b)
+      self%tube_length = opts%tube_length
+      call tube_wall_elements(0.5_dp * self%tube_length, self%wall_a, self%wall_b)
       self%n_wall = size(self%wall_a, 2)
       self%wall_mid = 0.5_dp * (self%wall_a + self%wall_b)
       allocate (self%wall_traction(2 * self%n_wall))
@@ -179,7 +179,8 @@ contains
    end subroutine init
 
    !> Wall elements of the tube boundary, inlet disk, cylinder, outlet disk (end points (r, z)).
-   subroutine tube_wall_elements(wall_a, wall_b)
+   subroutine tube_wall_elements(tube_half_length, wall_a, wall_b)
+      real(dp), intent(in) :: tube_half_length
       real(dp), allocatable, intent(out) :: wall_a(:, :), wall_b(:, :)
       real(dp), allocatable :: z_half(:), z(:)
       real(dp) :: h, zc
@@ -824,7 +825,7 @@ contains
       character(len=:), allocatable, intent(out) :: errmsg
       call f%write_attr('/', 'n_nodes', size(self%rz, 2), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'n_wall_elements', self%n_wall, stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'tube_length', 2 * tube_half_length, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'tube_length', self%tube_length, stat, errmsg)
       if (stat == 0) call f%make_group('/mesh', stat, errmsg)
       if (stat == 0) call f%write_dataset('/mesh/reference_meridian', self%rz_ref, 'l', stat, errmsg)
       if (stat == 0) call f%write_dataset('/mesh/meridian', self%rz, 'l', stat, errmsg)

@@ -20,6 +20,8 @@ module run_options
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
       !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise).
       integer :: n_meridian = 48
+      !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
+      real(dp) :: tube_length = 10.0_dp
       character(len=16) :: integrator = 'auto'
       !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
       real(dp) :: newton_tol = 1.0e-8_dp
@@ -50,7 +52,7 @@ module run_options
 
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
-      ' [--model axi] [--n-meridian N] [--integrator auto|newton|rk2] [--level N] [--dt X]'// &
+      ' [--model axi] [--n-meridian N] [--tube-length X] [--integrator auto|newton|rk2] [--level N] [--dt X]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -131,6 +133,8 @@ contains
             call read_real(key, value, opts%a_over_l)
          case ('--integrator')
             opts%integrator = value(:len(opts%integrator))
+         case ('--tube-length')
+            call read_real(key, value, opts%tube_length)
          case ('--n-meridian')
             call read_int(key, value, opts%n_meridian)
          case ('--out')
@@ -289,6 +293,8 @@ contains
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
          else if (all(trim(opts%integrator) /= [character(len=6) :: 'auto', 'newton', 'rk2'])) then
             errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton or rk2)'
+         else if (opts%tube_length < 4.0_dp .or. opts%tube_length > 40.0_dp) then
+            errmsg = '--tube-length: must be between 4 and 40 tube radii, got '//real_text(opts%tube_length)
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
             errmsg = '--n-meridian: must be between 8 and 1024, got '//int_text(opts%n_meridian)
          end if
@@ -359,11 +365,11 @@ contains
    function option_signature(opts) result(sig)
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig
-      character(len=512) :: buf
-      write (buf, '(a,1x,a,6(1x,es23.16),1x,i0,3(1x,es23.16),1x,l1,1x,es23.16,1x,a,1x,i0)') trim(opts%flow), &
-         trim(opts%law), opts%nu_s, opts%c, opts%ca, opts%dt, opts%dt_factor, opts%steady_tol, opts%level, &
-         opts%shape_tol, opts%max_length, opts%record_every, opts%volume_correction, opts%a_over_l + opts%newton_tol, &
-         trim(opts%model)//'/'//trim(opts%integrator), opts%n_meridian
+      character(len=1024) :: buf
+      write (buf, '(4(a,1x),2(i0,1x),l1,12(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
+         trim(opts%integrator), opts%level, opts%n_meridian, opts%volume_correction, opts%nu_s, opts%c, opts%ca, &
+         opts%a_over_l, opts%dt, opts%dt_factor, opts%steady_tol, opts%shape_tol, opts%max_length, &
+         opts%record_every, opts%newton_tol, opts%tube_length
       sig = trim(buf)
    end function option_signature
 

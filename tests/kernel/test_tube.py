@@ -16,6 +16,7 @@ BAD_TUBE_INPUTS = [
     (["--model", "fem"], "--model"),
     (["--n-meridian", "4"], "--n-meridian"),
     (["--integrator", "euler"], "--integrator"),
+    (["--tube-length", "2"], "--tube-length"),
 ]
 
 
