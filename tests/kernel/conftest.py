@@ -37,3 +37,16 @@ def probe():
 @pytest.fixture(scope="session")
 def capsim() -> Path:
     return _executable("capsim")
+
+
+def assert_usage_error(capsim: Path, base: dict[str, str], override: list[str], field: str, out: Path) -> None:
+    """Run capsim with `base` options updated by `override` (flag, value pairs) and assert the
+    edge behaviour for bad input: exit code 2, one stderr line naming `field`, no output file."""
+    args = dict(base)
+    args.update(dict(zip(override[::2], override[1::2])))
+    argv = [str(capsim)] + [a for kv in args.items() for a in kv]
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("capsim: error: " + field), result.stderr
+    assert not out.exists()

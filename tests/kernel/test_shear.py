@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
+from conftest import assert_usage_error
 
 
 @pytest.fixture(scope="session")
@@ -118,20 +119,9 @@ BAD_INPUTS = [
 
 @pytest.mark.parametrize("override,field", BAD_INPUTS, ids=[f for _, f in BAD_INPUTS])
 def test_bad_input_exits_2_naming_the_field(capsim, tmp_path, override, field):
-    args = {"--flow": "shear", "--law": "NH", "--ca": "0.1", "--out": str(tmp_path / "x.h5")}
-    extra = []
-    it = iter(override)
-    for key, value in zip(it, it):
-        if key in args:
-            args[key] = value
-        else:
-            extra += [key, value]
-    argv = [str(capsim)] + [a for kv in args.items() for a in kv] + extra
-    result = subprocess.run(argv, capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("capsim: error: " + field), result.stderr
-    assert not (tmp_path / "x.h5").exists()
+    out = tmp_path / "x.h5"
+    base = {"--flow": "shear", "--law": "NH", "--ca": "0.1", "--out": str(out)}
+    assert_usage_error(capsim, base, override, field, out)
 
 
 def test_missing_out_exits_2(capsim):
