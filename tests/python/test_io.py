@@ -403,3 +403,25 @@ def test_out_path_from_args() -> None:
     assert out_path_from_args(["--out", "a.h5"]) == Path("a.h5")
     assert out_path_from_args(["--out=b/c.h5", "--ca", "1"]) == Path("b/c.h5")
     assert out_path_from_args(["--ca", "1"]) is None
+
+
+def test_show_summarises_and_plots_an_axisymmetric_tube_case(tmp_path: Path, capsys) -> None:
+    # The tube case file carries a meridian (n, 2) instead of a triangle mesh, and an (r, z) profile.
+    path = tmp_path / "tube.h5"
+    theta = np.linspace(0, np.pi, 17)
+    rz = np.c_[0.8 * np.sin(theta), 0.8 * np.cos(theta)]
+    with h5py.File(path, "w") as f:
+        for key, value in dict(schema_version=np.int32(1), code_version="0.1.0", flow="tube", law="NH",
+                               nu_s=0.5, C=1.0, Ca_s=0.05, a_over_l=0.8, mesh_level=np.int32(3), dt=1e-3,
+                               status="steady", message="ok", wall_time_s=1.0, threads=np.int32(1)).items():
+            f.attrs[key] = value
+        for group, data in {"history": {"t": np.array([0.0, 1.0]), "L_z": np.array([1.6, 1.7])},
+                            "steady": {"L_z": np.float64(1.7)},
+                            "mesh": {"reference_meridian": rz, "meridian": rz},
+                            "profile": {"r": rz[:, 0], "z": rz[:, 1]}}.items():
+            for name, values in data.items():
+                f.create_dataset(f"{group}/{name}", data=values).attrs["units"] = "l"
+    assert main(["show", str(path), "--plot", str(tmp_path / "tube.png")]) == 0
+    out = capsys.readouterr().out
+    assert "meridian of 17 nodes" in out and "tube" in out
+    assert (tmp_path / "tube.png").stat().st_size > 0

@@ -57,16 +57,20 @@ def format_summary(case: CaseResult) -> str:
         Multi-line text: file, flow, law and parameters, mesh, status and
         message, steady scalars with units, wall time and threads, versions.
     """
-    mesh = ""
-    if case.mesh:
-        mesh = f" ({case.mesh['nodes'].shape[0]} nodes, {case.mesh['triangles'].shape[0]} triangles)"
+    if "meridian" in case.mesh:
+        mesh_text = f"meridian of {case.mesh['meridian'].shape[0]} nodes (axisymmetric)"
+    elif case.mesh:
+        mesh_text = (f"level {case.mesh_level} ({case.mesh['nodes'].shape[0]} nodes, "
+                     f"{case.mesh['triangles'].shape[0]} triangles)")
+    else:
+        mesh_text = f"level {case.mesh_level}"
     lines = [
         f"case        {case.path}",
         f"flow        {case.flow}",
         f"law         {case.law}   nu_s = {_fmt(case.nu_s)}   C = {_fmt(case.C)}",
         f"Ca_s        {_fmt(case.Ca_s)}",
         f"a/l         {_fmt(case.a_over_l)}",
-        f"mesh        level {case.mesh_level}{mesh}",
+        f"mesh        {mesh_text}",
         f"dt          {_fmt(case.dt)} {_units(case.unit('history/t'))}",
         f"status      {case.status}",
         f"message     {case.message}",
