@@ -183,7 +183,8 @@ contains
       type(case_summary_t), intent(inout) :: summary
       logical, intent(out) :: decided
       integer :: first, n, k, c
-      real(dp) :: t_now, area_var, shape_var, growth
+      real(dp) :: t_now, area_var, shape_var, growth, creep_growth
+      logical :: still_growing
       character(len=:), allocatable :: detail
 
       decided = .false.
@@ -199,10 +200,11 @@ contains
       first = window_start(self, t_now - 1.0_dp)
       if (self%history(self%col_stretch, n) > max_element_stretch) then
          growth = self%history(self%col_length, n) - self%history(self%col_length, first)
-         if (growth > 0.01_dp) then
+         still_growing = creeping(self, creep_growth)
+         if (growth > 0.01_dp .or. still_growing) then
             summary%status = 'continuous_elongation'
-            summary%message = 'mesh broke down at t = '//num(t_now)//' while the length grew by '//num(growth)// &
-                              ' over the last time unit: no steady shape'
+            summary%message = 'mesh broke down at t = '//num(t_now)//' while the capsule kept elongating (by '// &
+                              num(max(growth, creep_growth))//' over the last time units): no steady shape'
          else
             summary%status = 'failed'
             summary%message = 'mesh breakdown at t = '//num(t_now)//' (element stretch above '// &
@@ -227,17 +229,32 @@ contains
       decided = .true.
    end subroutine classify
 
-   !> At t_max: continuous elongation if the length grew, by more than the steady tolerance,
-   !> in every one of the last `creep_units` time units (a capsule may creep in bursts, so
-   !> the rate itself is not required to hold); otherwise the time limit.
+   !> At t_max: continuous elongation if the capsule is creeping (see `creeping`); otherwise
+   !> the time limit.
    subroutine classify_at_time_limit(self, opts, summary)
       class(capsule_model_t), intent(in) :: self
       type(run_options_t), intent(in) :: opts
       type(case_summary_t), intent(inout) :: summary
+      real(dp) :: total
+      if (creeping(self, total)) then
+         summary%status = 'continuous_elongation'
+         summary%message = 'the capsule length grew in each of the last 5 time units up to t_max = '// &
+                           num(opts%t_max)//' (by '//num(total)//' in all): no steady shape'
+      else
+         summary%status = 'max_time'
+         summary%message = 'no steady state by t_max = '//num(opts%t_max)
+      end if
+   end subroutine classify_at_time_limit
+
+   !> True if the length grew, by more than the steady tolerance, in every one of the last
+   !> `creep_units` time units (capsules creep in bursts, so the rate itself need not hold);
+   !> `total` is the growth over those units.
+   logical function creeping(self, total)
+      class(capsule_model_t), intent(in) :: self
+      real(dp), intent(out) :: total
       integer, parameter :: creep_units = 5
       integer :: last, k, newer, older
-      real(dp) :: t_now, growth, threshold, total
-      logical :: creeping
+      real(dp) :: t_now, growth, threshold
       last = self%n_rec
       t_now = self%history(self%col_t, last)
       creeping = t_now >= creep_units
@@ -252,15 +269,7 @@ contains
          creeping = growth > threshold
          total = total + growth
       end do
-      if (creeping) then
-         summary%status = 'continuous_elongation'
-         summary%message = 'the capsule length grew in each of the last 5 time units up to t_max = '// &
-                           num(opts%t_max)//' (by '//num(total)//' in all): no steady shape'
-      else
-         summary%status = 'max_time'
-         summary%message = 'no steady state by t_max = '//num(opts%t_max)
-      end if
-   end subroutine classify_at_time_limit
+   end function creeping
 
    !> Records fall on the first step at or after each multiple of `every`; computed from the
    !> last record alone, so that a resumed run records at the same steps as an uninterrupted one.
