@@ -20,7 +20,7 @@ module axisymmetric_tube
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
    use run_options, only: run_options_t
-   use capsule_model, only: capsule_model_t, flatten, unflatten, num
+   use capsule_model, only: capsule_model_t, num
    use case_output, only: case_summary_t
    implicit none
    private
@@ -77,8 +77,8 @@ module axisymmetric_tube
       integer, allocatable :: pivot(:)
       !> The bordered system's LU from the last Newton step, reused for the Ca predictor.
       logical :: have_lu = .false.
-      !> Reference (sphere of radius a/l) and initial (sphere or spheroid) meridians, current one.
-      real(dp), allocatable :: rz_ref(:, :), rz_start(:, :), rz(:, :)
+      !> Reference meridian (sphere of radius a/l); the run starts from a sphere or a spheroid.
+      real(dp), allocatable :: rz_ref(:, :)
       !> Wall elements: end points and mid-points (r, z); factorised wall matrix.
       integer :: n_wall = 0
       real(dp), allocatable :: wall_a(:, :), wall_b(:, :), wall_mid(:, :)
@@ -91,11 +91,7 @@ module axisymmetric_tube
       procedure :: velocity
       procedure :: rk2_step
       procedure :: record
-      procedure :: reset
       procedure :: run
-      procedure :: state_size
-      procedure :: get_state
-      procedure :: set_state
       procedure :: progress_text
       procedure :: write_geometry
    end type axisymmetric_tube_t
@@ -116,21 +112,21 @@ contains
       self%ca = opts%ca
       self%volume_correction = opts%volume_correction
       n = opts%n_meridian + 1
-      allocate (self%rz_ref(2, n), self%rz_start(2, n))
+      allocate (self%rz_ref(2, n), self%start_positions(2, n))
       c_axis = self%a
       if (self%a >= predeform_from) c_axis = self%a**3 / predeform_radius**2
       do k = 1, n
          theta = pi * (k - 1) / (n - 1)
          self%rz_ref(:, k) = self%a * [sin(theta), cos(theta)]
          if (self%a >= predeform_from) then
-            self%rz_start(:, k) = [predeform_radius * sin(theta), c_axis * cos(theta)]
+            self%start_positions(:, k) = [predeform_radius * sin(theta), c_axis * cos(theta)]
          else
-            self%rz_start(:, k) = self%rz_ref(:, k)
+            self%start_positions(:, k) = self%rz_ref(:, k)
          end if
       end do
       self%rz_ref(1, [1, n]) = 0.0_dp
-      self%rz_start(1, [1, n]) = 0.0_dp
-      self%rz = self%rz_start
+      self%start_positions(1, [1, n]) = 0.0_dp
+      self%positions = self%start_positions
       call self%ref%init(self%rz_ref)
       self%h_min = minval(self%ref%length0)
       allocate (self%rz_pred(2, n), self%u0(2, n), self%u1(2, n), self%force(2, n), self%density(2, n))
@@ -164,7 +160,7 @@ contains
       end if
       block
          real(dp) :: area
-         call meridian_area_volume(self%rz_start, area, self%volume0)
+         call meridian_area_volume(self%start_positions, area, self%volume0)
       end block
       call self%allocate_history(tube_history_names, tube_history_units, opts%t_max, opts%record_every)
       self%col_length = h_lz
@@ -512,11 +508,11 @@ contains
    !> Heun's RK2 in the capsule frame (time-accurate), then the centroid put back at z = 0.
    subroutine rk2_step(self)
       class(axisymmetric_tube_t), intent(inout) :: self
-      call self%velocity(self%rz, self%u0)
-      self%rz_pred = self%rz + self%dt * self%u0
+      call self%velocity(self%positions, self%u0)
+      self%rz_pred = self%positions + self%dt * self%u0
       call self%velocity(self%rz_pred, self%u1)
-      self%rz = self%rz + 0.5_dp * self%dt * (self%u0 + self%u1)
-      call restore_volume_and_centre(self, self%rz)
+      self%positions = self%positions + 0.5_dp * self%dt * (self%u0 + self%u1)
+      call restore_volume_and_centre(self, self%positions)
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
@@ -570,7 +566,7 @@ contains
          return
       end if
       ca_good = self%ca
-      self%rz_good = self%rz
+      self%rz_good = self%positions
       factor = 2.0_dp
       do while (ca_good < ca_target)
          ca_try = min(ca_good * factor, ca_target)
@@ -579,12 +575,12 @@ contains
          call newton_solve(self, opts, converged)
          if (converged) then
             ca_good = ca_try
-            self%rz_good = self%rz
+            self%rz_good = self%positions
             if (.not. opts%quiet) write (*, '(a,es10.3,a)') 'capsim: steady shape at Ca = ', ca_good, &
                '  '//self%progress_text()
             factor = min(factor**1.5_dp, 2.0_dp)
          else
-            self%rz = self%rz_good
+            self%positions = self%rz_good
             self%have_lu = .false.
             factor = sqrt(factor)
             if (factor < min_factor) exit
@@ -598,7 +594,7 @@ contains
                            num(self%residual)//' after continuation in Ca'
          steady_index = self%n_rec
       else
-         self%rz = self%rz_good
+         self%positions = self%rz_good
          self%ca = ca_good
          call self%record()
          summary%status = 'continuous_elongation'
@@ -630,18 +626,18 @@ contains
       if (.not. self%have_lu) return
       m = size(self%dofs)
       self%ca = ca_from
-      call self%velocity(self%rz, self%u0)
+      call self%velocity(self%positions, self%u0)
       call pack_dofs(self%u0, self%res)
       self%ca = ca_from * (1.0_dp + rel_step)
-      call self%velocity(self%rz, self%u1)
+      call self%velocity(self%positions, self%u1)
       call pack_dofs(self%u1, self%res_trial)
       self%step_vector(1:m) = -(self%res_trial - self%res) / (ca_from * rel_step) * (ca_to - ca_from)
       self%step_vector(m + 1:m + 2) = 0.0_dp
       call dgetrs('N', m + 2, 1, self%system, m + 2, self%pivot, self%step_vector, m + 2, info)
       if (info /= 0) return
-      call pack_dofs(self%rz, self%dofs)
-      call unpack_dofs(self%dofs + self%step_vector(1:m), self%rz)
-      call restore_volume_and_centre(self, self%rz)
+      call pack_dofs(self%positions, self%dofs)
+      call unpack_dofs(self%dofs + self%step_vector(1:m), self%positions)
+      call restore_volume_and_centre(self, self%positions)
    end subroutine predict_shape
 
    subroutine newton_solve(self, opts, converged)
@@ -655,9 +651,9 @@ contains
 
       converged = .false.
       m = size(self%dofs)
-      call self%velocity(self%rz, self%u0)
+      call self%velocity(self%positions, self%u0)
       call pack_dofs(self%u0, self%res)
-      call constraint_directions(self, self%rz)
+      call constraint_directions(self, self%positions)
       residual = projected_residual(self, self%res)
       do it = 1, max_iterations
          self%residual = residual
@@ -666,8 +662,8 @@ contains
             call self%record()
             return
          end if
-         call pack_dofs(self%rz, self%dofs)
-         call velocity_jacobian(self, self%rz, fd_step, self%system(1:m, 1:m))
+         call pack_dofs(self%positions, self%dofs)
+         call velocity_jacobian(self, self%positions, fd_step, self%system(1:m, 1:m))
          self%system(1:m, m + 1:m + 2) = self%border
          self%system(m + 1:m + 2, 1:m) = transpose(self%border)
          self%system(m + 1:m + 2, m + 1:m + 2) = 0.0_dp
@@ -688,7 +684,7 @@ contains
             alpha = 0.5_dp * alpha
             if (alpha < 1.0_dp / 64) return
          end do
-         self%rz = self%rz_pred
+         self%positions = self%rz_pred
          self%res = self%dofs_trial
          residual = trial
          self%t = self%t + 1
@@ -770,43 +766,21 @@ contains
       class(axisymmetric_tube_t), intent(inout) :: self
       real(dp) :: area, volume, l_z, l_p, stretch, lam_s, lam_p
       integer :: n, e
-      n = size(self%rz, 2)
-      call self%velocity(self%rz, self%u0)
-      call meridian_area_volume(self%rz, area, volume)
-      l_z = maxval(self%rz(2, :)) - minval(self%rz(2, :))
-      l_p = self%rz(2, n) - minval(self%rz(2, :))
+      n = size(self%positions, 2)
+      call self%velocity(self%positions, self%u0)
+      call meridian_area_volume(self%positions, area, volume)
+      l_z = maxval(self%positions(2, :)) - minval(self%positions(2, :))
+      l_p = self%positions(2, n) - minval(self%positions(2, :))
       stretch = 1.0_dp
       do e = 1, n - 1
-         lam_s = norm2(self%rz(:, e + 1) - self%rz(:, e)) / self%ref%length0(e)
-         lam_p = 0.5_dp * (self%rz(1, e) + self%rz(1, e + 1)) / self%ref%radius0(e)
+         lam_s = norm2(self%positions(:, e + 1) - self%positions(:, e)) / self%ref%length0(e)
+         lam_p = 0.5_dp * (self%positions(1, e) + self%positions(1, e + 1)) / self%ref%radius0(e)
          stretch = max(stretch, lam_s, lam_p, 1.0_dp / lam_s, 1.0_dp / lam_p)
       end do
       self%n_rec = min(self%n_rec + 1, size(self%history, 2))
-      self%history(:, self%n_rec) = [self%t, area, volume, l_z, l_p, self%v_c, maxval(self%rz(1, :)), &
+      self%history(:, self%n_rec) = [self%t, area, volume, l_z, l_p, self%v_c, maxval(self%positions(1, :)), &
                                      self%energy, stretch]
    end subroutine record
-
-   subroutine reset(self)
-      class(axisymmetric_tube_t), intent(inout) :: self
-      self%rz = self%rz_start
-   end subroutine reset
-
-   pure integer function state_size(self)
-      class(axisymmetric_tube_t), intent(in) :: self
-      state_size = size(self%rz)
-   end function state_size
-
-   subroutine get_state(self, state)
-      class(axisymmetric_tube_t), intent(in) :: self
-      real(dp), intent(out) :: state(:)
-      call flatten(self%rz, state)
-   end subroutine get_state
-
-   subroutine set_state(self, state)
-      class(axisymmetric_tube_t), intent(inout) :: self
-      real(dp), intent(in) :: state(:)
-      call unflatten(state, self%rz)
-   end subroutine set_state
 
    function progress_text(self) result(text)
       class(axisymmetric_tube_t), intent(in) :: self
@@ -823,16 +797,16 @@ contains
       type(h5_file_t), intent(inout) :: f
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      call f%write_attr('/', 'n_nodes', size(self%rz, 2), stat, errmsg)
+      call f%write_attr('/', 'n_nodes', size(self%positions, 2), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'n_wall_elements', self%n_wall, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'tube_length', self%tube_length, stat, errmsg)
       if (stat == 0) call f%make_group('/mesh', stat, errmsg)
       if (stat == 0) call f%write_dataset('/mesh/reference_meridian', self%rz_ref, 'l', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/meridian', self%rz, 'l', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/meridian', self%positions, 'l', stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)
       if (stat == 0) call f%write_attr('/profile', 'plane', 'meridian, front pole first (flow along +z)', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/profile/r', self%rz(1, :), 'l', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/profile/z', self%rz(2, :), 'l', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/profile/r', self%positions(1, :), 'l', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/profile/z', self%positions(2, :), 'l', stat, errmsg)
    end subroutine write_geometry
 
 end module axisymmetric_tube

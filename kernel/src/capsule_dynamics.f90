@@ -15,7 +15,7 @@ module capsule_dynamics
    use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
    use run_options, only: run_options_t
-   use capsule_model, only: capsule_model_t, flatten, unflatten
+   use capsule_model, only: capsule_model_t
    implicit none
    private
    public :: capsule_t
@@ -34,7 +34,8 @@ module capsule_dynamics
       type(single_layer_t) :: single_layer
       integer :: flow = flow_shear
       real(dp) :: ca = 0, h_min = 0, energy = 0
-      real(dp), allocatable :: x_ref(:, :), x(:, :)
+      !> Reference (stress-free) positions; the run starts from them.
+      real(dp), allocatable :: x_ref(:, :)
       logical :: volume_correction = .true.
       ! Work arrays allocated once by init: the time loop allocates nothing.
       real(dp), allocatable :: x_pred(:, :), u0(:, :), u1(:, :), force(:, :), density(:, :), v_inf(:, :)
@@ -44,10 +45,6 @@ module capsule_dynamics
       procedure :: velocity
       procedure :: rk2_step
       procedure :: record
-      procedure :: reset
-      procedure :: state_size
-      procedure :: get_state
-      procedure :: set_state
       procedure :: progress_text
       procedure :: write_geometry
    end type capsule_t
@@ -67,7 +64,8 @@ contains
       call make_membrane_law(trim(opts%law), opts%nu_s, opts%c, self%law, stat, errmsg)
       if (stat /= 0) return
       n = self%mesh%n_nodes
-      self%x = self%x_ref
+      self%positions = self%x_ref
+      self%start_positions = self%x_ref
       call self%ref%init(self%mesh, self%x_ref)
       ! Duffy 4x4 on touching triangles, 7-point rule on the next ring: the quadrature error is
       ! then far below the flat-triangle geometry error (translating-sphere test, orders 3-6).
@@ -153,10 +151,10 @@ contains
    !> Heun's RK2: predictor with v(x), corrector with the mean of v(x) and v(x_pred).
    subroutine rk2_step(self)
       class(capsule_t), intent(inout) :: self
-      call self%velocity(self%x, self%u0)
-      self%x_pred = self%x + self%dt * self%u0
+      call self%velocity(self%positions, self%u0)
+      self%x_pred = self%positions + self%dt * self%u0
       call self%velocity(self%x_pred, self%u1)
-      self%x = self%x + 0.5_dp * self%dt * (self%u0 + self%u1)
+      self%positions = self%positions + 0.5_dp * self%dt * (self%u0 + self%u1)
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
@@ -167,40 +165,17 @@ contains
       type(shape_measures_t) :: m
       real(dp) :: l1, l2, stretch, energy
       integer :: t
-      call shape_measures(self%mesh, self%x, m)
+      call shape_measures(self%mesh, self%positions, m)
       stretch = 1.0_dp
       do t = 1, self%mesh%n_tri
-         call principal_stretches(self%ref, self%mesh, self%x, t, l1, l2)
+         call principal_stretches(self%ref, self%mesh, self%positions, t, l1, l2)
          stretch = max(stretch, l1, 1.0_dp / max(l2, 1.0e-12_dp))
       end do
       ! The force array is scratch here: velocity() recomputes it before every use.
-      call membrane_nodal_forces(self%ref, self%mesh, self%law, self%x, self%force, energy)
+      call membrane_nodal_forces(self%ref, self%mesh, self%law, self%positions, self%force, energy)
       self%n_rec = min(self%n_rec + 1, size(self%history, 2))
       self%history(:, self%n_rec) = [self%t, m%area, m%volume, m%d12, m%l1, m%l2, m%l3, m%theta, energy, stretch]
    end subroutine record
-
-   subroutine reset(self)
-      class(capsule_t), intent(inout) :: self
-      self%x = self%x_ref
-   end subroutine reset
-
-   pure integer function state_size(self)
-      class(capsule_t), intent(in) :: self
-      state_size = size(self%x)
-   end function state_size
-
-   !> Positions as one vector (checkpoints).
-   subroutine get_state(self, state)
-      class(capsule_t), intent(in) :: self
-      real(dp), intent(out) :: state(:)
-      call flatten(self%x, state)
-   end subroutine get_state
-
-   subroutine set_state(self, state)
-      class(capsule_t), intent(inout) :: self
-      real(dp), intent(in) :: state(:)
-      call unflatten(state, self%x)
-   end subroutine set_state
 
    function progress_text(self) result(text)
       class(capsule_t), intent(in) :: self
@@ -219,12 +194,12 @@ contains
       character(len=:), allocatable, intent(out) :: errmsg
       type(shape_measures_t) :: m
       real(dp), allocatable :: y(:), z(:)
-      call shape_measures(self%mesh, self%x, m)
-      call shear_plane_contour(self%mesh, self%x, m%centroid, y, z)
+      call shape_measures(self%mesh, self%positions, m)
+      call shear_plane_contour(self%mesh, self%positions, m%centroid, y, z)
       call f%write_attr('/', 'n_nodes', self%mesh%n_nodes, stat, errmsg)
       if (stat == 0) call f%make_group('/mesh', stat, errmsg)
       if (stat == 0) call f%write_dataset('/mesh/reference_nodes', self%x_ref, 'a', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/nodes', self%x, 'a', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/nodes', self%positions, 'a', stat, errmsg)
       if (stat == 0) call f%write_dataset('/mesh/triangles', self%mesh%tri - 1, '1', stat, errmsg)
       if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)

@@ -15,7 +15,7 @@ module capsule_model
    use case_output, only: case_summary_t, write_checkpoint, read_checkpoint
    implicit none
    private
-   public :: capsule_model_t, t_min_steady, max_element_stretch, flatten, unflatten, num
+   public :: capsule_model_t, t_min_steady, max_element_stretch, num
 
    !> A steady state is not declared before this time: the first units hold the start-up.
    real(dp), parameter :: t_min_steady = 2.0_dp
@@ -25,6 +25,9 @@ module capsule_model
    type, abstract :: capsule_model_t
       type(membrane_law_t) :: law
       real(dp) :: t = 0, dt = 0
+      !> The state advanced in time: node positions, (3, n) in 3D or (r, z) x n on a meridian,
+      !> and the positions a run starts from.
+      real(dp), allocatable :: positions(:, :), start_positions(:, :)
       !> Names and units of the history columns, as written to the case file.
       character(len=16), allocatable :: history_names(:), history_units(:)
       integer :: step = 0
@@ -43,10 +46,10 @@ module capsule_model
    contains
       procedure(advance_iface), deferred :: rk2_step
       procedure(advance_iface), deferred :: record
-      procedure(advance_iface), deferred :: reset
-      procedure(state_size_iface), deferred :: state_size
-      procedure(get_state_iface), deferred :: get_state
-      procedure(set_state_iface), deferred :: set_state
+      procedure :: reset
+      procedure :: state_size
+      procedure :: get_state
+      procedure :: set_state
       procedure(progress_iface), deferred :: progress_text
       procedure(geometry_iface), deferred :: write_geometry
       !> `run` is what the program calls; models with their own solver override it and may
@@ -61,20 +64,6 @@ module capsule_model
          import :: capsule_model_t
          class(capsule_model_t), intent(inout) :: self
       end subroutine advance_iface
-      pure integer function state_size_iface(self)
-         import :: capsule_model_t
-         class(capsule_model_t), intent(in) :: self
-      end function state_size_iface
-      subroutine get_state_iface(self, state)
-         import :: capsule_model_t, dp
-         class(capsule_model_t), intent(in) :: self
-         real(dp), intent(out) :: state(:)
-      end subroutine get_state_iface
-      subroutine set_state_iface(self, state)
-         import :: capsule_model_t, dp
-         class(capsule_model_t), intent(inout) :: self
-         real(dp), intent(in) :: state(:)
-      end subroutine set_state_iface
       function progress_iface(self) result(text)
          import :: capsule_model_t
          class(capsule_model_t), intent(in) :: self
@@ -91,6 +80,29 @@ module capsule_model
    end interface
 
 contains
+
+   subroutine reset(self)
+      class(capsule_model_t), intent(inout) :: self
+      self%positions = self%start_positions
+   end subroutine reset
+
+   pure integer function state_size(self)
+      class(capsule_model_t), intent(in) :: self
+      state_size = size(self%positions)
+   end function state_size
+
+   !> Positions as one vector (checkpoints).
+   subroutine get_state(self, state)
+      class(capsule_model_t), intent(in) :: self
+      real(dp), intent(out) :: state(:)
+      call flatten(self%positions, state)
+   end subroutine get_state
+
+   subroutine set_state(self, state)
+      class(capsule_model_t), intent(inout) :: self
+      real(dp), intent(in) :: state(:)
+      call unflatten(state, self%positions)
+   end subroutine set_state
 
    subroutine allocate_history(self, names, units, t_max, record_every)
       class(capsule_model_t), intent(inout) :: self

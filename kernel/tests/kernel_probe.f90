@@ -296,7 +296,7 @@ contains
       end do
       t0 = omp_get_wtime()
       do k = 1, repeats
-         call cap%velocity(cap%x, u)
+         call cap%velocity(cap%positions, u)
       end do
       t_velocity = (omp_get_wtime() - t0) / repeats
       t0 = omp_get_wtime()
@@ -420,12 +420,12 @@ contains
       do k = 1, 20
          call tube%rk2_step()
       end do
-      m = 2 * size(tube%rz, 2) - 2
-      allocate (jac(m, m), u0(2, size(tube%rz, 2)), u1(2, size(tube%rz, 2)), p0(m), p1(m))
+      m = 2 * size(tube%positions, 2) - 2
+      allocate (jac(m, m), u0(2, size(tube%positions, 2)), u1(2, size(tube%positions, 2)), p0(m), p1(m))
       t0 = omp_get_wtime()
-      call velocity_jacobian(tube, tube%rz, 1.0e-6_dp, jac)
+      call velocity_jacobian(tube, tube%positions, 1.0e-6_dp, jac)
       t_incremental = omp_get_wtime() - t0
-      call tube%velocity(tube%rz, u0)
+      call tube%velocity(tube%positions, u0)
       call pack_dofs(u0, p0)
       scale = maxval(abs(jac))
       err = 0
@@ -433,8 +433,8 @@ contains
       ! Brute force on a sample of columns: poles, a node near each pole, the equator.
       do j = 1, m
          node = 2 + (j - 2) / 2
-         if (.not. (j <= 5 .or. j >= m - 4 .or. abs(node - size(tube%rz, 2) / 2) <= 1)) cycle
-         rz1 = tube%rz
+         if (.not. (j <= 5 .or. j >= m - 4 .or. abs(node - size(tube%positions, 2) / 2) <= 1)) cycle
+         rz1 = tube%positions
          if (j == 1) then
             rz1(2, 1) = rz1(2, 1) + 1.0e-6_dp
          else if (j == m) then
