@@ -19,7 +19,7 @@ module run_options
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
       !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise).
-      integer :: n_meridian = 48
+      integer :: n_meridian = 64
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
       character(len=16) :: integrator = 'auto'
@@ -52,7 +52,7 @@ module run_options
 
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
-      ' [--model axi] [--n-meridian N] [--tube-length X] [--integrator auto|newton|rk2] [--level N] [--dt X]'// &
+      ' [--model axi] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2] [--level N] [--dt X]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -291,8 +291,8 @@ contains
             errmsg = '--model: the 3d tube solver is not available yet in this version (use axi)'
          else if (trim(opts%model) /= 'axi') then
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
-         else if (all(trim(opts%integrator) /= [character(len=6) :: 'auto', 'newton', 'rk2'])) then
-            errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton or rk2)'
+         else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'newton', 'implicit', 'rk2'])) then
+            errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton, implicit or rk2)'
          else if (opts%tube_length < 4.0_dp .or. opts%tube_length > 40.0_dp) then
             errmsg = '--tube-length: must be between 4 and 40 tube radii, got '//real_text(opts%tube_length)
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then

@@ -9,11 +9,15 @@
 !>   axi_probe segment R0 Z0 RA ZA RB ZB FAR FAZ FBR FBZ END    segment integral (u_r u_z)
 !>   axi_probe sphere N translate|pressure  unit sphere, N straight meridian segments: max error
 !>   axi_probe bench N REPEATS              seconds per sphere velocity and per segment integral
+!>   axi_probe jacobian A_OVER_L CA N T     eigenvalues of the tube model's velocity Jacobian
+!>                                          (NH, N meridian elements) after RK2 to time T
 program axi_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
    use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
+   use run_options, only: run_options_t
+   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian
    implicit none
 
    character(len=64) :: command
@@ -34,12 +38,72 @@ program axi_probe
       call probe_sphere(int_arg(2), string_arg(3))
    case ('bench')
       call probe_bench(int_arg(2), int_arg(3))
+   case ('jacobian')
+      call probe_jacobian(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case default
       write (*, '(a)') 'usage: axi_probe ellip|ellip-m|kernel|log-coefficient|segment|sphere|bench ...'
       error stop 2
    end select
 
 contains
+
+   !> Largest and smallest real parts of the Jacobian's eigenvalues (LAPACK dgeev).
+   subroutine probe_jacobian(a_over_l, ca, n_meridian, t_end)
+      real(dp), intent(in) :: a_over_l, ca, t_end
+      integer, intent(in) :: n_meridian
+      type(run_options_t) :: opts
+      type(axisymmetric_tube_t) :: model
+      real(dp), allocatable :: jac(:, :), wr(:), wi(:), work(:)
+      real(dp) :: no_left(1, 1), no_right(1, 1)
+      integer :: stat, m, info, k
+      integer, allocatable :: order(:)
+      character(len=:), allocatable :: errmsg
+      interface
+         subroutine dgeev(jobvl, jobvr, n, a, lda, wr, wi, vl, ldvl, vr, ldvr, work, lwork, info)
+            import :: dp
+            character, intent(in) :: jobvl, jobvr
+            integer, intent(in) :: n, lda, ldvl, ldvr, lwork
+            real(dp), intent(inout) :: a(lda, *)
+            real(dp), intent(out) :: wr(*), wi(*), vl(ldvl, *), vr(ldvr, *), work(*)
+            integer, intent(out) :: info
+         end subroutine dgeev
+      end interface
+      opts%flow = 'tube'
+      opts%law = 'NH'
+      opts%a_over_l = a_over_l
+      opts%ca = ca
+      opts%n_meridian = n_meridian
+      opts%integrator = 'rk2'
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop 'init failed'
+      do while (model%t < t_end - 0.5_dp * model%dt)
+         call model%rk2_step()
+      end do
+      m = 2 * n_meridian
+      allocate (jac(m, m), wr(m), wi(m), work(8 * m))
+      call velocity_jacobian(model, model%positions, 1.0e-6_dp, jac)
+      call dgeev('N', 'N', m, jac, m, wr, wi, no_left, 1, no_right, 1, work, 8 * m, info)
+      order = sort_index(wr)
+      write (*, '(a,es12.4)') 't ', model%t
+      write (*, '(a,*(1x,es11.3))') 'largest_real ', (wr(order(m + 1 - k)), k = 1, 6)
+      write (*, '(a,*(1x,es11.3))') 'smallest_real ', (wr(order(k)), k = 1, 6)
+   end subroutine probe_jacobian
+
+   pure function sort_index(x) result(idx)
+      real(dp), intent(in) :: x(:)
+      integer :: idx(size(x)), i, j, tmp
+      idx = [(i, i = 1, size(x))]
+      do i = 2, size(x)
+         j = i
+         do while (j > 1)
+            if (x(idx(j - 1)) <= x(idx(j))) exit
+            tmp = idx(j)
+            idx(j) = idx(j - 1)
+            idx(j - 1) = tmp
+            j = j - 1
+         end do
+      end do
+   end function sort_index
 
 
 
