@@ -40,28 +40,7 @@ def main() -> int:
             if level == 4 and threads == 2:
                 verdict = "meets" if r["velocity_s"] < TARGET_VELOCITY_S else "misses"
                 print(f"      level-4 velocity on 2 threads {verdict} the {1e3 * TARGET_VELOCITY_S:.0f} ms target")
-    bench_tube()
     return 0
-
-
-def bench_tube() -> None:
-    """Wall time of axisymmetric tube cases to steady state, on one thread (DESIGN target: < 10 s)."""
-    import tempfile
-
-    import h5py
-
-    capsim = REPO / "bin" / "capsim"
-    print("\naxisymmetric tube, one thread, to steady state")
-    print(f"{'case':>28} {'status':>10} {'wall [s]':>9}")
-    for law, size_ratio, ca in [("NH", 0.4, 0.001), ("NH", 0.85, 0.05)]:
-        with tempfile.TemporaryDirectory() as tmp:
-            out = Path(tmp) / "case.h5"
-            subprocess.run([str(capsim), "--flow", "tube", "--law", law, "--a-over-l", str(size_ratio),
-                            "--ca", str(ca), "--threads", "1", "--quiet", "--out", str(out)], check=True)
-            with h5py.File(out) as f:
-                status = f.attrs["status"].decode() if isinstance(f.attrs["status"], bytes) else f.attrs["status"]
-                wall = float(f.attrs["wall_time_s"])
-        print(f"{law + f' a/l={size_ratio} Ca={ca}':>28} {status:>10} {wall:>9.1f}")
 
 
 if __name__ == "__main__":

@@ -66,3 +66,15 @@ def test_poisson_ratio_acts_at_the_rear_only(tube_case):
     assert soft.steady_value("L_p") > stiff.steady_value("L_p") + 0.05
     depths = [0.1, 0.2, 0.4, 0.6]
     assert front_radius(soft, depths) == pytest.approx(front_radius(stiff, depths), abs=0.01)
+
+
+@pytest.mark.validate
+def test_meridian_resolution_is_converged_at_64_elements(tube_case):
+    # README "Resolution": from 64 elements on, L_z within 0.1 %, L_p within 1 % (the rim of
+    # the parachute is the hardest part), v_c within 0.05 % of the 128-element result.
+    coarse = tube_case("NH", 0.5, 0.9, 0.1, "--n-meridian", "64")
+    fine = tube_case("NH", 0.5, 0.9, 0.1, "--n-meridian", "128")
+    assert coarse.status == fine.status == "steady"
+    assert coarse.steady_value("L_z") == pytest.approx(fine.steady_value("L_z"), rel=1e-3)
+    assert coarse.steady_value("L_p") == pytest.approx(fine.steady_value("L_p"), rel=1e-2)
+    assert coarse.steady_value("v_c") == pytest.approx(fine.steady_value("v_c"), rel=5e-4)
