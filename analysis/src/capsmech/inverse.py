@@ -1,0 +1,307 @@
+"""Inverse analysis: from measured capsule lengths to (a/l, Ca_s) and the shear modulus G_s.
+
+The method is the paper's (section 4.2 for the tube, 4.3 for shear), on numpy arrays, so that
+it does not depend on how a database is stored (``capsmech.database`` loads the files).
+
+Tube
+----
+For one membrane law the database maps the parameters p = (a/l, Ca_s) to the steady lengths
+q = (L_z, L_z - L_p) (in tube radii l) and to v_c/V. Given measured q*, the 14 database
+points nearest to q* (in q scaled by the database's spread) carry a local weighted
+least-squares fit of the forward map, q(p) ~ quadratic in (a/l, ln Ca_s) (diffuse
+approximation); the fitted p is the root of q(p) = q* (Newton, from the nearest point).
+The velocity ratio comes from the Delaunay triangulation of the database's (a/l, ln Ca_s)
+(linear, barycentric), and with the measured capsule velocity v_c and viscosity mu
+
+    G_s = mu V / Ca_s = mu v_c / (Ca_s (v_c/V)).
+
+A fitted point outside the database's convex hull is a flag with a reason, never a number.
+
+Shear
+-----
+D12 increases with Ca_s along the steady branch: Ca_s and L3/a follow from monotone
+(PCHIP) interpolation of the database in D12; volume conservation L1 L2 L3 = a**3 gives
+a = (L1 L2 (L3/a))**(1/2) from the measured semi-axes, and G_s = mu gamma_dot a / Ca_s.
+D12 below 0.35 is flagged as too imprecise (paper: +-20 % on D12 from blurred contours).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import LinearNDInterpolator, PchipInterpolator
+from scipy.spatial import Delaunay, cKDTree
+
+#: Neighbours of the diffuse approximation (paper section 4.2).
+N_NEIGHBOURS = 14
+#: Shear: D12 below this is too imprecise to fit (paper section 4.3).
+MIN_SHEAR_D12 = 0.35
+#: The five fits of paper section 4.2: factors on (L_z, L_p).
+FIVE_FITS: tuple[tuple[str, float, float], ...] = (
+    ("fit1", 1.00, 1.00),
+    ("fit2", 0.98, 0.98),
+    ("fit3", 1.02, 1.02),
+    ("fit4", 1.00, 0.98),
+    ("fit5", 1.00, 1.02),
+)
+
+
+@dataclass(frozen=True)
+class TubeTable:
+    """Steady rows of a tube database for one law (lengths in l, velocity in V).
+
+    Parameters
+    ----------
+    a_over_l, Ca_s : np.ndarray
+        Parameters of the rows [1].
+    L_z, L_p : np.ndarray
+        Total length and parachute depth [l].
+    vc_over_V : np.ndarray
+        Capsule velocity over mean flow velocity [1].
+    """
+
+    a_over_l: np.ndarray
+    Ca_s: np.ndarray
+    L_z: np.ndarray
+    L_p: np.ndarray
+    vc_over_V: np.ndarray
+
+    def __post_init__(self) -> None:
+        arrays = [np.asarray(getattr(self, k), dtype=float) for k in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V")]
+        n = len(arrays[0])
+        if any(a.shape != (n,) for a in arrays):
+            raise ValueError("tube table: every column must be 1-D with the same length")
+        keep = np.all([np.isfinite(a) for a in arrays], axis=0)
+        if np.any(arrays[1][keep] <= 0):
+            raise ValueError("tube table: Ca_s must be > 0")
+        if keep.sum() < N_NEIGHBOURS:
+            raise ValueError(f"tube table: {keep.sum()} steady rows, the fit needs at least {N_NEIGHBOURS}")
+        for name, a in zip(("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V"), arrays):
+            object.__setattr__(self, name, a[keep])
+
+
+@dataclass
+class TubeFit:
+    """Result of one tube fit; ``flag`` is empty when the fit is valid.
+
+    Attributes
+    ----------
+    a_over_l, Ca_s, vc_over_V : float
+        Fitted parameters and velocity ratio [1] (NaN when flagged).
+    G_s : float
+        Surface shear modulus [units of mu * velocity] (NaN when flagged or without v_c, mu).
+    flag : str
+        Reason the fit is not valid ('' when valid).
+    """
+
+    a_over_l: float = float("nan")
+    Ca_s: float = float("nan")
+    vc_over_V: float = float("nan")
+    G_s: float = float("nan")
+    flag: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.flag
+
+
+@dataclass
+class FiveFits:
+    """The five fits of paper section 4.2 and their statistics over the valid ones."""
+
+    fits: dict[str, TubeFit] = field(default_factory=dict)
+
+    def _values(self, name: str) -> np.ndarray:
+        return np.array([getattr(f, name) for f in self.fits.values() if f.ok and np.isfinite(getattr(f, name))])
+
+    def mean(self, name: str) -> float:
+        values = self._values(name)
+        return float(values.mean()) if values.size else float("nan")
+
+    def spread(self, name: str) -> float:
+        """Half the range of the valid fits (the paper's 'dispersion' is the full range)."""
+        values = self._values(name)
+        return float(0.5 * (values.max() - values.min())) if values.size else float("nan")
+
+    @property
+    def n_valid(self) -> int:
+        return sum(f.ok for f in self.fits.values())
+
+
+class TubeInverter:
+    """Invert (L_z, L_p) -> (a/l, Ca_s) and v_c/V for one law's database table.
+
+    Parameters
+    ----------
+    table : TubeTable
+        Steady rows of the database.
+    n_neighbours : int
+        Points of the local weighted least-squares fit (the paper: 14).
+    """
+
+    def __init__(self, table: TubeTable, n_neighbours: int = N_NEIGHBOURS) -> None:
+        self.table = table
+        self.n_neighbours = n_neighbours
+        self._p = np.column_stack([table.a_over_l, np.log(table.Ca_s)])
+        self._q = np.column_stack([table.L_z, table.L_z - table.L_p])
+        self._q_scale = self._q.std(axis=0)
+        self._q_scale[self._q_scale == 0] = 1.0
+        self._p_scale = self._p.std(axis=0)
+        self._p_scale[self._p_scale == 0] = 1.0
+        self._tree = cKDTree(self._q / self._q_scale)
+        self._hull = Delaunay(self._p / self._p_scale)
+        self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
+
+    def _local_forward_map(self, q_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Weighted quadratic fit of q(p) over the neighbours of q_star: (coefficients, centre, p0)."""
+        distance, index = self._tree.query(q_star / self._q_scale, k=self.n_neighbours)
+        p = self._p[index]
+        centre = p[0]
+        x = (p - centre) / self._p_scale
+        basis = _quadratic_basis(x)
+        # Weights fall with the distance in scaled q (diffuse approximation); the farthest
+        # neighbour keeps a small weight so that the system stays well posed.
+        d_max = 1.01 * distance.max() + 1e-300
+        weight = (1 - (distance / d_max) ** 2) ** 2
+        sqrt_w = np.sqrt(weight)[:, None]
+        coefficients, *_ = np.linalg.lstsq(sqrt_w * basis, sqrt_w * self._q[index], rcond=None)
+        return coefficients, centre, p
+
+    def fit(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> TubeFit:
+        """Fit one capsule.
+
+        Parameters
+        ----------
+        L_z, L_p : float
+            Measured total length and parachute depth [l].
+        v_c, mu : float, optional
+            Measured capsule velocity and outer viscosity; G_s = mu v_c / (Ca_s v_c/V) in
+            the units of mu * v_c / l (with lengths in l, e.g. Pa s * m/s = N/m when v_c is m/s).
+        """
+        if not (np.isfinite(L_z) and np.isfinite(L_p)) or L_z <= 0 or L_p < 0 or L_p >= L_z:
+            return TubeFit(flag=f"invalid lengths L_z = {L_z}, L_p = {L_p} (need L_z > 0 and 0 <= L_p < L_z)")
+        q_star = np.array([L_z, L_z - L_p])
+        coefficients, centre, _ = self._local_forward_map(q_star)
+        x = np.zeros(2)
+        for _ in range(50):
+            q, jac = _quadratic_value_and_jacobian(coefficients, x)
+            step = np.linalg.lstsq(jac, q_star - q, rcond=None)[0]
+            # Damped: stay within a few grid spacings of the neighbours the fit is valid over.
+            norm = np.linalg.norm(step)
+            if norm > 0.5:
+                step *= 0.5 / norm
+            x = x + step
+            if np.linalg.norm(step) < 1e-12:
+                break
+        q, _ = _quadratic_value_and_jacobian(coefficients, x)
+        if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
+            return TubeFit(flag="no parameters of the database reproduce these lengths (local fit has no root)")
+        p = centre + x * self._p_scale
+        if self._hull.find_simplex(p / self._p_scale) < 0:
+            return TubeFit(a_over_l=float("nan"), flag=f"outside the database: fitted a/l = {p[0]:.3f}, "
+                                                       f"Ca_s = {np.exp(p[1]):.3g} lie outside its grid")
+        velocity = float(self._velocity((p / self._p_scale)[None, :])[0])
+        result = TubeFit(a_over_l=float(p[0]), Ca_s=float(np.exp(p[1])), vc_over_V=velocity)
+        if v_c is not None and mu is not None:
+            result.G_s = mu * v_c / (result.Ca_s * velocity)
+        return result
+
+    def five_fits(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> FiveFits:
+        """Fits 1-5 of paper section 4.2 (L_z and L_p -+2 %, then L_p alone -+2 %)."""
+        return FiveFits({name: self.fit(L_z * fz, L_p * fp, v_c, mu) for name, fz, fp in FIVE_FITS})
+
+
+def _quadratic_basis(x: np.ndarray) -> np.ndarray:
+    """Columns 1, x, y, x^2, x y, y^2 at the rows of x (n, 2)."""
+    return np.column_stack([np.ones(len(x)), x[:, 0], x[:, 1], x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2])
+
+
+def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Value (2,) and Jacobian (2, 2) of the fitted quadratic map at x (2,)."""
+    value = _quadratic_basis(x[None, :])[0] @ c
+    d_dx = np.array([0, 1, 0, 2 * x[0], x[1], 0]) @ c
+    d_dy = np.array([0, 0, 1, 0, x[0], 2 * x[1]]) @ c
+    return value, np.column_stack([d_dx, d_dy])
+
+
+@dataclass
+class ShearFit:
+    """Result of one shear fit; ``flag`` is empty when the fit is valid."""
+
+    Ca_s: float = float("nan")
+    L3_over_a: float = float("nan")
+    a: float = float("nan")
+    G_s: float = float("nan")
+    flag: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.flag
+
+
+class ShearInverter:
+    """Invert D12 -> (Ca_s, L3/a) along one law's steady shear branch.
+
+    Parameters
+    ----------
+    Ca_s, D12, L3_over_a : array_like
+        Steady rows of the shear database (NaN rows are ignored).
+    min_D12 : float
+        Smaller D12 values are flagged as too imprecise (paper section 4.3: 0.35).
+    """
+
+    def __init__(self, Ca_s: np.ndarray, D12: np.ndarray, L3_over_a: np.ndarray, min_D12: float = MIN_SHEAR_D12):
+        ca, d12, l3 = (np.asarray(v, dtype=float) for v in (Ca_s, D12, L3_over_a))
+        keep = np.isfinite(ca) & np.isfinite(d12) & np.isfinite(l3)
+        order = np.argsort(ca[keep])
+        ca, d12, l3 = ca[keep][order], d12[keep][order], l3[keep][order]
+        if len(ca) < 2:
+            raise ValueError("shear table: fewer than 2 steady rows")
+        if np.any(np.diff(d12) <= 0):
+            raise ValueError("shear table: D12 does not increase with Ca_s along the steady rows")
+        self.min_D12 = min_D12
+        self.D12_range = (float(d12[0]), float(d12[-1]))
+        # Interpolate ln Ca_s and L3/a in D12: both smooth and monotone along the branch.
+        self._log_ca = PchipInterpolator(d12, np.log(ca), extrapolate=False)
+        self._l3 = PchipInterpolator(d12, l3, extrapolate=False)
+
+    def fit(self, D12: float | None = None, L1: float | None = None, L2: float | None = None,
+            shear_rate: float | None = None, mu: float | None = None) -> ShearFit:
+        """Fit one capsule from D12, or from its semi-axes L1 >= L2 (then a and G_s too).
+
+        G_s = mu shear_rate a / Ca_s, in the units of mu * shear_rate * (units of L1).
+        """
+        if D12 is None:
+            if L1 is None or L2 is None or not (L1 > 0 and L2 > 0):
+                return ShearFit(flag="need D12, or both semi-axes L1, L2 > 0")
+            D12 = (L1 - L2) / (L1 + L2)
+        if not np.isfinite(D12) or not 0 <= D12 < 1:
+            return ShearFit(flag=f"invalid D12 = {D12}")
+        if D12 < self.min_D12:
+            return ShearFit(flag=f"D12 = {D12:.3f} below {self.min_D12}: too imprecise to fit (paper section 4.3)")
+        lo, hi = self.D12_range
+        if not lo <= D12 <= hi:
+            return ShearFit(flag=f"outside the database: D12 = {D12:.3f} not in the steady range [{lo:.3f}, {hi:.3f}]")
+        result = ShearFit(Ca_s=float(np.exp(self._log_ca(D12))), L3_over_a=float(self._l3(D12)))
+        if L1 is not None and L2 is not None:
+            result.a = float(np.sqrt(L1 * L2 * result.L3_over_a))
+            if shear_rate is not None and mu is not None:
+                result.G_s = mu * shear_rate * result.a / result.Ca_s
+        return result
+
+    def modulus(self, D12: float, a: float, shear_rate: float, mu: float) -> ShearFit:
+        """G_s when the capsule radius a is known (the paper's section 4.3 example)."""
+        result = self.fit(D12=D12)
+        if result.ok:
+            result.a = a
+            result.G_s = mu * shear_rate * a / result.Ca_s
+        return result
+
+
+def modified_hausdorff(a: np.ndarray, b: np.ndarray) -> float:
+    """Modified (mean) Hausdorff distance (Dubuisson & Jain 1994) between point sets (n, 2), (m, 2):
+    max(mean_i min_j |a_i - b_j|, mean_j min_i |a_i - b_j|)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    d_ab = cKDTree(b).query(a)[0].mean()
+    d_ba = cKDTree(a).query(b)[0].mean()
+    return float(max(d_ab, d_ba))
