@@ -1,0 +1,190 @@
+"""Measured capsules: the CSV format that ``capsmech fit-tube`` and ``fit-shear`` read.
+
+Format
+------
+One capsule per row; the header names each column and its unit in brackets. Lines starting
+with ``#`` are comments. Column names are case-sensitive.
+
+Tube (``fit-tube``)::
+
+    # capsules in a 100 um capillary, glycerol at 20 C
+    id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s]
+    c01,182.4,21.0,1.52,50.0,1.41
+
+required ``id``, ``L_z``, ``L_p``, ``tube_radius``; ``v_c`` and ``mu`` are needed for G_s;
+optional ``V`` (mean flow velocity, when the flow rate is known) and ``pixel_size`` (then
+lengths may be given in ``px``).
+
+Shear (``fit-shear``)::
+
+    id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s]
+    s01,52.1,23.5,350,0.756
+
+required ``id``, ``L1``, ``L2`` (semi-axes in the shear plane), ``shear_rate``, ``mu``.
+
+Units: lengths m, mm, um (or µm), nm, px (with a ``pixel_size`` column); velocities m/s, mm/s,
+um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Everything is converted to SI on reading.
+
+Errors
+------
+Any problem (unknown column or unit, missing column, empty or non-numeric value, NaN,
+negative or zero length, duplicate id) raises ``MeasurementError`` naming the file, the line
+and the field. A file is read whole or not at all: a batch is never half-processed.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
+VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
+VISCOSITY_UNITS = {"Pa s": 1.0, "Pa.s": 1.0, "mPa s": 1e-3, "mPa.s": 1e-3, "cP": 1e-3}
+RATE_UNITS = {"1/s": 1.0, "s^-1": 1.0}
+
+#: Column -> (kind, required) per flow.
+TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
+                "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
+                "pixel_size": ("length", False)}
+SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
+                 "mu": ("viscosity", True), "pixel_size": ("length", False)}
+UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS}
+HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
+
+
+class MeasurementError(ValueError):
+    """A measurement file that cannot be read; the message names file, line and field."""
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """One measured capsule, in SI units (m, m/s, Pa s, 1/s); absent values are NaN.
+
+    Attributes
+    ----------
+    id : str
+        Capsule identifier.
+    values : dict[str, float]
+        Column name -> value [SI].
+    line : int
+        Line of the file it came from.
+    """
+
+    id: str
+    values: dict[str, float]
+    line: int
+
+    def __getitem__(self, name: str) -> float:
+        return self.values.get(name, math.nan)
+
+
+def _parse_header(path: Path, line: int, row: list[str], columns: dict[str, tuple[str, bool]]):
+    parsed: list[tuple[str, str, float | None]] = []
+    seen = set()
+    for cell in row:
+        match = HEADER.match(cell)
+        if not match:
+            raise MeasurementError(f"{path}:{line}: header cell {cell!r} is not 'name [unit]'")
+        name, unit = match["name"], (match["unit"] or "").strip()
+        if name in seen:
+            raise MeasurementError(f"{path}:{line}: column {name!r} appears twice")
+        seen.add(name)
+        if name == "id":
+            parsed.append((name, "", None))
+            continue
+        if name not in columns:
+            raise MeasurementError(f"{path}:{line}: unknown column {name!r} (expected id, {', '.join(columns)})")
+        kind = columns[name][0]
+        if unit not in UNITS[kind]:
+            raise MeasurementError(f"{path}:{line}: column {name!r}: unknown {kind} unit {unit!r} "
+                                   f"(expected one of {', '.join(UNITS[kind])})")
+        if name == "pixel_size" and unit == "px":
+            raise MeasurementError(f"{path}:{line}: column 'pixel_size' needs a physical length unit, not px")
+        parsed.append((name, unit, UNITS[kind][unit]))
+    missing = [c for c, (_, required) in columns.items() if required and c not in seen]
+    if "id" not in seen:
+        missing.insert(0, "id")
+    if missing:
+        raise MeasurementError(f"{path}:{line}: missing column(s) {', '.join(missing)}")
+    return parsed
+
+
+def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
+    """Read a tube or shear measurement CSV (see the module docstring) into SI units.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    flow : {'tube', 'shear'}
+        Which format.
+
+    Raises
+    ------
+    MeasurementError
+        On any malformed content, naming file, line and field.
+    """
+    path = Path(path)
+    columns = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}.get(flow)
+    if columns is None:
+        raise ValueError(f"flow must be 'tube' or 'shear', got {flow!r}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise MeasurementError(f"{path}: cannot read: {err.strerror}") from None
+    rows = [(i + 1, row) for i, row in enumerate(csv.reader(text.splitlines()))
+            if row and not row[0].lstrip().startswith("#") and any(c.strip() for c in row)]
+    if not rows:
+        raise MeasurementError(f"{path}: no header line")
+    header_line, header = rows[0]
+    parsed = _parse_header(path, header_line, header, columns)
+    capsules: list[Capsule] = []
+    ids: dict[str, int] = {}
+    for line, row in rows[1:]:
+        if len(row) != len(parsed):
+            raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
+        raw: dict[str, tuple[float, str, float | None]] = {}
+        capsule_id = ""
+        for (name, unit, scale), cell in zip(parsed, row):
+            cell = cell.strip()
+            if name == "id":
+                if not cell:
+                    raise MeasurementError(f"{path}:{line}: field 'id' is empty")
+                capsule_id = cell
+                continue
+            if not cell:
+                if columns[name][1]:
+                    raise MeasurementError(f"{path}:{line}: field {name!r} is empty")
+                continue
+            try:
+                value = float(cell)
+            except ValueError:
+                raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
+            if not math.isfinite(value):
+                raise MeasurementError(f"{path}:{line}: field {name!r} is {cell} (not finite)")
+            if value < 0 or (value == 0 and name != "L_p"):
+                raise MeasurementError(f"{path}:{line}: field {name!r} must be positive, got {cell}")
+            raw[name] = (value, unit, scale)
+        if capsule_id in ids:
+            raise MeasurementError(f"{path}:{line}: id {capsule_id!r} already used on line {ids[capsule_id]}")
+        ids[capsule_id] = line
+        values: dict[str, float] = {}
+        pixel = raw["pixel_size"][0] * raw["pixel_size"][2] if "pixel_size" in raw else None
+        for name, (value, unit, scale) in raw.items():
+            if unit == "px":
+                if pixel is None:
+                    raise MeasurementError(f"{path}:{line}: field {name!r} is in px but the row has no pixel_size")
+                values[name] = value * pixel
+            else:
+                values[name] = value * scale
+        capsules.append(Capsule(id=capsule_id, values=values, line=line))
+    if not capsules:
+        raise MeasurementError(f"{path}: no capsule rows after the header")
+    for capsule in capsules:
+        if flow == "tube" and capsule["L_p"] >= capsule["L_z"]:
+            raise MeasurementError(f"{path}:{capsule.line}: field 'L_p' must be smaller than L_z")
+        if flow == "shear" and capsule["L2"] > capsule["L1"]:
+            raise MeasurementError(f"{path}:{capsule.line}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
+    return capsules
