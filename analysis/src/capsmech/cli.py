@@ -288,6 +288,17 @@ def cmd_run_case(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_unlock_stale(args: argparse.Namespace) -> int:
+    """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
+    from capsmech.runner import clear_stale_lock, running_snakemake
+
+    if clear_stale_lock(args.workdir):
+        print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
+    elif running_snakemake(args.workdir):
+        print(f"a Snakemake process is running in {args.workdir}: its lock is kept")
+    return 0
+
+
 def cmd_database(args: argparse.Namespace) -> int:
     """``database assemble``: case files -> database file; ``database show``: summarise one."""
     from capsmech.database import assemble_database, load_database
@@ -358,6 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
     run.add_argument("kernel_args", nargs=argparse.REMAINDER, help="-- then the kernel's case arguments")
 
+    unlock = sub.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
+    unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
+
     database = sub.add_parser("database", help="assemble or summarise a database file")
     actions = database.add_subparsers(dest="action", required=True, metavar="ACTION")
     assemble = actions.add_parser("assemble", help="case files of a grid -> tube.h5 or shear.h5")
@@ -393,7 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    commands = {"run-case": cmd_run_case, "database": cmd_database, "figures": cmd_figures}
+    commands = {"run-case": cmd_run_case, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

@@ -388,6 +388,9 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
         if flow not in PARAMETERS:
             raise DatabaseError(f"{where}: root attribute 'flow' is {flow!r}, expected 'tube' or 'shear'")
         points = int(provenance["profile_points"])
-        laws = {key: _load_law(f[key], flow, where, points) for key in f}
+        # HDF5 lists groups alphabetically; keep the grid's order of laws.
+        grid_order = json.loads(provenance.get("grid", "{}")).get(flow, {}).get("laws", [])
+        keys = [k for k in grid_order if k in f] + sorted(k for k in f if k not in grid_order)
+        laws = {key: _load_law(f[key], flow, where, points) for key in keys}
     cls = TubeDatabase if flow == "tube" else ShearDatabase
     return cls(path=where, flow=flow, laws=laws, provenance=provenance)

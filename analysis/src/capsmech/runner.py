@@ -149,3 +149,39 @@ def run_case(capsim: str | Path, kernel_args: Sequence[str], out: str | Path, *,
                          code_version=code_version, kernel_args=kernel_args)
     print(f"case {out}: failed: capsim exited with code {proc.returncode}: {proc.stderr.strip()}")
     return "failed"
+
+
+def running_snakemake(workdir: str | Path) -> list[int]:
+    """Return the ids of live Snakemake processes working in ``workdir`` (Linux ``/proc``)."""
+    target = Path(workdir).resolve()
+    pids = []
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            cmdline = (proc / "cmdline").read_bytes().split(b"\0")
+            if any(Path(part.decode(errors="replace")).name == "snakemake" for part in cmdline[:3]) \
+                    or b"snakemake" in cmdline[1:3]:
+                if (proc / "cwd").resolve() == target:
+                    pids.append(int(proc.name))
+        except OSError:  # the process ended meanwhile, or is not ours to inspect
+            continue
+    return pids
+
+
+def clear_stale_lock(workdir: str | Path) -> bool:
+    """Remove Snakemake's lock in ``workdir`` if no Snakemake process is working there.
+
+    A workflow killed by SIGKILL leaves ``.snakemake/locks`` behind, and the next run
+    refuses to start. The lock is only removed when no live Snakemake process has
+    ``workdir`` as its working directory, so a workflow that really runs keeps it.
+
+    Returns
+    -------
+    bool
+        True when a stale lock was removed.
+    """
+    locks = sorted((Path(workdir) / ".snakemake" / "locks").glob("*.lock"))
+    if not locks or running_snakemake(workdir):
+        return False
+    for lock in locks:
+        lock.unlink()
+    return True
