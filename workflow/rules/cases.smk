@@ -8,7 +8,7 @@
 
 rule case:
     input:
-        kernel=ancient(KERNEL),
+        kernel=kernel_executable,
     output:
         case=f"{CASES_DIR}/{{flow}}/{{law}}/{{case}}.h5",
     log:

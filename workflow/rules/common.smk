@@ -13,7 +13,6 @@ validate_grid(config, "config")
 REPO = Path(workflow.basedir).parent
 PYTHON = sys.executable
 KERNEL = str(REPO / "bin" / "capsim")
-KERNEL_SOURCES = sorted(str(p) for p in (REPO / "kernel" / "src").glob("*.f90"))
 # Every case file records the kernel's code_version; a new version makes every case stale
 # (the case rule's params change), a rebuilt binary of the same version does not.
 CODE_VERSION = source_code_version(REPO)
@@ -46,6 +45,13 @@ def grid_case(wildcards):
     if key not in CASES:
         raise ValueError(f"{key} is not a case of grid {config['name']!r}")
     return CASES[key]
+
+
+def kernel_executable(wildcards):
+    """The kernel, as ancient input; a clear error when it has not been built."""
+    if not Path(KERNEL).is_file():
+        raise FileNotFoundError(f"{KERNEL} is missing: run `make build` (or `make database`)")
+    return ancient(KERNEL)
 
 
 def case_files(wildcards):

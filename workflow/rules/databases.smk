@@ -17,6 +17,7 @@ rule grid_record:
 rule database:
     input:
         grid=GRID_RECORD,
+        kernel_version=rules.kernel_version.output.version,
         cases=case_files,
     output:
         database=f"{DATABASES}/{{flow}}.h5",

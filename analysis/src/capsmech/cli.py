@@ -288,6 +288,21 @@ def cmd_run_case(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_kernel_version(args: argparse.Namespace) -> int:
+    """Check that the built kernel writes the code_version its sources declare; record it."""
+    from capsmech.runner import kernel_code_version
+
+    found = kernel_code_version(args.capsim or capsim_executable())
+    if args.expect and found != args.expect:
+        raise CaseRunError(f"{args.capsim} writes code_version {found!r} but the kernel sources declare "
+                           f"{args.expect!r}: the executable is stale, run `make build`")
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(found + "\n")
+    print(found)
+    return 0
+
+
 def cmd_unlock_stale(args: argparse.Namespace) -> int:
     """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
     from capsmech.runner import clear_stale_lock, running_snakemake
@@ -369,6 +384,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
     run.add_argument("kernel_args", nargs=argparse.REMAINDER, help="-- then the kernel's case arguments")
 
+    version = sub.add_parser("kernel-version", help="print (and check) the code_version the kernel writes")
+    version.add_argument("--capsim", default=None, help="kernel executable (default: bin/capsim)")
+    version.add_argument("--expect", help="fail unless the kernel writes this version")
+    version.add_argument("--out", help="also write the version to this file")
+
     unlock = sub.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
     unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
 
@@ -407,7 +427,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    commands = {"run-case": cmd_run_case, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures}
+    commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

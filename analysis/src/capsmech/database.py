@@ -37,7 +37,7 @@ import numpy as np
 
 from capsmech import __version__
 from capsmech.grid import Case, expand_cases, flow_settings, grid_json, parse_law
-from capsmech.io import STATUSES, CaseResult, decode_str
+from capsmech.io import STATUSES, CaseResult, decode_str, require_hdf5_file
 from capsmech.runner import read_outcome
 
 FORMAT = "capsmech-database"
@@ -372,11 +372,7 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
         has other units or another length; the message names the file and dataset.
     """
     path = Path(path)
-    where = str(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"database not found: {where}")
-    if not h5py.is_hdf5(path):
-        raise DatabaseError(f"{where}: not an HDF5 file")
+    where = require_hdf5_file(path, "database", DatabaseError)
     with h5py.File(path, "r") as f:
         provenance = {k: decode_str(v) if isinstance(v, (bytes, str, np.bytes_)) else v
                       for k, v in f.attrs.items()}

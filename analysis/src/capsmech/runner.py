@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 import re
 import subprocess
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -58,6 +59,25 @@ def source_code_version(repo: str | Path) -> str:
     if match is None:
         raise CaseRunError(f"{source}: no `code_version = '...'` declaration")
     return match.group(1)
+
+
+def kernel_code_version(capsim: str | Path) -> str:
+    """Return the ``code_version`` the built kernel writes, from a tiny throw-away run.
+
+    Raises
+    ------
+    CaseRunError
+        If the kernel cannot run that case.
+    """
+    with tempfile.TemporaryDirectory(prefix="capsim-version-") as tmp:
+        out = Path(tmp) / "version.h5"
+        argv = [str(capsim), "--flow", "shear", "--law", "NH", "--ca", "0.1", "--level", "1",
+                "--t-max", "0.01", "--threads", "1", "--quiet", "--out", str(out)]
+        proc = subprocess.run(argv, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise CaseRunError(f"{capsim} failed a one-step run (exit {proc.returncode}): {proc.stderr.strip()}")
+        with h5py.File(out, "r") as f:
+            return decode_str(f.attrs["code_version"])
 
 
 def write_failure_record(out: Path, *, exit_code: int, stderr: str, code_version: str,
