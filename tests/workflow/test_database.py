@@ -161,3 +161,27 @@ def test_runner_fault_policy(tmp_path: Path) -> None:
     assert not out.exists()
     assert run_case(CAPSIM, case.kernel_args(), out, code_version=CODE_VERSION) == "steady"
     assert not is_failure_record(out)
+
+
+def test_cli_assemble_show_and_figures(cases_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """`capsmech database assemble` on a grid file, `database show`, and `figures` from the result."""
+    import yaml
+
+    from capsmech.cli import main
+
+    grid_file = tmp_path / "unit.yaml"
+    grid_file.write_text(yaml.safe_dump(GRID))
+    for flow in ("tube", "shear"):
+        assert main(["database", "assemble", "--grid", str(grid_file), "--flow", flow,
+                     "--cases", str(cases_dir), "--out", str(tmp_path / f"{flow}.h5")]) == 0
+    assert main(["database", "show", str(tmp_path / "shear.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "NH            2 cases  1 continuous_elongation, 1 steady" in out
+    assert main(["figures", "--database", str(tmp_path / "shear.h5"), "--out", str(tmp_path / "fig")]) == 0
+    assert main(["figures", "--database", str(tmp_path / "tube.h5"), "--grid", str(grid_file),
+                 "--out", str(tmp_path / "fig")]) == 0
+    names = sorted(p.name for p in (tmp_path / "fig").iterdir())
+    assert len(names) == 10 and "figure6_shear_D12_L3.png" in names and "figure2_tube_profiles_nu_s.pdf" in names
+    assert main(["database", "assemble", "--grid", str(grid_file), "--flow", "shear",
+                 "--cases", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.h5")]) == 2
+    assert "case file missing" in capsys.readouterr().err

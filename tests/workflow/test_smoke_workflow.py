@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import os
 import re
+import shutil
 import signal
 import subprocess
 import time
@@ -17,8 +18,8 @@ import yaml
 from capsmech.database import RESULTS, expected_units, load_database
 from capsmech.grid import expand_cases, load_grid
 from capsmech.io import read_case
-from capsmech.runner import clear_stale_lock
-from conftest import REPO, SMOKE, run_snakemake, snakemake_argv
+from capsmech.runner import clear_stale_lock, source_code_version
+from conftest import LOCAL_PROFILE, REPO, SMOKE, SNAKEFILE, run_snakemake, snakemake_argv
 
 GRID = load_grid(SMOKE)
 
@@ -158,3 +159,26 @@ def test_snakemake_lint_is_clean() -> None:
     assert result.returncode == 0, result.stdout
     assert "Congratulations, your workflow is in a good condition!" in result.stdout
     assert "Lints for" not in result.stdout
+
+
+def test_new_code_version_marks_every_case_stale(smoke_run: dict, tmp_path: Path) -> None:
+    """The same workflow beside kernel sources that declare another code_version (a copy of
+    workflow/ next to a kernel/src/capsim_kinds.f90 that says so) finds every case stale."""
+    repo = tmp_path / "repo"
+    shutil.copytree(REPO / "workflow", repo / "workflow")
+    (repo / "kernel" / "src").mkdir(parents=True)
+    source = (REPO / "kernel" / "src" / "capsim_kinds.f90").read_text()
+    version = source_code_version(REPO)
+    (repo / "kernel" / "src" / "capsim_kinds.f90").write_text(
+        source.replace(f"code_version = '{version}'", f"code_version = '{version}-next'"))
+    (repo / "bin").mkdir()
+    (repo / "bin" / "capsim").symlink_to(REPO / "bin" / "capsim")
+    argv = snakemake_argv(smoke_run["workdir"], SMOKE, "--dry-run")
+    argv[argv.index(str(SNAKEFILE))] = str(repo / "workflow" / "Snakefile")
+    argv[argv.index(str(LOCAL_PROFILE))] = str(repo / "workflow" / "profiles" / "local")
+    result = subprocess.run(argv, cwd=smoke_run["workdir"], text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, timeout=120)
+    assert result.returncode == 0, result.stdout[-4000:]
+    stale = set(re.findall(r"output: \S+/cases/(\S+\.h5)", result.stdout))
+    assert stale == {c.relative_path for flow in ("tube", "shear") for c in expand_cases(GRID, flow)}
+    assert f"before: '{version}' now: '{version}-next'" in result.stdout

@@ -104,7 +104,10 @@ def profile_figure(database: TubeDatabase, laws: Sequence[str], ca_values: Seque
         ax.set_xlim(-2.5, 2.5)
         ax.set_aspect("equal")
     axes[0].set_ylabel("r [l] (rows offset by a/l)")
-    axes[0].legend(loc="upper right", fontsize="small")
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(loc="upper right", fontsize="small")
+    else:
+        axes[0].text(0.5, 0.5, "no steady case", transform=axes[0].transAxes, ha="center")
     return fig
 
 
@@ -126,7 +129,8 @@ def lengths_figure(database: TubeDatabase, laws: Sequence[str]) -> Figure:
         ax.set_xlabel("Ca_s [-]")
         ax.set_ylabel(f"{label} [-]")
         ax.grid(True, alpha=0.3)
-    axes[1].legend(fontsize="x-small", ncol=2)
+    if axes[1].get_legend_handles_labels()[0]:
+        axes[1].legend(fontsize="x-small", ncol=2)
     return fig
 
 
@@ -146,7 +150,8 @@ def shear_figure(database: ShearDatabase, laws: Sequence[str]) -> Figure:
     ax_l.set(xlabel="D12 [-]", ylabel="L3/a [-]", title="(b) semi-axis along the vorticity")
     for ax in (ax_d, ax_l):
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="small")
     return fig
 
 
