@@ -8,6 +8,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -159,6 +160,12 @@ def test_snakemake_lint_is_clean() -> None:
     assert result.returncode == 0, result.stdout
     assert "Congratulations, your workflow is in a good condition!" in result.stdout
     assert "Lints for" not in result.stdout
+
+
+def test_snakefmt_is_clean() -> None:
+    result = subprocess.run([sys.executable, "-m", "snakefmt", "--check", str(REPO / "workflow")],
+                            text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=120)
+    assert result.returncode == 0, result.stdout
 
 
 def test_new_code_version_marks_every_case_stale(smoke_run: dict, tmp_path: Path) -> None:

@@ -13,16 +13,16 @@ rule case:
         case=f"{CASES_DIR}/{{flow}}/{{law}}/{{case}}.h5",
     log:
         f"{LOGS}/cases/{{flow}}/{{law}}/{{case}}.log",
-    params:
-        kernel_args=lambda wildcards: " ".join(grid_case(wildcards).kernel_args()),
-        code_version=CODE_VERSION,
-        python=PYTHON,
+    conda:
+        "../envs/capsmech.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=60,
-    conda:
-        "../envs/capsmech.yaml"
+    params:
+        kernel_args=lambda wildcards: " ".join(grid_case(wildcards).kernel_args()),
+        code_version=CODE_VERSION,
+        python=PYTHON,
     shell:
         "{params.python} -m capsmech.cli run-case --capsim {input.kernel} --out {output.case}"
         " --code-version {params.code_version} --threads {threads} -- {params.kernel_args}"

@@ -50,14 +50,18 @@ def grid_case(wildcards):
 def kernel_executable(wildcards):
     """The kernel, as ancient input; a clear error when it has not been built."""
     if not Path(KERNEL).is_file():
-        raise FileNotFoundError(f"{KERNEL} is missing: run `make build` (or `make database`)")
+        raise FileNotFoundError(
+            f"{KERNEL} is missing: run `make build` (or `make database`)"
+        )
     return ancient(KERNEL)
 
 
 def case_files(wildcards):
     """Every case file of one flow, in grid order."""
     return [
-        f"{CASES_DIR}/{key}.h5" for key, case in CASES.items() if case.flow == wildcards.flow
+        f"{CASES_DIR}/{key}.h5"
+        for key, case in CASES.items()
+        if case.flow == wildcards.flow
     ]
 
 

@@ -23,11 +23,11 @@ rule database:
         database=f"{DATABASES}/{{flow}}.h5",
     log:
         f"{LOGS}/database_{{flow}}.log",
+    conda:
+        "../envs/capsmech.yaml"
     params:
         cases_dir=CASES_DIR,
         python=PYTHON,
-    conda:
-        "../envs/capsmech.yaml"
     shell:
         "{params.python} -m capsmech.cli database assemble --grid {input.grid} --flow {wildcards.flow}"
         " --cases {params.cases_dir} --out {output.database} > {log} 2>&1"

@@ -9,10 +9,10 @@ rule figures:
         figures=directory(f"{FIGURES}/{{flow}}"),
     log:
         f"{LOGS}/figures_{{flow}}.log",
-    params:
-        python=PYTHON,
     conda:
         "../envs/capsmech.yaml"
+    params:
+        python=PYTHON,
     shell:
         "{params.python} -m capsmech.cli figures --database {input.database} --grid {input.grid}"
         " --out {output.figures} > {log} 2>&1"

@@ -18,11 +18,11 @@ rule kernel_version:
         version=f"{RESULTS}/kernel/code_version.txt",
     log:
         f"{LOGS}/kernel_version.log",
+    conda:
+        "../envs/capsmech.yaml"
     params:
         expected=CODE_VERSION,
         python=PYTHON,
-    conda:
-        "../envs/capsmech.yaml"
     shell:
         "{params.python} -m capsmech.cli kernel-version --capsim {input.kernel} --expect {params.expected}"
         " --out {output.version} > {log} 2>&1"
