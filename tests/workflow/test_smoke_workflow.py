@@ -110,8 +110,8 @@ def test_kill_and_rerun_recomputes_only_missing_cases(smoke_run: dict, tmp_path:
 
     # A case whose kernel had renamed its file but whose job had not ended when the kill
     # came is marked incomplete by Snakemake and is legitimately computed again.
-    incomplete = {base64.urlsafe_b64decode(p.name).decode()
-                  for p in (workdir / ".snakemake" / "incomplete").iterdir()}
+    markers = workdir / ".snakemake" / "incomplete"
+    incomplete = {base64.urlsafe_b64decode(p.name).decode() for p in markers.glob("*")}
     missing = {p.relative_to(workdir).as_posix() for p in (cases_dir / f"{c.relative_path}"
                for flow in ("tube", "shear") for c in expand_cases(GRID, flow)) if not p.exists()}
 
