@@ -85,6 +85,10 @@ def test_round_trip_tube(cases_dir: Path, tmp_path: Path) -> None:
     assert gh.columns["a_over_l"][0] == 0.5 and gh.columns["Ca_s"][0] == 0.002
     assert gh.attrs["nu_s"] == 0.5 and math.isnan(gh.attrs["C"])
     assert len(gh.column("L_z")) == 0  # steady rows only: none
+    steady = nh.steady_rows()
+    assert set(steady) == set(nh.columns) | set(nh.profiles)
+    assert steady["L_z"].tolist() == [case.steady_value("L_z")] and steady["profile_z"].shape == (1, 16)
+    assert gh.steady_rows()["vc_over_V"].size == 0
 
 
 def test_round_trip_shear_records_non_steady_rows(cases_dir: Path, tmp_path: Path) -> None:

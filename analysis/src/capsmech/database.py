@@ -285,6 +285,15 @@ class LawTable:
         values = self.columns[name]
         return values[self.steady] if steady_only else values
 
+    def steady_rows(self) -> dict[str, np.ndarray]:
+        """Return every numeric column and profile restricted to the steady rows.
+
+        This is the table an inversion interpolates in: no NaN, one entry (or one profile
+        row) per steady case, in grid order.
+        """
+        rows = self.steady
+        return {name: values[rows] for name, values in {**self.columns, **self.profiles}.items()}
+
 
 @dataclass(frozen=True, eq=False)
 class Database:
