@@ -1,5 +1,6 @@
 # capsmech — build the Fortran kernel, set up the Python environment, test, demo.
 # Two commands do everything on a fresh Debian machine: `make demo` and `make test`.
+# Databases: `make database GRID=smoke|paper [PROFILE=local|slurm]`, then `make figures GRID=...`.
 
 SHELL := /bin/bash
 .DEFAULT_GOAL := build
@@ -33,7 +34,7 @@ MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
 # Test programs: every kernel/tests/*.f90 is a program that measures and prints.
 PROBES := $(basename $(notdir $(wildcard kernel/tests/*.f90)))
 
-.PHONY: build setup system-deps venv test demo bench validate clean clean-kernel
+.PHONY: build setup system-deps venv test demo bench validate clean clean-kernel database figures
 
 build: system-deps $(BIN)/capsim $(addprefix $(BIN)/,$(PROBES))
 
@@ -83,6 +84,22 @@ bench: system-deps venv
 
 validate: setup
 	$(PY) -m pytest -m validate
+
+# Database workflow (workflow/, config/$(GRID).yaml). Snakemake prints "N of M steps (P%) done"
+# as cases finish. A run killed at any point is resumed by the same command: the lock a killed
+# run leaves is removed first (only when no Snakemake process works in this directory).
+GRID    ?= smoke
+PROFILE ?= local
+SNAKEMAKE := $(VENV)/bin/snakemake -s workflow/Snakefile --configfile config/$(GRID).yaml \
+             --profile workflow/profiles/$(PROFILE)
+
+database: setup
+	$(PY) -m capsmech.cli unlock-stale .
+	$(SNAKEMAKE)
+
+# Redraw the figures from the grid's databases as they are (no case is run).
+figures: venv
+	$(PY) -m capsmech.cli figures --grid config/$(GRID).yaml
 
 clean-kernel:
 	rm -rf build $(BIN)

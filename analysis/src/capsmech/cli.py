@@ -1,4 +1,6 @@
-"""Command-line interface: ``capsmech simulate ...`` and ``capsmech show CASE.h5``.
+"""Command-line interface: ``capsmech simulate ...``, ``capsmech show CASE.h5``, and the
+database workflow's steps ``capsmech run-case``, ``capsmech database assemble|show`` and
+``capsmech figures``.
 
 ``simulate`` passes all its arguments through to the ``capsim`` kernel, streams
 the kernel's output, returns the kernel's exit code, and then summarises the
@@ -21,8 +23,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from capsmech import __version__
+from capsmech.database import DatabaseError
+from capsmech.grid import GridError
 from capsmech.io import CaseFileError, CaseResult, read_case
 from capsmech.paths import capsim_executable
+from capsmech.runner import CaseRunError
 
 #: Exit status for errors reported by capsmech itself (argparse uses the same).
 EXIT_ERROR = 2
@@ -273,6 +278,82 @@ def cmd_simulate(kernel_args: Sequence[str]) -> int:
     return code
 
 
+def cmd_run_case(args: argparse.Namespace) -> int:
+    """Run one workflow case (see :mod:`capsmech.runner` for the exit-code policy)."""
+    from capsmech.runner import run_case
+
+    kernel_args = [a for a in args.kernel_args if a != "--"]
+    run_case(args.capsim or capsim_executable(), kernel_args, args.out,
+             code_version=args.code_version, threads=args.threads)
+    return 0
+
+
+def cmd_kernel_version(args: argparse.Namespace) -> int:
+    """Check that the built kernel writes the code_version its sources declare; record it."""
+    from capsmech.runner import kernel_code_version
+
+    found = kernel_code_version(args.capsim or capsim_executable())
+    if args.expect and found != args.expect:
+        raise CaseRunError(f"{args.capsim} writes code_version {found!r} but the kernel sources declare "
+                           f"{args.expect!r}: the executable is stale, run `make build`")
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(found + "\n")
+    print(found)
+    return 0
+
+
+def cmd_unlock_stale(args: argparse.Namespace) -> int:
+    """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
+    from capsmech.runner import clear_stale_lock, running_snakemake
+
+    if clear_stale_lock(args.workdir):
+        print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
+    elif running_snakemake(args.workdir):
+        print(f"a Snakemake process is running in {args.workdir}: its lock is kept")
+    return 0
+
+
+def cmd_database(args: argparse.Namespace) -> int:
+    """``database assemble``: case files -> database file; ``database show``: summarise one."""
+    from capsmech.database import assemble_database, load_database
+    from capsmech.grid import load_grid
+
+    if args.action == "assemble":
+        out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out)
+        print(f"wrote {out}")
+        args.database = out
+    database = load_database(args.database)
+    print(f"{database.path}: {database.flow} database of grid {database.provenance['grid_name']!r}, "
+          f"kernel {database.provenance['code_version']}, created {database.provenance['created']}")
+    for key, table in database.laws.items():
+        counts = {s: int((table.status == s).sum()) for s in sorted(set(table.status))}
+        print(f"  {key:<10} {len(table):4d} cases  " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    return 0
+
+
+def cmd_figures(args: argparse.Namespace) -> int:
+    """Draw the paper's figures from one database, or from every database of a grid."""
+    from capsmech.figures import draw_figures
+    from capsmech.grid import FLOWS, load_grid
+
+    grid = load_grid(args.grid) if args.grid else None
+    if args.database:
+        jobs = [(Path(args.database), Path(args.out) if args.out else None)]
+    elif grid is not None:
+        jobs = [(Path(grid["databases_dir"]) / f"{flow}.h5",
+                 Path(args.out or Path(grid["results_dir"]) / "figures") / flow)
+                for flow in FLOWS if flow in grid]
+    else:
+        raise GridError("figures: give --database DB.h5 or --grid GRID.yaml")
+    for database, out in jobs:
+        if out is None:
+            raise GridError("figures: --out DIR is required with --database")
+        for path in draw_figures(database, out, grid):
+            print(f"wrote {path}")
+    return 0
+
+
 # ---------------------------------------------------------------------------
 # Entry point
 # ---------------------------------------------------------------------------
@@ -295,6 +376,36 @@ def build_parser() -> argparse.ArgumentParser:
     show = sub.add_parser("show", help="summarise a case file, optionally plot it")
     show.add_argument("case", metavar="CASE.h5", help="case file written by capsim")
     show.add_argument("--plot", metavar="OUT.png", help="write a 2-panel PNG (history, profile)")
+
+    run = sub.add_parser("run-case", help="run one grid case for the workflow (records non-steady outcomes)")
+    run.add_argument("--out", required=True, help="case file to produce")
+    run.add_argument("--code-version", required=True, help="code_version the case file must carry")
+    run.add_argument("--threads", type=int, default=1, help="OpenMP threads")
+    run.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
+    run.add_argument("kernel_args", nargs=argparse.REMAINDER, help="-- then the kernel's case arguments")
+
+    version = sub.add_parser("kernel-version", help="print (and check) the code_version the kernel writes")
+    version.add_argument("--capsim", default=None, help="kernel executable (default: bin/capsim)")
+    version.add_argument("--expect", help="fail unless the kernel writes this version")
+    version.add_argument("--out", help="also write the version to this file")
+
+    unlock = sub.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
+    unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
+
+    database = sub.add_parser("database", help="assemble or summarise a database file")
+    actions = database.add_subparsers(dest="action", required=True, metavar="ACTION")
+    assemble = actions.add_parser("assemble", help="case files of a grid -> tube.h5 or shear.h5")
+    assemble.add_argument("--grid", required=True, help="grid file (YAML or JSON)")
+    assemble.add_argument("--flow", required=True, choices=("tube", "shear"))
+    assemble.add_argument("--cases", required=True, help="directory holding <flow>/<law>/<case>.h5")
+    assemble.add_argument("--out", required=True, help="database file to write")
+    summary = actions.add_parser("show", help="summarise a database file")
+    summary.add_argument("database", metavar="DB.h5")
+
+    figures = sub.add_parser("figures", help="draw the paper's figures 2-6 from the databases")
+    figures.add_argument("--database", metavar="DB.h5", help="one database (tube: figures 2-5, shear: 6)")
+    figures.add_argument("--grid", help="grid file: its databases, and figure settings")
+    figures.add_argument("--out", metavar="DIR", help="output directory (default: <results_dir>/figures/<flow>)")
     return parser
 
 
@@ -316,11 +427,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)
+        if args.command in commands:
+            return commands[args.command](args)
         return cmd_show(args.case, args.plot)
-    except (CaseFileError, FileNotFoundError) as exc:
+    except (CaseFileError, FileNotFoundError, GridError, DatabaseError, CaseRunError) as exc:
         print(f"capsmech: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
 

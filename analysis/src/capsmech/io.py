@@ -511,6 +511,24 @@ def _read_open_case(f: h5py.File, where: str) -> CaseResult:
     )
 
 
+def require_hdf5_file(path: Path, kind: str, error: type[Exception]) -> str:
+    """Return ``str(path)`` after checking that it is an existing HDF5 file.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist (the message says ``kind not found``).
+    Exception
+        ``error`` if the file is not HDF5 (empty, truncated or another format).
+    """
+    where = str(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{kind} not found: {where}")
+    if not h5py.is_hdf5(path):
+        raise error(f"{where}: not an HDF5 file (empty, truncated or another format)")
+    return where
+
+
 def read_case(path: str | Path) -> CaseResult:
     """Read and validate one capsim case file.
 
@@ -535,11 +553,7 @@ def read_case(path: str | Path) -> CaseResult:
         the file and the offending attribute or dataset.
     """
     p = Path(path)
-    where = str(p)
-    if not p.is_file():
-        raise FileNotFoundError(f"case file not found: {where}")
-    if not h5py.is_hdf5(p):
-        raise CaseFileError(f"{where}: not an HDF5 file (empty, truncated or another format)")
+    where = require_hdf5_file(p, "case file", CaseFileError)
     try:
         with h5py.File(p, "r") as f:
             return _read_open_case(f, where)

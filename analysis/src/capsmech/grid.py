@@ -1,0 +1,245 @@
+"""Parameter grids of the database workflow: validation, law keys and the cases they expand to.
+
+A grid (``config/<name>.yaml``) names the cases of one database refill: for each flow
+(``tube``, ``shear``) the membrane laws, the parameter values, and the kernel settings
+(mesh, time limit) shared by every case of that flow. It is validated against the JSON
+schema ``workflow/schemas/grid.schema.yaml`` and then for what a schema cannot say (law
+parameters in the kernel's ranges, no duplicate values). Every error names the key.
+
+Law keys are the database's group names and map to kernel flags:
+``NH`` -> ``--law NH``; ``SK_C1`` -> ``--law SK --C 1``; ``GH_nu0.5`` -> ``--law GH --nu-s 0.5``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from capsmech.paths import repo_root
+
+FLOWS = ("tube", "shear")
+
+#: Kernel flag of every per-flow setting a grid may carry (the schema lists the same keys).
+SETTING_FLAGS = {
+    "tube": {"n_meridian": "--n-meridian", "tube_length": "--tube-length",
+             "integrator": "--integrator", "t_max": "--t-max"},
+    "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max"},
+}
+
+_NUMBER = r"-?[0-9]+(?:\.[0-9]+)?"
+_LAW_KEY = re.compile(rf"^(?:NH|SK_C(?P<C>{_NUMBER})|GH_nu(?P<nu_s>{_NUMBER}))$")
+
+
+class GridError(ValueError):
+    """A grid is malformed; the message names the offending key."""
+
+
+def schema_path() -> Path:
+    """Return the path of the grid JSON schema (``workflow/schemas/grid.schema.yaml``)."""
+    return repo_root() / "workflow" / "schemas" / "grid.schema.yaml"
+
+
+@dataclass(frozen=True)
+class Law:
+    """A membrane law as named by a database key.
+
+    Attributes
+    ----------
+    key : str
+        Database group name, e.g. ``'GH_nu0.5'``.
+    name : str
+        Kernel law: 'NH', 'SK' or 'GH'.
+    nu_s : float or None
+        Surface Poisson ratio [-] (GH only).
+    C : float or None
+        Skalak area-dilatation parameter [-] (SK only).
+    """
+
+    key: str
+    name: str
+    nu_s: float | None = None
+    C: float | None = None
+
+    def kernel_args(self) -> list[str]:
+        """Return the capsim flags that select this law."""
+        args = ["--law", self.name]
+        if self.C is not None:
+            args += ["--C", f"{self.C:g}"]
+        if self.nu_s is not None:
+            args += ["--nu-s", f"{self.nu_s:g}"]
+        return args
+
+
+def parse_law(key: str) -> Law:
+    """Return the :class:`Law` named by a database law key.
+
+    Parameters
+    ----------
+    key : str
+        ``NH``, ``SK_C<C>`` or ``GH_nu<nu_s>``.
+
+    Raises
+    ------
+    GridError
+        If the key has another form or its parameter is outside the kernel's range
+        (-1 < nu_s < 1, C > -0.5).
+    """
+    match = _LAW_KEY.match(key)
+    if match is None:
+        raise GridError(f"unknown law key {key!r}: expected NH, SK_C<C> or GH_nu<nu_s>")
+    if match["C"] is not None:
+        C = float(match["C"])
+        if not C > -0.5:
+            raise GridError(f"law key {key!r}: Skalak C must be > -0.5")
+        return Law(key, "SK", C=C)
+    if match["nu_s"] is not None:
+        nu_s = float(match["nu_s"])
+        if not -1.0 < nu_s < 1.0:
+            raise GridError(f"law key {key!r}: nu_s must lie in (-1, 1)")
+        return Law(key, "GH", nu_s=nu_s)
+    return Law(key, "NH")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One kernel run of a grid.
+
+    Attributes
+    ----------
+    flow : str
+        'tube' or 'shear'.
+    law : Law
+        Membrane law.
+    Ca_s : float
+        Capillary number [-].
+    a_over_l : float or None
+        Capsule over tube radius [-] (tube only).
+    settings : tuple of (str, Any)
+        The flow's kernel settings (mesh, time limit), sorted by name.
+    """
+
+    flow: str
+    law: Law
+    Ca_s: float
+    a_over_l: float | None
+    settings: tuple[tuple[str, Any], ...]
+
+    @property
+    def case_id(self) -> str:
+        """str: file stem, ``a0.8_Ca0.01`` (tube) or ``Ca0.01`` (shear)."""
+        ca = f"Ca{self.Ca_s:g}"
+        return ca if self.a_over_l is None else f"a{self.a_over_l:g}_{ca}"
+
+    @property
+    def relative_path(self) -> str:
+        """str: ``<flow>/<law key>/<case_id>.h5``, the case file below the cases directory."""
+        return f"{self.flow}/{self.law.key}/{self.case_id}.h5"
+
+    def kernel_args(self) -> list[str]:
+        """Return the capsim arguments of this case (without ``--out``, ``--threads``)."""
+        args = ["--flow", self.flow, *self.law.kernel_args(), "--ca", repr(self.Ca_s)]
+        if self.a_over_l is not None:
+            args += ["--a-over-l", repr(self.a_over_l)]
+        flags = SETTING_FLAGS[self.flow]
+        for name, value in self.settings:
+            args += [flags[name], str(value)]
+        return args
+
+
+def _key_path(path: Any) -> str:
+    """Format a jsonschema error path as ``tube.Ca_s[2]``."""
+    text = ""
+    for part in path:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text or "(top level)"
+
+
+def _schema_errors(grid: Mapping[str, Any]) -> list[str]:
+    """Return one 'key: reason' line per schema violation, in document order."""
+    import jsonschema
+
+    schema = yaml.safe_load(schema_path().read_text())
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(grid), key=lambda e: [str(p) for p in e.absolute_path])
+    return [f"{_key_path(e.absolute_path)}: {e.message}" for e in errors]
+
+
+def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
+    """Check a grid against the schema and the kernel's parameter ranges.
+
+    Parameters
+    ----------
+    grid : mapping
+        The grid as read from YAML (or Snakemake's ``config``).
+    where : str
+        What to call the grid in messages (its file name).
+
+    Raises
+    ------
+    GridError
+        Listing every violation as ``key: reason``, e.g. ``tube.Ca_s[0]: -0.1 is less
+        than or equal to the minimum of 0``.
+    """
+    problems = _schema_errors(grid)
+    if not problems:
+        for flow in FLOWS:
+            if flow not in grid:
+                continue
+            for i, key in enumerate(grid[flow]["laws"]):
+                try:
+                    parse_law(key)
+                except GridError as exc:
+                    problems.append(f"{flow}.laws[{i}]: {exc}")
+            for name in ("laws", "Ca_s", "a_over_l"):
+                values = grid[flow].get(name, [])
+                if len(set(values)) != len(values):
+                    problems.append(f"{flow}.{name}: duplicate values {values}")
+    if problems:
+        raise GridError(f"{where}: invalid grid:\n  " + "\n  ".join(problems))
+
+
+def load_grid(path: str | Path) -> dict[str, Any]:
+    """Read and validate a grid file (YAML or JSON).
+
+    Raises
+    ------
+    GridError
+        If the file does not hold a mapping, or the grid is invalid (key named).
+    """
+    path = Path(path)
+    grid = yaml.safe_load(path.read_text())
+    if not isinstance(grid, dict):
+        raise GridError(f"{path}: a grid file must hold a mapping, got {type(grid).__name__}")
+    validate_grid(grid, str(path))
+    return grid
+
+
+def flow_settings(grid: Mapping[str, Any], flow: str) -> dict[str, Any]:
+    """Return the kernel settings (mesh, time limit) shared by every case of ``flow``."""
+    return dict(sorted(grid[flow].get("settings", {}).items()))
+
+
+def expand_cases(grid: Mapping[str, Any], flow: str) -> list[Case]:
+    """Return the cases of one flow, in law, a/l, Ca_s order (empty if the flow is absent)."""
+    if flow not in grid:
+        return []
+    spec = grid[flow]
+    settings = tuple(flow_settings(grid, flow).items())
+    sizes = spec["a_over_l"] if flow == "tube" else [None]
+    return [
+        Case(flow, parse_law(key), float(ca), None if a is None else float(a), settings)
+        for key in spec["laws"]
+        for a in sizes
+        for ca in spec["Ca_s"]
+    ]
+
+
+def grid_json(grid: Mapping[str, Any]) -> str:
+    """Return the grid as canonical JSON (sorted keys): its provenance record and signature."""
+    return json.dumps(grid, sort_keys=True, separators=(",", ":"))

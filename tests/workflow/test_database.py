@@ -1,0 +1,191 @@
+"""capsmech.database and capsmech.runner on case files written by the real kernel.
+
+The kernel's fault paths (exit 1, exit 2, death by a signal) are injected with tiny
+executables standing in for capsim: they compute nothing, they only fail in the way named.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from capsmech.database import (DatabaseError, ShearDatabase, TubeDatabase, assemble_database,
+                               expected_units, load_database, resample_by_arclength)
+from capsmech.grid import expand_cases, validate_grid
+from capsmech.io import read_case
+from capsmech.runner import CaseRunError, is_failure_record, run_case, source_code_version
+from conftest import REPO
+
+CAPSIM = REPO / "bin" / "capsim"
+CODE_VERSION = source_code_version(REPO)
+
+GRID = {
+    "name": "unit",
+    "databases_dir": "db",
+    "results_dir": "res",
+    "profile_points": 16,
+    "tube": {"laws": ["NH", "GH_nu0.5"], "a_over_l": [0.5], "Ca_s": [0.002],
+             "settings": {"n_meridian": 16}},
+    "shear": {"laws": ["NH"], "Ca_s": [0.1, 3.0], "settings": {"level": 2, "t_max": 6}},
+}
+
+
+def fake_kernel(tmp_path: Path, body: str) -> Path:
+    """An executable standing in for capsim that only fails as ``body`` says."""
+    path = tmp_path / "fake_capsim"
+    path.write_text(f"#!/bin/sh\n{body}\n")
+    path.chmod(0o755)
+    return path
+
+
+@pytest.fixture(scope="module")
+def cases_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """GRID's cases: NH tube and shear cases by the real kernel; the GH tube case is a failure
+    record (the kernel exits 1 with its one-line error)."""
+    validate_grid(GRID)
+    root = tmp_path_factory.mktemp("cases")
+    failing = fake_kernel(root, 'echo "capsim: error: writing the case file: disk full" >&2; exit 1')
+    for flow in ("tube", "shear"):
+        for case in expand_cases(GRID, flow):
+            kernel = failing if case.law.key == "GH_nu0.5" else CAPSIM
+            run_case(kernel, case.kernel_args(), root / case.relative_path, code_version=CODE_VERSION)
+    return root
+
+
+def test_round_trip_tube(cases_dir: Path, tmp_path: Path) -> None:
+    out = assemble_database(GRID, "tube", cases_dir, tmp_path / "tube.h5", created="2026-01-01T00:00:00+00:00")
+    assert not (tmp_path / "tube.h5.tmp").exists()
+    database = load_database(out)
+    assert isinstance(database, TubeDatabase)
+    assert database.grid == GRID and database.provenance["created"] == "2026-01-01T00:00:00+00:00"
+    assert database.provenance["code_version"] == CODE_VERSION
+    nh = database.law("NH")
+    case = read_case(cases_dir / "tube/NH/a0.5_Ca0.002.h5")
+    assert nh.status.tolist() == [case.status] == ["steady"]
+    assert nh.columns["L_z"][0] == case.steady_value("L_z")
+    assert nh.columns["L_p"][0] == case.steady_value("L_p")
+    assert nh.columns["vc_over_V"][0] == case.steady_value("v_c")
+    assert nh.columns["wall_time_s"][0] == case.wall_time_s
+    r, z = nh.profiles["profile_r"][0], nh.profiles["profile_z"][0]
+    assert r.shape == (16,)
+    # Resampled ends are the kernel's poles; every point lies on the kernel's meridian polyline.
+    assert (r[0], z[0]) == (case.profile["r"][0], case.profile["z"][0])
+    assert (r[-1], z[-1]) == (case.profile["r"][-1], case.profile["z"][-1])
+    assert nh.units == expected_units("tube")
+
+    gh = database.law("GH_nu0.5")
+    assert gh.status.tolist() == ["failed"]
+    assert gh.message[0] == "capsim exited with code 1: capsim: error: writing the case file: disk full"
+    assert np.isnan(gh.columns["L_z"][0]) and np.isnan(gh.profiles["profile_r"]).all()
+    assert gh.columns["a_over_l"][0] == 0.5 and gh.columns["Ca_s"][0] == 0.002
+    assert gh.attrs["nu_s"] == 0.5 and math.isnan(gh.attrs["C"])
+    assert len(gh.column("L_z")) == 0  # steady rows only: none
+    steady = nh.steady_rows()
+    assert set(steady) == set(nh.columns) | set(nh.profiles)
+    assert steady["L_z"].tolist() == [case.steady_value("L_z")] and steady["profile_z"].shape == (1, 16)
+    assert gh.steady_rows()["vc_over_V"].size == 0
+
+
+def test_round_trip_shear_records_non_steady_rows(cases_dir: Path, tmp_path: Path) -> None:
+    database = load_database(assemble_database(GRID, "shear", cases_dir, tmp_path / "shear.h5"))
+    assert isinstance(database, ShearDatabase)
+    nh = database.law("NH")
+    for row, ca in enumerate(GRID["shear"]["Ca_s"]):
+        case = read_case(cases_dir / f"shear/NH/Ca{ca:g}.h5")
+        assert (nh.status[row], nh.message[row]) == (case.status, case.message)
+        if case.is_steady:
+            assert nh.columns["D12"][row] == case.steady_value("D12")
+            assert nh.columns["L3_over_a"][row] == case.steady_value("L3")
+            assert nh.columns["theta"][row] == case.steady_value("theta")
+        else:
+            assert np.isnan(nh.columns["D12"][row])
+    assert nh.status.tolist() == ["steady", "continuous_elongation"]
+    # The shear contour is closed: resampled points are equally spaced along it, wrap included.
+    y, z = nh.profiles["profile_y"][0], nh.profiles["profile_z"][0]
+    steps = np.hypot(np.diff(np.append(y, y[0])), np.diff(np.append(z, z[0])))
+    assert steps.max() / steps.min() < 1.2
+
+
+def test_resample_by_arclength_on_a_circle() -> None:
+    angle = np.linspace(0.0, 2 * np.pi, 400, endpoint=False) ** 1.5 / (2 * np.pi) ** 0.5  # uneven
+    x, y = resample_by_arclength(np.cos(angle), np.sin(angle), 12, closed=True)
+    np.testing.assert_allclose(np.hypot(x, y), 1.0, atol=1e-4)
+    np.testing.assert_allclose(np.diff(np.unwrap(np.arctan2(y, x))), 2 * np.pi / 12, atol=1e-3)
+    x, y = resample_by_arclength(np.array([0.0, 1.0, 3.0]), np.zeros(3), 4, closed=False)
+    np.testing.assert_allclose(x, [0.0, 1.0, 2.0, 3.0])
+
+
+def test_missing_case_file_is_an_error(cases_dir: Path, tmp_path: Path) -> None:
+    grid = {**GRID, "shear": {**GRID["shear"], "Ca_s": [0.1, 0.2]}}
+    with pytest.raises(DatabaseError, match=r"Ca0\.2\.h5: case file missing"):
+        assemble_database(grid, "shear", cases_dir, tmp_path / "shear.h5")
+    assert not (tmp_path / "shear.h5").exists()
+
+
+def test_case_file_of_another_case_is_refused(cases_dir: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "cases"
+    shutil.copytree(cases_dir, copy)
+    shutil.copy(copy / "shear/NH/Ca3.h5", copy / "shear/NH/Ca0.1.h5")
+    with pytest.raises(DatabaseError, match=r"not the case of the grid: Ca_s 3\.0, grid wants 0\.1"):
+        assemble_database(GRID, "shear", copy, tmp_path / "shear.h5")
+
+
+def test_loader_checks_units(cases_dir: Path, tmp_path: Path) -> None:
+    path = assemble_database(GRID, "tube", cases_dir, tmp_path / "tube.h5")
+    with h5py.File(path, "r+") as f:
+        f["NH/L_z"].attrs["units"] = "a"
+    with pytest.raises(DatabaseError, match=r"'/NH/L_z' has units 'a', expected 'l'"):
+        load_database(path)
+
+
+def test_loader_refuses_a_case_file(cases_dir: Path) -> None:
+    with pytest.raises(DatabaseError, match="not a capsmech-database file"):
+        load_database(cases_dir / "shear/NH/Ca0.1.h5")
+
+
+def test_runner_fault_policy(tmp_path: Path) -> None:
+    """Exit 2 (bad parameters) and death by a signal fail the job and leave no case file;
+    a stale executable (other code_version) is refused."""
+    case = expand_cases(GRID, "shear")[0]
+    out = tmp_path / "case.h5"
+    refuse = fake_kernel(tmp_path, 'echo "capsim: error: --ca: must be > 0" >&2; exit 2')
+    with pytest.raises(CaseRunError, match="refused the parameters.*--ca: must be > 0"):
+        run_case(refuse, case.kernel_args(), out, code_version=CODE_VERSION)
+    killed = fake_kernel(tmp_path, "kill -9 $$")
+    with pytest.raises(CaseRunError, match="interrupted"):
+        run_case(killed, case.kernel_args(), out, code_version=CODE_VERSION)
+    assert not out.exists()
+    with pytest.raises(CaseRunError, match="the executable is stale"):
+        run_case(CAPSIM, case.kernel_args(), out, code_version="not-" + CODE_VERSION)
+    assert not out.exists()
+    assert run_case(CAPSIM, case.kernel_args(), out, code_version=CODE_VERSION) == "steady"
+    assert not is_failure_record(out)
+
+
+def test_cli_assemble_show_and_figures(cases_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """`capsmech database assemble` on a grid file, `database show`, and `figures` from the result."""
+    import yaml
+
+    from capsmech.cli import main
+
+    grid_file = tmp_path / "unit.yaml"
+    grid_file.write_text(yaml.safe_dump(GRID))
+    for flow in ("tube", "shear"):
+        assert main(["database", "assemble", "--grid", str(grid_file), "--flow", flow,
+                     "--cases", str(cases_dir), "--out", str(tmp_path / f"{flow}.h5")]) == 0
+    assert main(["database", "show", str(tmp_path / "shear.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "NH            2 cases  1 continuous_elongation, 1 steady" in out
+    assert main(["figures", "--database", str(tmp_path / "shear.h5"), "--out", str(tmp_path / "fig")]) == 0
+    assert main(["figures", "--database", str(tmp_path / "tube.h5"), "--grid", str(grid_file),
+                 "--out", str(tmp_path / "fig")]) == 0
+    names = sorted(p.name for p in (tmp_path / "fig").iterdir())
+    assert len(names) == 10 and "figure6_shear_D12_L3.png" in names and "figure2_tube_profiles_nu_s.pdf" in names
+    assert main(["database", "assemble", "--grid", str(grid_file), "--flow", "shear",
+                 "--cases", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.h5")]) == 2
+    assert "case file missing" in capsys.readouterr().err

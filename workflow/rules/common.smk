@@ -1,0 +1,73 @@
+# Helpers shared by the rules: paths, the grid's cases, the kernel's code version.
+# The grid logic itself lives in the capsmech package (capsmech.grid), where it is tested.
+
+import sys
+from pathlib import Path
+
+from capsmech.grid import FLOWS, expand_cases, grid_json, validate_grid
+from capsmech.runner import source_code_version
+
+# Semantic checks the schema cannot express (law parameters, duplicates); names the key.
+validate_grid(config, "config")
+
+REPO = Path(workflow.basedir).parent
+PYTHON = sys.executable
+KERNEL = str(REPO / "bin" / "capsim")
+# Every case file records the kernel's code_version; a new version makes every case stale
+# (the case rule's params change), a rebuilt binary of the same version does not.
+CODE_VERSION = source_code_version(REPO)
+
+RESULTS = config["results_dir"]
+CASES_DIR = f"{RESULTS}/cases"
+LOGS = f"{RESULTS}/logs"
+FIGURES = f"{RESULTS}/figures"
+DATABASES = config["databases_dir"]
+GRID_RECORD = f"{RESULTS}/grid.json"
+
+GRID_FLOWS = [flow for flow in FLOWS if flow in config]
+# "tube/NH/a0.8_Ca0.01" -> Case, for every case of the grid.
+CASES = {
+    case.relative_path.removesuffix(".h5"): case
+    for flow in GRID_FLOWS
+    for case in expand_cases(config, flow)
+}
+
+
+wildcard_constraints:
+    flow="tube|shear",
+    law="[A-Za-z0-9_.-]+",
+    case="[A-Za-z0-9_.-]+",
+
+
+def grid_case(wildcards):
+    """The grid's case for a case-file path (a path outside the grid is an error)."""
+    key = f"{wildcards.flow}/{wildcards.law}/{wildcards.case}"
+    if key not in CASES:
+        raise ValueError(f"{key} is not a case of grid {config['name']!r}")
+    return CASES[key]
+
+
+def kernel_executable(wildcards):
+    """The kernel, as ancient input; a clear error when it has not been built."""
+    if not Path(KERNEL).is_file():
+        raise FileNotFoundError(
+            f"{KERNEL} is missing: run `make build` (or `make database`)"
+        )
+    return ancient(KERNEL)
+
+
+def case_files(wildcards):
+    """Every case file of one flow, in grid order."""
+    return [
+        f"{CASES_DIR}/{key}.h5"
+        for key, case in CASES.items()
+        if case.flow == wildcards.flow
+    ]
+
+
+def database_files():
+    return [f"{DATABASES}/{flow}.h5" for flow in GRID_FLOWS]
+
+
+def figure_dirs():
+    return [f"{FIGURES}/{flow}" for flow in GRID_FLOWS]
