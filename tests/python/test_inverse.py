@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.inverse import (FIVE_FITS, ShearInverter, TubeInverter, TubeTable, modified_hausdorff)
+from capsmech.inverse import (FIVE_FITS, ShearInverter, TubeInverter, TubeTable, modified_hausdorff,
+                              profile_elongation)
 
 A_GRID = np.arange(0.70, 1.101, 0.05)
 CA_GRID = np.array([0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.10, 0.12, 0.15, 0.18, 0.20])
@@ -148,3 +149,25 @@ def test_modified_hausdorff_of_concentric_circles_is_the_radius_difference():
     circle = lambda r: np.column_stack([r * np.cos(t), r * np.sin(t)])  # noqa: E731
     assert modified_hausdorff(circle(1.0), circle(1.05)) == pytest.approx(0.05, rel=1e-3)
     assert modified_hausdorff(circle(1.0), circle(1.0)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_profile_elongation_of_a_sphere_is_one_and_grows_for_a_spheroid():
+    t = np.linspace(0, np.pi, 400)
+    sphere = np.column_stack([0.8 * np.sin(t), 0.8 * np.cos(t)])
+    assert profile_elongation(sphere, 0.8) == pytest.approx(1.0, rel=1e-4)
+    prolate = np.column_stack([0.7 * np.sin(t), 1.2 * np.cos(t)])
+    assert profile_elongation(prolate, 0.8) > 1.05
+
+
+def test_profiles_are_blended_linearly_between_database_rows():
+    # Profiles that depend linearly on (a/l, ln Ca_s) are reproduced exactly at any point.
+    a, ca = (v.ravel() for v in np.meshgrid(A_GRID, CA_GRID, indexing="ij"))
+    s = np.linspace(0, 1, 16)
+    profile_r = np.outer(a, np.sin(np.pi * s)) + np.outer(np.log(ca), s)
+    profile_z = np.outer(a, np.cos(np.pi * s))
+    l_z, front = quadratic_map(a, ca)
+    inverter = TubeInverter(TubeTable(a, ca, l_z, l_z - front, 2 - a, profile_r, profile_z))
+    blended = inverter.profile(0.93, 0.047)
+    assert blended[:, 0] == pytest.approx(0.93 * np.sin(np.pi * s) + np.log(0.047) * s, abs=1e-12)
+    assert blended[:, 1] == pytest.approx(0.93 * np.cos(np.pi * s), abs=1e-12)
+    assert inverter.profile(1.3, 0.05) is None

@@ -27,6 +27,7 @@ from capsmech.database import DatabaseError
 from capsmech.grid import GridError
 from capsmech.io import CaseFileError, CaseResult, read_case
 from capsmech.paths import capsim_executable
+from capsmech.measurements import MeasurementError
 from capsmech.runner import CaseRunError
 
 #: Exit status for errors reported by capsmech itself (argparse uses the same).
@@ -354,6 +355,31 @@ def cmd_figures(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fit(args: argparse.Namespace) -> int:
+    """``fit-tube`` / ``fit-shear``: fit a measurement CSV against a database, print the table."""
+    from capsmech.database import load_database
+    from capsmech.fitting import (SHEAR_RESULT_UNITS, TUBE_RESULT_UNITS, fit_shear, fit_tube,
+                                  write_results)
+    from capsmech.measurements import read_measurements
+
+    flow = "tube" if args.command == "fit-tube" else "shear"
+    capsules = read_measurements(args.measurements, flow)
+    database = load_database(args.database)
+    if database.flow != flow:
+        raise DatabaseError(f"{args.database}: a {database.flow} database, {args.command} needs a {flow} one")
+    fit, units = (fit_tube, TUBE_RESULT_UNITS) if flow == "tube" else (fit_shear, SHEAR_RESULT_UNITS)
+    rows = fit(capsules, database, args.law or None)
+    shown = ["id", "law", "a_over_l", "Ca_s", "G_s", "G_s_spread", "flag"] if flow == "tube" else \
+        ["id", "law", "D12", "Ca_s", "a", "G_s", "flag"]
+    shown = [k for k in shown if k in units]
+    print("  ".join(f"{k:>10}" for k in shown))
+    for row in rows:
+        print("  ".join(f"{row[k]:>10.4g}" if isinstance(row[k], float) else f"{str(row[k]):>10}" for k in shown))
+    for out in args.out or []:
+        print(f"wrote {write_results(rows, units, out, database)}")
+    return 0
+
+
 # ---------------------------------------------------------------------------
 # Entry point
 # ---------------------------------------------------------------------------
@@ -406,6 +432,12 @@ def build_parser() -> argparse.ArgumentParser:
     figures.add_argument("--database", metavar="DB.h5", help="one database (tube: figures 2-5, shear: 6)")
     figures.add_argument("--grid", help="grid file: its databases, and figure settings")
     figures.add_argument("--out", metavar="DIR", help="output directory (default: <results_dir>/figures/<flow>)")
+    for name, flow in (("fit-tube", "tube"), ("fit-shear", "shear")):
+        fit = sub.add_parser(name, help=f"fit measured capsules ({flow} CSV) against a {flow} database")
+        fit.add_argument("measurements", metavar="CSV", help="measurement file (format: capsmech.measurements)")
+        fit.add_argument("--database", default=f"data/databases/{flow}.h5", help="database file")
+        fit.add_argument("--law", action="append", help="law key to fit with (repeatable; default: all)")
+        fit.add_argument("--out", action="append", metavar="FILE", help="write the results (.csv or .h5; repeatable)")
     return parser
 
 
@@ -427,14 +459,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures}
+    commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
+                "fit-tube": cmd_fit, "fit-shear": cmd_fit}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)
         if args.command in commands:
             return commands[args.command](args)
         return cmd_show(args.case, args.plot)
-    except (CaseFileError, FileNotFoundError, GridError, DatabaseError, CaseRunError) as exc:
+    except (CaseFileError, FileNotFoundError, GridError, DatabaseError, CaseRunError, MeasurementError) as exc:
         print(f"capsmech: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
 

@@ -65,6 +65,8 @@ class TubeTable:
     L_z: np.ndarray
     L_p: np.ndarray
     vc_over_V: np.ndarray
+    profile_r: np.ndarray | None = None
+    profile_z: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         arrays = [np.asarray(getattr(self, k), dtype=float) for k in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V")]
@@ -72,6 +74,13 @@ class TubeTable:
         if any(a.shape != (n,) for a in arrays):
             raise ValueError("tube table: every column must be 1-D with the same length")
         keep = np.all([np.isfinite(a) for a in arrays], axis=0)
+        for name in ("profile_r", "profile_z"):
+            profile = getattr(self, name)
+            if profile is not None:
+                profile = np.asarray(profile, dtype=float)
+                if profile.ndim != 2 or profile.shape[0] != n:
+                    raise ValueError(f"tube table: {name} must be (rows, points)")
+                object.__setattr__(self, name, profile[keep])
         if np.any(arrays[1][keep] <= 0):
             raise ValueError("tube table: Ca_s must be > 0")
         if keep.sum() < N_NEIGHBOURS:
@@ -206,6 +215,23 @@ class TubeInverter:
             result.G_s = mu * v_c / (result.Ca_s * velocity)
         return result
 
+    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
+        """Meridian (points, 2) of (r, z) [l] at (a/l, Ca_s): the database profiles blended with
+        the barycentric weights of the Delaunay triangle holding the point (None without profiles)."""
+        if self.table.profile_r is None or self.table.profile_z is None:
+            return None
+        x = np.array([a_over_l, np.log(Ca_s)]) / self._p_scale
+        simplex = int(self._hull.find_simplex(x))
+        if simplex < 0:
+            return None
+        transform = self._hull.transform[simplex]
+        b = transform[:2] @ (x - transform[2])
+        weights = np.append(b, 1 - b.sum())
+        vertices = self._hull.simplices[simplex]
+        r = weights @ self.table.profile_r[vertices]
+        z = weights @ self.table.profile_z[vertices]
+        return np.column_stack([r, z])
+
     def five_fits(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> FiveFits:
         """Fits 1-5 of paper section 4.2 (L_z and L_p -+2 %, then L_p alone -+2 %)."""
         return FiveFits({name: self.fit(L_z * fz, L_p * fp, v_c, mu) for name, fz, fp in FIVE_FITS})
@@ -296,6 +322,14 @@ class ShearInverter:
             result.a = a
             result.G_s = mu * shear_rate * a / result.Ca_s
         return result
+
+
+def profile_elongation(meridian: np.ndarray, a: float) -> float:
+    """Mean profile elongation Delta = p / (2 pi a) (paper section 4.4): p is the perimeter of
+    the profile in a plane through the axis, twice the meridian's arclength (pole to pole)."""
+    meridian = np.asarray(meridian, dtype=float)
+    arclength = np.sum(np.hypot(*np.diff(meridian, axis=0).T))
+    return float(2 * arclength / (2 * np.pi * a))
 
 
 def modified_hausdorff(a: np.ndarray, b: np.ndarray) -> float:

@@ -1,0 +1,162 @@
+"""Fit measured capsules against the shipped databases: the API that ``capsmech fit-tube``
+and ``capsmech fit-shear`` wrap.
+
+``fit_tube(capsules, database, laws)`` returns one result row per (capsule, law): the five
+fits of paper section 4.2 reduced to a mean and a spread (half the range of the valid fits)
+for a/l, Ca_s, v_c/V and G_s, the number of valid fits, and a flag with its reason when the
+capsule cannot be fitted (outside the database, no valid fit). ``fit_shear`` does the same
+from D12 (paper section 4.3). Results are plain dicts of floats and strings, in SI units
+(G_s in N/m), ready for ``write_results`` (CSV and HDF5, written whole or not at all).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from capsmech.database import Database, ShearDatabase, TubeDatabase
+from capsmech.inverse import ShearInverter, TubeInverter, TubeTable, profile_elongation
+from capsmech.measurements import Capsule
+
+#: Result columns and their units.
+TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
+                     "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
+                     "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
+                     "valid_fits": "1", "flag": ""}
+SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
+                      "G_s": "N/m", "flag": ""}
+
+
+def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
+    """The tube inverter of one law, on the database's steady rows."""
+    rows = database.law(law).steady_rows()
+    return TubeInverter(TubeTable(a_over_l=rows["a_over_l"], Ca_s=rows["Ca_s"], L_z=rows["L_z"],
+                                  L_p=rows["L_p"], vc_over_V=rows["vc_over_V"],
+                                  profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z")))
+
+
+def shear_inverter(database: ShearDatabase, law: str) -> ShearInverter:
+    """The shear inverter of one law, on the database's steady rows."""
+    rows = database.law(law).steady_rows()
+    return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"])
+
+
+def _progress(done: int, total: int, stream=sys.stderr) -> None:
+    if total < 20 or not stream.isatty():
+        return
+    width = 30
+    filled = int(width * done / total)
+    stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total}")
+    if done == total:
+        stream.write("\n")
+    stream.flush()
+
+
+def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None
+             ) -> list[dict[str, Any]]:
+    """Fit every capsule with every law (all the database's laws by default).
+
+    Parameters
+    ----------
+    capsules : sequence of Capsule
+        Measured capsules in SI units (``capsmech.measurements.read_measurements(..., 'tube')``).
+    database : TubeDatabase
+        A loaded tube database.
+    laws : iterable of str, optional
+        Law keys to fit with.
+
+    Returns
+    -------
+    list of dict
+        One row per (capsule, law), columns as in ``TUBE_RESULT_UNITS``.
+    """
+    laws = list(laws) if laws is not None else list(database.laws)
+    inverters = {law: tube_inverter(database, law) for law in laws}
+    rows = []
+    total = len(capsules) * len(laws)
+    for capsule in capsules:
+        l = capsule["tube_radius"]
+        l_z, l_p = capsule["L_z"] / l, capsule["L_p"] / l
+        v_c, mu = capsule["v_c"], capsule["mu"]
+        has_velocity = math.isfinite(v_c) and math.isfinite(mu)
+        for law in laws:
+            fits = inverters[law].five_fits(l_z, l_p, v_c if has_velocity else None, mu if has_velocity else None)
+            row: dict[str, Any] = {"id": capsule.id, "law": law, "L_z_over_l": l_z, "L_p_over_l": l_p,
+                                   "a_over_l": fits.mean("a_over_l"), "a_over_l_spread": fits.spread("a_over_l"),
+                                   "Ca_s": fits.mean("Ca_s"), "Ca_s_spread": fits.spread("Ca_s"),
+                                   "vc_over_V": fits.mean("vc_over_V"), "G_s": fits.mean("G_s"),
+                                   "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
+                                   "Delta": float("nan"), "valid_fits": fits.n_valid, "flag": ""}
+            central = fits.fits["fit1"]
+            if central.ok:
+                meridian = inverters[law].profile(central.a_over_l, central.Ca_s)
+                if meridian is not None:
+                    row["Delta"] = profile_elongation(meridian, central.a_over_l)
+            if fits.n_valid == 0:
+                row["flag"] = fits.fits["fit1"].flag or "no valid fit"
+            elif not fits.fits["fit1"].ok:
+                row["flag"] = "central fit: " + fits.fits["fit1"].flag
+            elif not has_velocity:
+                row["flag"] = "no v_c or mu: G_s not computed"
+            rows.append(row)
+            _progress(len(rows), total)
+    return rows
+
+
+def fit_shear(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterable[str] | None = None
+              ) -> list[dict[str, Any]]:
+    """Fit every sheared capsule (semi-axes L1, L2, shear rate, viscosity) with every law."""
+    laws = list(laws) if laws is not None else list(database.laws)
+    inverters = {law: shear_inverter(database, law) for law in laws}
+    rows = []
+    for capsule in capsules:
+        l1, l2 = capsule["L1"], capsule["L2"]
+        for law in laws:
+            fit = inverters[law].fit(L1=l1, L2=l2, shear_rate=capsule["shear_rate"], mu=capsule["mu"])
+            rows.append({"id": capsule.id, "law": law, "D12": (l1 - l2) / (l1 + l2), "Ca_s": fit.Ca_s,
+                         "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s, "flag": fit.flag})
+    return rows
+
+
+def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: str | Path,
+                  provenance: Database | None = None) -> Path:
+    """Write result rows to ``out`` (.csv: units in the header; .h5: one dataset per column
+    with a ``units`` attribute), through a temporary file renamed when complete."""
+    out = Path(out)
+    tmp = out.with_name(out.name + ".tmp")
+    if out.suffix == ".csv":
+        with open(tmp, "w", newline="", encoding="utf-8") as stream:
+            writer = csv.writer(stream)
+            writer.writerow([f"{k} [{u}]" if u else k for k, u in units.items()])
+            for row in rows:
+                writer.writerow([_cell(row[k]) for k in units])
+    elif out.suffix in (".h5", ".hdf5"):
+        with h5py.File(tmp, "w") as f:
+            for key, unit in units.items():
+                values = [row[key] for row in rows]
+                if unit == "" :
+                    data = np.array([str(v) for v in values], dtype=h5py.string_dtype())
+                else:
+                    data = np.array(values, dtype=float)
+                ds = f.create_dataset(key, data=data)
+                ds.attrs["units"] = unit
+            if provenance is not None:
+                f.attrs["database"] = str(provenance.path)
+                f.attrs["database_code_version"] = str(provenance.provenance.get("code_version", ""))
+    else:
+        raise ValueError(f"{out}: results go to .csv or .h5")
+    os.replace(tmp, out)
+    return out
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.6g}"
+    return str(value)
