@@ -380,6 +380,26 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_population(args: argparse.Namespace) -> int:
+    """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
+    from capsmech.population import plot_population, population, read_results
+
+    rows = [row for path in args.results for row in read_results(path)]
+    drifts, best = population(rows)
+    print(f"{'law':>10} {'n':>4} {'G_s [N/m]':>20} {'drift /unit Delta':>18} {'95 % interval':>20} {'p':>8}")
+    for law, d in drifts.items():
+        print(f"{law:>10} {d.n:>4} {d.mean:>10.4g} +- {d.std:<7.2g} {d.slope:>+18.3f} "
+              f"[{d.ci_low:+.3f}, {d.ci_high:+.3f}] {d.p_value:>8.2g}")
+    if best is None:
+        print("verdict: every law's G_s drifts with the deformation (p < 0.05): none fits the batch")
+    else:
+        print(f"verdict: {best} (G_s = {drifts[best].mean:.4g} +- {drifts[best].std:.2g} N/m does not drift "
+              f"with Delta, p = {drifts[best].p_value:.2g})")
+    if args.plot:
+        print(f"wrote {plot_population(rows, drifts, args.plot)}")
+    return 0
+
+
 # ---------------------------------------------------------------------------
 # Entry point
 # ---------------------------------------------------------------------------
@@ -438,6 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
         fit.add_argument("--database", default=f"data/databases/{flow}.h5", help="database file")
         fit.add_argument("--law", action="append", help="law key to fit with (repeatable; default: all)")
         fit.add_argument("--out", action="append", metavar="FILE", help="write the results (.csv or .h5; repeatable)")
+    pop = sub.add_parser("population", help="which law gives a G_s that does not drift with deformation")
+    pop.add_argument("results", nargs="+", metavar="RESULTS.csv", help="fit-tube results")
+    pop.add_argument("--plot", metavar="FIG.png", help="draw G_s against Delta (paper figure 10)")
     return parser
 
 
@@ -460,7 +483,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
-                "fit-tube": cmd_fit, "fit-shear": cmd_fit}
+                "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

@@ -1,0 +1,131 @@
+"""Population analysis (paper section 4.4): which membrane law gives one G_s at every deformation.
+
+G_s is a material property: fitted with the right law it does not drift with the capsules'
+deformation, measured by the mean profile elongation Delta = p / (2 pi a). For each law the
+fitted G_s of a batch are regressed on Delta (least squares, ``scipy.stats.linregress``); the
+drift is the slope relative to the mean G_s, with its 95 % confidence interval (Student t)
+and the p-value of "no drift". The law reported is the one whose drift is least significant
+(largest p-value) among those with p >= alpha; when every law drifts, none is reported.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+#: Significance level of the drift test.
+ALPHA = 0.05
+
+
+@dataclass(frozen=True)
+class LawDrift:
+    """Drift of G_s with Delta for one law.
+
+    Attributes
+    ----------
+    law : str
+        Law key.
+    n : int
+        Capsules used (valid fits with finite G_s and Delta).
+    mean, std : float
+        Mean and standard deviation of G_s [N/m].
+    slope : float
+        d(G_s / mean G_s) / d Delta [1].
+    ci_low, ci_high : float
+        95 % confidence interval of the slope.
+    t, p_value : float
+        Student statistic of the slope and the two-sided p-value of slope = 0.
+    """
+
+    law: str
+    n: int
+    mean: float
+    std: float
+    slope: float
+    ci_low: float
+    ci_high: float
+    t: float
+    p_value: float
+
+    @property
+    def drifts(self) -> bool:
+        return self.p_value < ALPHA
+
+
+def law_drift(law: str, delta: Sequence[float], g_s: Sequence[float]) -> LawDrift:
+    """Regress G_s / mean(G_s) on Delta for one law (needs at least 3 capsules)."""
+    delta, g_s = np.asarray(delta, dtype=float), np.asarray(g_s, dtype=float)
+    keep = np.isfinite(delta) & np.isfinite(g_s)
+    delta, g_s = delta[keep], g_s[keep]
+    if len(delta) < 3:
+        raise ValueError(f"law {law}: {len(delta)} capsules with G_s and Delta, the drift test needs 3")
+    if np.ptp(delta) == 0:
+        raise ValueError(f"law {law}: every capsule has the same Delta, the drift cannot be measured")
+    mean = float(g_s.mean())
+    fit = stats.linregress(delta, g_s / mean)
+    t_crit = stats.t.ppf(1 - ALPHA / 2, len(delta) - 2)
+    t_stat = fit.slope / fit.stderr if fit.stderr > 0 else math.inf
+    return LawDrift(law=law, n=len(delta), mean=mean, std=float(g_s.std(ddof=1)), slope=float(fit.slope),
+                    ci_low=float(fit.slope - t_crit * fit.stderr), ci_high=float(fit.slope + t_crit * fit.stderr),
+                    t=float(t_stat), p_value=float(fit.pvalue))
+
+
+def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], str | None]:
+    """Drift per law from fit-tube result rows (columns law, Delta, G_s, flag) and the law the
+    data support (None when every law drifts). Flagged rows are excluded."""
+    by_law: dict[str, tuple[list[float], list[float]]] = {}
+    for row in rows:
+        if row.get("flag"):
+            continue
+        delta, g = by_law.setdefault(str(row["law"]), ([], []))
+        delta.append(float(row["Delta"]))
+        g.append(float(row["G_s"]))
+    drifts = {law: law_drift(law, d, g) for law, (d, g) in by_law.items() if len(d) >= 3}
+    steady = [d for d in drifts.values() if not d.drifts]
+    best = max(steady, key=lambda d: d.p_value).law if steady else None
+    return drifts, best
+
+
+def read_results(path: str | Path) -> list[dict[str, Any]]:
+    """Read a fit-tube results CSV (header cells 'name [unit]')."""
+    with open(path, newline="", encoding="utf-8") as stream:
+        reader = csv.reader(stream)
+        header = [cell.split(" [")[0] for cell in next(reader)]
+        return [dict(zip(header, row)) for row in reader]
+
+
+def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift], out: str | Path) -> Path:
+    """Figure 10 of the paper: G_s against Delta per law, error bars = spread of the five fits,
+    with each law's regression line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    rows = [r for r in rows if not r.get("flag")]
+    for law in drifts:
+        mine = [r for r in rows if r["law"] == law]
+        delta = np.array([float(r["Delta"]) for r in mine])
+        g = np.array([float(r["G_s"]) for r in mine])
+        err = np.array([float(r.get("G_s_spread", "nan")) for r in mine])
+        line = ax.errorbar(delta, g, yerr=np.where(np.isfinite(err), err, 0), fmt="o", ms=4, capsize=2,
+                           label=f"{law}: drift {drifts[law].slope:+.2f}/unit Δ (p = {drifts[law].p_value:.2g})")
+        x = np.linspace(delta.min(), delta.max(), 2)
+        d = drifts[law]
+        intercept = d.mean * (1 - d.slope * delta.mean())
+        ax.plot(x, intercept + d.slope * d.mean * x, color=line[0].get_color(), lw=1)
+    ax.set_xlabel("mean profile elongation Δ = p / 2πa")
+    ax.set_ylabel("G_s [N/m]")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=150)
+    plt.close(fig)
+    return out
