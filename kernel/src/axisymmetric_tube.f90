@@ -100,6 +100,8 @@ module axisymmetric_tube
       !> Largest implicit step (l/V): the step is this or growth_step_limit / (largest growth
       !> rate of the Jacobian), whichever is smaller.
       real(dp) :: dt_max = 0
+      !> Step cap after halvings (see implicit_step), dt_max when none.
+      real(dp) :: dt_limit = huge(1.0_dp)
       real(dp), allocatable :: system(:, :), step_vector(:), border(:, :)
       real(dp), allocatable :: dofs(:), dofs_trial(:), res(:), res_trial(:), rz_good(:, :)
       integer, allocatable :: pivot(:)
@@ -195,6 +197,7 @@ contains
       self%rz_here = huge(1.0_dp)
       allocate (self%eig_re(m), self%eig_im(m), self%eig_work(8 * m))
       self%dt_max = self%dt
+      self%dt_limit = self%dt
       block
          real(dp) :: area
          call meridian_area_volume(self%start_positions, area, self%volume0)
@@ -610,6 +613,7 @@ contains
          self%n_rejected = self%n_rejected + 1
          if (self%jacobian_age == 0) then
             self%dt = 0.5_dp * self%dt
+            self%dt_limit = self%dt
             call factorise_step_matrix(self)
          else
             call refresh_jacobian(self)
@@ -619,6 +623,8 @@ contains
       self%rz_here = self%rz_pred
       self%u_here = self%u1
       self%jacobian_age = self%jacobian_age + 1
+      ! A step that had to be halved caps the next ones; the cap relaxes by half per accepted step.
+      self%dt_limit = min(self%dt_max, 1.5_dp * self%dt_limit)
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine implicit_step
@@ -628,7 +634,7 @@ contains
       type(axisymmetric_tube_t), intent(inout) :: self
       call velocity_jacobian(self, self%positions, jacobian_fd_step * self%a, self%jacobian)
       self%n_jacobians = self%n_jacobians + 1
-      self%dt = min(self%dt_max, growth_step_limit / max(largest_growth_rate(self, self%jacobian), tiny(1.0_dp)))
+      self%dt = min(self%dt_limit, growth_step_limit / max(largest_growth_rate(self, self%jacobian), tiny(1.0_dp)))
       call factorise_step_matrix(self)
       self%jacobian_age = 0
    end subroutine refresh_jacobian
@@ -902,6 +908,7 @@ contains
          self%solver = solver_implicit
          self%dt = implicit_dt
          self%dt_max = implicit_dt
+         self%dt_limit = implicit_dt
          self%n_rec = 0
          call self%time_loop(opts, checkpoint_path, summary, steady_index)
          summary%message = summary%message//' (implicit steps after: '//newton_failure//')'

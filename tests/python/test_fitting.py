@@ -1,0 +1,89 @@
+"""Inverse analysis against the shipped databases (data/databases/{tube,shear}.h5), the
+paper's checks (issue 5): the section 4.3 shear example, round trips of kernel-simulated
+capsules off the grid, the five-fit spread pattern of Table 1, and law discrimination on
+the synthetic example batches (data/examples, made by scripts/make_examples.py)."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capsmech.database import load_database
+from capsmech.fitting import fit_tube, shear_inverter, tube_inverter
+from capsmech.measurements import read_measurements
+from capsmech.population import population
+from capsmech.synthetic import simulate_tube, true_modulus, tube_batch, write_tube_csv
+
+REPO = Path(__file__).resolve().parents[2]
+TUBE_DB = REPO / "data" / "databases" / "tube.h5"
+SHEAR_DB = REPO / "data" / "databases" / "shear.h5"
+EXAMPLES = REPO / "data" / "examples"
+
+
+# The paper-grid databases are not shipped yet (issue 4: the grid takes ~2 h on 2 cores and
+# was not run in the session that wrote these tests). Until they are, these tests are
+# reported as skipped, with this reason, in every run.
+pytestmark = pytest.mark.skipif(not (TUBE_DB.exists() and SHEAR_DB.exists()),
+                                reason="data/databases/{tube,shear}.h5 not shipped yet (issue 4)")
+
+
+@pytest.fixture(scope="module")
+def tube_db():
+    return load_database(TUBE_DB)
+
+
+@pytest.mark.parametrize("law,expected", [("NH", 0.044), ("GH_nu0.5", 0.024), ("GH_nu0.2", 0.038)])
+def test_paper_shear_example(law, expected):
+    # Paper section 4.3: D12 = 0.38, gamma_dot = 350 1/s, mu = 0.756 Pa s, a = 45 um.
+    fit = shear_inverter(load_database(SHEAR_DB), law).modulus(D12=0.38, a=45e-6, shear_rate=350.0, mu=0.756)
+    assert fit.ok, fit.flag
+    assert fit.G_s == pytest.approx(expected, rel=0.10)
+
+
+def fit_simulated(tube_db, capsules, laws, noise=0.0, seed=0, tmp_path=None):
+    rows = tube_batch(capsules, noise=noise, seed=seed)
+    path = write_tube_csv(rows, tmp_path / f"batch{seed}.csv")
+    return fit_tube(read_measurements(path, "tube"), tube_db, laws)
+
+
+OFF_GRID = [("NH", 0.92, 0.065), ("NH", 0.97, 0.11), ("GH_nu0.5", 0.93, 0.085)]
+
+
+def test_round_trip_off_the_grid_recovers_g_s_within_5_percent(tube_db, tmp_path):
+    capsules = [simulate_tube(a, ca, law) for law, a, ca in OFF_GRID]
+    for (law, a, ca), capsule in zip(OFF_GRID, capsules):
+        assert capsule.status == "steady"
+        row = fit_simulated(tube_db, [capsule], [law], tmp_path=tmp_path)[0]
+        assert not row["flag"], row["flag"]
+        assert row["a_over_l"] == pytest.approx(a, abs=0.01)
+        assert row["G_s"] == pytest.approx(true_modulus(ca), rel=0.05), (law, a, ca, row)
+
+
+def test_five_fit_spread_is_larger_for_the_smaller_capsule(tube_db, tmp_path):
+    # Paper Table 1: the five fits spread G_s by 27 % at a/l ~ 0.88 and 13 % at a/l ~ 0.98,
+    # because L_z and L_p vary little with Ca_s for capsules smaller than the tube.
+    small, large = simulate_tube(0.88, 0.06, "NH"), simulate_tube(0.98, 0.06, "NH")
+    spreads = []
+    for capsule in (small, large):
+        row = fit_simulated(tube_db, [capsule], ["NH"], tmp_path=tmp_path)[0]
+        assert row["valid_fits"] >= 4
+        spreads.append(row["G_s_spread"] / row["G_s"])
+    assert spreads[0] > 1.5 * spreads[1], spreads
+
+
+def read_truth(path):
+    with open(path, newline="", encoding="utf-8") as stream:
+        return {row["id"]: row for row in csv.DictReader(stream)}
+
+
+@pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
+def test_example_batch_is_attributed_to_the_law_that_made_it(tube_db, law):
+    capsules = read_measurements(EXAMPLES / f"tube_batch_{law}.csv", "tube")
+    rows = fit_tube(capsules, tube_db, ["NH", "GH_nu0.5"])
+    drifts, best = population(rows)
+    assert best == law, {k: (d.slope, d.p_value) for k, d in drifts.items()}
+    truth = read_truth(EXAMPLES / f"tube_batch_{law}_truth.csv")
+    errors = [abs(r["G_s"] / float(truth[r["id"]]["G_s [N/m]"]) - 1) for r in rows if r["law"] == law and not r["flag"]]
+    assert np.median(errors) < 0.10
