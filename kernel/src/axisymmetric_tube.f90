@@ -19,12 +19,12 @@ module axisymmetric_tube
    use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_node_areas, &
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
-   use run_options, only: run_options_t
+   use run_options, only: run_options_t, int_text
    use capsule_model, only: capsule_model_t, num
    use case_output, only: case_summary_t
    implicit none
    private
-   public :: axisymmetric_tube_t, tube_wall_elements, velocity_jacobian, pack_dofs, unpack_dofs
+   public :: axisymmetric_tube_t, tube_wall_elements, velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
 
    integer, parameter :: h_t = 1, h_area = 2, h_volume = 3, h_lz = 4, h_lp = 5, h_vc = 6, h_rmax = 7, &
                          h_energy = 8, h_stretch = 9
@@ -916,8 +916,8 @@ contains
       else
          call self%time_loop(opts, checkpoint_path, summary, steady_index)
          if (self%solver == solver_implicit) then
-            summary%message = summary%message//' ('//itoa(self%step)//' implicit steps, '// &
-                              itoa(self%n_jacobians)//' Jacobians, '//itoa(self%n_rejected)//' steps redone)'
+            summary%message = summary%message//' ('//int_text(self%step)//' implicit steps, '// &
+                              int_text(self%n_jacobians)//' Jacobians, '//int_text(self%n_rejected)//' steps redone)'
          end if
          if (steady_index > 0) call polish_steady_shape(self, opts, summary, steady_index)
       end if
@@ -967,14 +967,6 @@ contains
          end if
       end if
    end subroutine polish_steady_shape
-
-   pure function itoa(i) result(s)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: s
-      character(len=16) :: buf
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function itoa
 
    !> Degrees of freedom: (r, z) of every node but the poles' r (on the axis).
    pure subroutine pack_dofs(rz, q)

@@ -6,7 +6,7 @@ module run_options
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, usage_text
+   public :: run_options_t, parse_command_line, option_signature, usage_text, int_text
 
    integer, parameter :: path_len = 1024
 
@@ -381,7 +381,7 @@ contains
       s = trim(adjustl(buf))
    end function real_text
 
-   function int_text(i) result(s)
+   pure function int_text(i) result(s)
       integer, intent(in) :: i
       character(len=:), allocatable :: s
       character(len=16) :: buf

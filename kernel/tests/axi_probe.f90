@@ -17,7 +17,7 @@ program axi_probe
    use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
    use run_options, only: run_options_t
-   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian
+   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate
    implicit none
 
    character(len=64) :: command
@@ -47,27 +47,16 @@ program axi_probe
 
 contains
 
-   !> Largest and smallest real parts of the Jacobian's eigenvalues (LAPACK dgeev).
+   !> Largest and smallest real parts of the Jacobian's eigenvalues (the model's LAPACK dgeev).
    subroutine probe_jacobian(a_over_l, ca, n_meridian, t_end)
       real(dp), intent(in) :: a_over_l, ca, t_end
       integer, intent(in) :: n_meridian
       type(run_options_t) :: opts
       type(axisymmetric_tube_t) :: model
-      real(dp), allocatable :: jac(:, :), wr(:), wi(:), work(:)
-      real(dp) :: no_left(1, 1), no_right(1, 1)
-      integer :: stat, m, info, k
-      integer, allocatable :: order(:)
+      real(dp), allocatable :: jac(:, :)
+      real(dp) :: largest
+      integer :: stat
       character(len=:), allocatable :: errmsg
-      interface
-         subroutine dgeev(jobvl, jobvr, n, a, lda, wr, wi, vl, ldvl, vr, ldvr, work, lwork, info)
-            import :: dp
-            character, intent(in) :: jobvl, jobvr
-            integer, intent(in) :: n, lda, ldvl, ldvr, lwork
-            real(dp), intent(inout) :: a(lda, *)
-            real(dp), intent(out) :: wr(*), wi(*), vl(ldvl, *), vr(ldvr, *), work(*)
-            integer, intent(out) :: info
-         end subroutine dgeev
-      end interface
       opts%flow = 'tube'
       opts%law = 'NH'
       opts%a_over_l = a_over_l
@@ -79,31 +68,13 @@ contains
       do while (model%t < t_end - 0.5_dp * model%dt)
          call model%rk2_step()
       end do
-      m = 2 * n_meridian
-      allocate (jac(m, m), wr(m), wi(m), work(8 * m))
-      call velocity_jacobian(model, model%positions, 1.0e-6_dp, jac)
-      call dgeev('N', 'N', m, jac, m, wr, wi, no_left, 1, no_right, 1, work, 8 * m, info)
-      order = sort_index(wr)
+      allocate (jac(2 * n_meridian, 2 * n_meridian))
+      call velocity_jacobian(model, model%positions, 1.0e-5_dp * a_over_l, jac)
+      largest = largest_growth_rate(model, jac)
       write (*, '(a,es12.4)') 't ', model%t
-      write (*, '(a,*(1x,es11.3))') 'largest_real ', (wr(order(m + 1 - k)), k = 1, 6)
-      write (*, '(a,*(1x,es11.3))') 'smallest_real ', (wr(order(k)), k = 1, 6)
+      write (*, '(a,es12.4)') 'largest_real ', largest
+      write (*, '(a,es12.4)') 'smallest_real ', minval(model%eig_re)
    end subroutine probe_jacobian
-
-   pure function sort_index(x) result(idx)
-      real(dp), intent(in) :: x(:)
-      integer :: idx(size(x)), i, j, tmp
-      idx = [(i, i = 1, size(x))]
-      do i = 2, size(x)
-         j = i
-         do while (j > 1)
-            if (x(idx(j - 1)) <= x(idx(j))) exit
-            tmp = idx(j)
-            idx(j) = idx(j - 1)
-            idx(j - 1) = tmp
-            j = j - 1
-         end do
-      end do
-   end function sort_index
 
 
 

@@ -50,3 +50,27 @@ def assert_usage_error(capsim: Path, base: dict[str, str], override: list[str], 
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("capsim: error: " + field), result.stderr
     assert not out.exists()
+
+
+def run_killed_and_resumed(capsim: Path, args: list[str], out: Path, timeout: float = 600) -> str:
+    """Start capsim ARGS --out OUT with frequent checkpoints, SIGKILL it once a checkpoint
+    exists, check that nothing half-written is left, run it again and return its stdout
+    (which must report the resume). `args` ends with --quiet, dropped for the second run."""
+    import signal
+    import time
+
+    checkpoint = Path(str(out) + ".ckpt")
+    proc = subprocess.Popen([str(capsim), *args, "--checkpoint-every", "0.2", "--out", str(out)])
+    deadline = time.time() + 60
+    while not checkpoint.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    assert proc.poll() is None, "run finished before it could be killed: make the case longer"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not out.exists() and checkpoint.exists()      # nothing half-written
+    result = subprocess.run([str(capsim), *args[:-1], "--out", str(out)],
+                            capture_output=True, text=True, check=True, timeout=timeout)
+    assert "resumed from checkpoint" in result.stdout
+    assert not checkpoint.exists()
+    return result.stdout

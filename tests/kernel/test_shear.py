@@ -5,9 +5,7 @@ Each case is run once per session (cached) at mesh level 3 (642 nodes) unless st
 from __future__ import annotations
 
 import math
-import signal
 import subprocess
-import time
 from pathlib import Path
 
 import h5py
@@ -15,7 +13,7 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error
+from conftest import assert_usage_error, run_killed_and_resumed
 
 
 @pytest.fixture(scope="session")
@@ -147,21 +145,7 @@ def test_kill_and_resume_gives_the_same_result(capsim, tmp_path):
     subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=300)
 
     resumed = tmp_path / "resumed.h5"
-    checkpoint = Path(str(resumed) + ".ckpt")
-    proc = subprocess.Popen([str(capsim), *args, "--checkpoint-every", "0.2", "--out", str(resumed)])
-    deadline = time.time() + 60
-    while not checkpoint.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.5)
-    assert proc.poll() is None, "run finished before it could be killed: make the case longer"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not resumed.exists()                      # nothing half-written
-    assert checkpoint.exists()
-    result = subprocess.run([str(capsim), *args[:-1], "--out", str(resumed)],
-                            capture_output=True, text=True, check=True, timeout=300)
-    assert "resumed from checkpoint" in result.stdout
-    assert not checkpoint.exists()
+    run_killed_and_resumed(capsim, args, resumed)
     a, b = read_case(reference), read_case(resumed)
     assert a.status == b.status == "steady"
     assert b.steady_value("D12") == pytest.approx(a.steady_value("D12"), rel=1e-10)

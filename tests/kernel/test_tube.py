@@ -2,15 +2,13 @@
 from __future__ import annotations
 
 import re
-import signal
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error
+from conftest import assert_usage_error, run_killed_and_resumed
 
 BAD_TUBE_INPUTS = [
     (["--a-over-l", "0"], "--a-over-l"),
@@ -117,19 +115,7 @@ def test_tube_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path):
     reference = tmp_path / "ref.h5"
     subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=600)
     resumed = tmp_path / "resumed.h5"
-    checkpoint = Path(str(resumed) + ".ckpt")
-    proc = subprocess.Popen([str(capsim), *args, "--checkpoint-every", "0.2", "--out", str(resumed)])
-    deadline = time.time() + 60
-    while not checkpoint.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.3)
-    assert proc.poll() is None, "run finished before it could be killed: make the case longer"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not resumed.exists() and checkpoint.exists()
-    result = subprocess.run([str(capsim), *args[:-1], "--out", str(resumed)],
-                            capture_output=True, text=True, check=True, timeout=600)
-    assert "resumed from checkpoint" in result.stdout
+    run_killed_and_resumed(capsim, args, resumed)
     a, b = read_case(reference), read_case(resumed)
     assert a.status == b.status == "steady", (a.message, b.message)
     for name in ("L_z", "L_p", "v_c"):

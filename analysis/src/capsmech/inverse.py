@@ -90,7 +90,19 @@ class TubeTable:
 
 
 @dataclass
-class TubeFit:
+class Fit:
+    """What every fit carries: the modulus and, when the fit is not valid, the reason."""
+
+    G_s: float = float("nan")
+    flag: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.flag
+
+
+@dataclass
+class TubeFit(Fit):
     """Result of one tube fit; ``flag`` is empty when the fit is valid.
 
     Attributes
@@ -106,12 +118,6 @@ class TubeFit:
     a_over_l: float = float("nan")
     Ca_s: float = float("nan")
     vc_over_V: float = float("nan")
-    G_s: float = float("nan")
-    flag: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return not self.flag
 
 
 @dataclass
@@ -251,18 +257,12 @@ def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndar
 
 
 @dataclass
-class ShearFit:
+class ShearFit(Fit):
     """Result of one shear fit; ``flag`` is empty when the fit is valid."""
 
     Ca_s: float = float("nan")
     L3_over_a: float = float("nan")
     a: float = float("nan")
-    G_s: float = float("nan")
-    flag: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return not self.flag
 
 
 class ShearInverter:
