@@ -1,8 +1,9 @@
 """Make the synthetic example batches in data/examples/ with the kernel (documented there).
 
-Each batch: capsules at random (a/l, Ca_s) off the database grid, simulated with one law,
+Each batch: one material (G_s = 0.04 N/m) whose capsules, of random sizes, flowed at random
+rates, so that (a/l, Ca_s) fall at random off the database grid; simulated with one law,
 measured with 2 % Gaussian noise on L_z, L_p and v_c, in a 100 um capillary (l = 50 um),
-mu = 1 Pa s, V = 1 mm/s. The truth goes to a separate file, never into the measurements.
+mu = 1 Pa s. The truth goes to a separate file, never into the measurements.
 
     .venv/bin/python scripts/make_examples.py          # about 3 minutes on 2 cores
 """
@@ -15,22 +16,23 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.synthetic import simulate_tube, true_modulus, tube_batch, write_tube_csv
+from capsmech.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "examples"
 BATCHES = {"NH": 0, "GH_nu0.5": 1}
 N_CAPSULES = 12
+G_S = 0.04
 
 
 def main() -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     for law, seed in BATCHES.items():
         rng = np.random.default_rng(100 + seed)
-        a = rng.uniform(0.86, 1.04, N_CAPSULES)
-        ca = np.exp(rng.uniform(np.log(0.02), np.log(0.12), N_CAPSULES))
+        a = rng.uniform(0.88, 1.02, N_CAPSULES)
+        ca = np.exp(rng.uniform(np.log(0.03), np.log(0.10), N_CAPSULES))
         with ThreadPoolExecutor(max_workers=2) as pool:
             capsules = list(pool.map(lambda p: simulate_tube(p[0], p[1], law), zip(a, ca)))
-        rows = tube_batch(capsules, seed=seed)
+        rows = tube_batch(capsules, g_s=G_S, seed=seed)
         name = f"tube_batch_{law}"
         write_tube_csv(rows, OUT / f"{name}.csv",
                        comment=f"synthetic batch made by scripts/make_examples.py with the kernel ({law}),\n"
@@ -41,7 +43,7 @@ def main() -> int:
             k = 0
             for j, capsule in enumerate(capsules):
                 writer.writerow([f"s{j + 1:03d}", law, f"{capsule.a_over_l:.6g}", f"{capsule.Ca_s:.6g}",
-                                 f"{true_modulus(capsule.Ca_s):.6g}", capsule.status])
+                                 f"{G_S:.6g}", capsule.status])
                 k += capsule.status == "steady"
         print(f"{name}: {k} of {N_CAPSULES} capsules steady")
     return 0

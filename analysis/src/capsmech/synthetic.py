@@ -2,10 +2,10 @@
 
 ``simulate_tube(a_over_l, Ca_s, law)`` runs ``capsim`` (axisymmetric tube) and returns its
 steady L_z, L_p, v_c/V and meridian; ``tube_batch(...)`` turns a list of such capsules into
-rows of the tube measurement format (``capsmech.measurements``) in micrometres, with
-realistic noise: each length off by a relative Gaussian error (2 % by default, the paper's
-estimate), the velocity likewise. The truth is returned beside the rows, never written
-into them.
+rows of the tube measurement format (``capsmech.measurements``) in micrometres for one
+material (one G_s; each capsule's Ca_s set by its flow rate), with realistic noise: each
+length off by a relative Gaussian error (2 % by default, the paper's estimate), the
+velocity likewise. The truth is kept beside the rows, never written into them.
 """
 from __future__ import annotations
 
@@ -57,15 +57,20 @@ def simulate_tube(a_over_l: float, Ca_s: float, law: str, n_meridian: int = 64, 
                             case.steady_value("v_c"), meridian, case.status)
 
 
-def tube_batch(capsules: Sequence[SimulatedCapsule], tube_radius_um: float = 50.0, mu_pa_s: float = 1.0,
-               mean_velocity_mm_s: float = 1.0, noise: float = 0.02, seed: int = 0) -> list[dict[str, float | str]]:
-    """Measurement rows (L_z, L_p [um], v_c [mm/s], tube_radius [um], mu [Pa s]) with noise."""
+def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_radius_um: float = 50.0,
+               mu_pa_s: float = 1.0, noise: float = 0.02, seed: int = 0) -> list[dict[str, float | str]]:
+    """Measurement rows (L_z, L_p [um], v_c [mm/s], tube_radius [um], mu [Pa s]) with noise.
+
+    The batch is one material: every capsule has the modulus g_s [N/m], and its Ca_s was
+    reached by its flow rate, V = Ca_s g_s / mu (so v_c = (v_c/V) V).
+    """
     rng = np.random.default_rng(seed)
     rows = []
     for k, capsule in enumerate(capsules):
         if capsule.status != "steady":
             continue
         scale = 1 + noise * rng.standard_normal(3)
+        mean_velocity_mm_s = capsule.Ca_s * g_s / mu_pa_s * 1e3
         rows.append({"id": f"s{k + 1:03d}",
                      "L_z": capsule.L_z * tube_radius_um * scale[0],
                      "L_p": capsule.L_p * tube_radius_um * scale[1],
@@ -85,8 +90,3 @@ def write_tube_csv(rows: Sequence[dict[str, float | str]], path: str | Path, com
         for row in rows:
             writer.writerow([row["id"], *(f"{row[k]:.6g}" for k in ("L_z", "L_p", "v_c", "tube_radius", "mu"))])
     return path
-
-
-def true_modulus(Ca_s: float, mu_pa_s: float = 1.0, mean_velocity_mm_s: float = 1.0) -> float:
-    """G_s [N/m] = mu V / Ca_s of a synthetic capsule."""
-    return mu_pa_s * mean_velocity_mm_s * 1e-3 / Ca_s
