@@ -42,6 +42,8 @@ module capsule_model
       integer, allocatable :: col_shape(:)
       !> Area scale of the steady criterion (4 pi a**2) and elongation limit of col_length.
       real(dp) :: area_scale = 1, length_limit = huge(1.0_dp)
+      !> Largest element stretch (or inverse) the mesh resolves (default max_element_stretch).
+      real(dp) :: stretch_limit = max_element_stretch
       !> A shape measure has settled when it varies over one time unit by less than
       !> shape_rel_tol * |value| + shape_abs_tol.
       real(dp) :: shape_rel_tol = 5.0e-3_dp, shape_abs_tol = 1.0e-4_dp
@@ -214,17 +216,18 @@ contains
          return
       end if
       first = window_start(self, t_now - 1.0_dp)
-      if (self%history(self%col_stretch, n) > max_element_stretch) then
+      if (self%history(self%col_stretch, n) > self%stretch_limit) then
          growth = self%history(self%col_length, n) - self%history(self%col_length, first)
          still_growing = creeping(self, creep_growth)
          if (growth > 0.01_dp .or. still_growing) then
             summary%status = 'continuous_elongation'
-            summary%message = 'mesh broke down at t = '//num(t_now)//' while the capsule kept elongating (by '// &
+            summary%message = 'an element stretched beyond '//num(self%stretch_limit)//' (what the mesh resolves) at t = '// &
+                              num(t_now)//' while the capsule kept elongating (by '// &
                               num(max(growth, creep_growth))//' over the last time units): no steady shape'
          else
             summary%status = 'failed'
             summary%message = 'mesh breakdown at t = '//num(t_now)//' (element stretch above '// &
-                              num(max_element_stretch)//')'
+                              num(self%stretch_limit)//')'
          end if
          decided = .true.
          return
