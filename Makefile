@@ -78,6 +78,7 @@ demo: setup
 bench: system-deps venv
 	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'
 	$(PY) bench/bench_single_layer.py
+	$(PY) bench/bench_tube_3d.py
 	$(MAKE) clean-kernel
 
 validate: setup

@@ -28,8 +28,7 @@ module tube_capsule
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use surface_diagnostics, only: area_and_volume, shear_plane_contour
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
-   use wall_single_layer, only: wall_operator_t, poiseuille_velocity, near_triangle_correction, leaf_ratio, &
-                                leaf_strengths, leaf_correction
+   use wall_single_layer, only: wall_operator_t, poiseuille_velocity, leaf_ratio, leaf_strengths, triangle_correction
    use run_options, only: run_options_t
    use capsule_model, only: capsule_model_t
    implicit none
@@ -265,7 +264,7 @@ contains
       real(dp), intent(in) :: x(:, :), points(:, :)
       real(dp), intent(out) :: u(:, :)
       integer :: n, nt, k, t
-      real(dp) :: p(3), acc(3), corr(3), z_lo, z_hi, r_hi, reach, dist
+      real(dp) :: p(3), acc(3), corr(3), z_lo, z_hi, r_hi, reach
 
       n = self%mesh%n_nodes
       nt = self%mesh%n_tri
@@ -288,7 +287,7 @@ contains
       z_hi = maxval(x(3, 1:n)) + reach
       r_hi = sqrt(maxval(x(1, 1:n)**2 + x(2, 1:n)**2)) + reach
       !$omp parallel do default(none) shared(self, points, u, n, nt, z_lo, z_hi, r_hi) &
-      !$omp private(k, t, p, acc, corr, dist) schedule(dynamic, 16)
+      !$omp private(k, t, p, acc, corr) schedule(dynamic, 16)
       do k = 1, size(points, 2)
          p = points(:, k)
          acc = 0.0_dp
@@ -297,15 +296,10 @@ contains
          corr = 0.0_dp
          if (p(3) > z_lo .and. p(3) < z_hi .and. p(1)**2 + p(2)**2 < r_hi**2) then
             do t = 1, nt
-               dist = norm2(p - self%tri_centroid(:, t))
-               if (dist >= near_radius .and. dist >= leaf_ratio * self%tri_diameter(t)) cycle
-               if (dist > leaf_ratio * self%tri_diameter(t)) then
-                  corr = corr + leaf_correction(p, self%quad_point(:, :, t), self%quad_strength(:, :, t), &
-                                                self%tri_x(:, :, t), self%vertex_strength(:, :, t))
-               else
-                  corr = corr + near_triangle_correction(self%near_rule, p, self%tri_x(:, :, t), self%tri_f(:, :, t), &
-                                                         self%single_layer%tri_area(t))
-               end if
+               corr = corr + triangle_correction(self%near_rule, p, near_radius, self%tri_centroid(:, t), &
+                                                 self%tri_diameter(t), self%single_layer%tri_area(t), self%tri_x(:, :, t), &
+                                                 self%tri_f(:, :, t), self%quad_point(:, :, t), self%quad_strength(:, :, t), &
+                                                 self%vertex_strength(:, :, t))
             end do
          end if
          u(:, k) = (acc + corr) / (8.0_dp * pi)

@@ -90,7 +90,7 @@ module wall_single_layer
    implicit none
    private
    public :: wall_operator_t, poiseuille_velocity, poiseuille_rim_jump, corner_map
-   public :: default_duffy_order, default_mid_radius, near_triangle_correction, leaf_ratio, leaf_strengths, leaf_correction
+   public :: default_duffy_order, default_mid_radius, leaf_ratio, leaf_strengths, triangle_correction
 
    integer, parameter :: default_duffy_order = 4
    real(dp), parameter :: default_mid_radius = 0.5_dp
@@ -658,7 +658,7 @@ contains
       real(dp), intent(out) :: u(:, :)
       real(dp), intent(in), optional :: rim_jump(:, :)
       integer :: k, n, t, m, r, s, first, last
-      real(dp) :: acc(3), p(3), corr(3), g(3), dist, reach, clearance
+      real(dp) :: acc(3), p(3), corr(3), g(3), reach, clearance
 
       n = self%n_nodes
       do r = 1, self%n_rim
@@ -688,7 +688,7 @@ contains
       ! No triangle farther than `reach` needs more than the vertex rule.
       reach = max(self%mid_radius, leaf_ratio * self%max_diameter)
       !$omp parallel do default(none) shared(self, wall, points, u, n, reach) &
-      !$omp private(k, t, s, first, last, acc, p, corr, dist, clearance) schedule(dynamic, 4)
+      !$omp private(k, t, s, first, last, acc, p, corr, clearance) schedule(dynamic, 4)
       do k = 1, size(points, 2)
          p = points(:, k)
          acc = 0.0_dp
@@ -702,21 +702,35 @@ contains
             last = self%slab_start(slab_of(self, wall%length, p(3) + reach) + 1) - 1
             do s = first, last
                t = self%slab_tri(s)
-               dist = norm2(p - self%tri_centroid(:, t))
-               if (dist >= self%mid_radius .and. dist >= leaf_ratio * self%tri_diameter(t)) cycle
-               if (dist > leaf_ratio * self%tri_diameter(t)) then
-                  corr = corr + leaf_correction(p, self%quad_point(:, :, t), self%quad_strength(:, :, t), &
-                                                wall%x(:, wall%mesh%tri(:, t)), self%vertex_strength(:, :, t))
-               else
-                  corr = corr + near_triangle_correction(self%leaf_rule, p, wall%x(:, wall%mesh%tri(:, t)), &
-                                                         self%tri_traction(:, :, t), self%tri_area(t))
-               end if
+               corr = corr + triangle_correction(self%leaf_rule, p, self%mid_radius, self%tri_centroid(:, t), &
+                                                 self%tri_diameter(t), self%tri_area(t), wall%x(:, wall%mesh%tri(:, t)), &
+                                                 self%tri_traction(:, :, t), self%quad_point(:, :, t), &
+                                                 self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
             end do
          end if
          u(:, k) = (acc + corr) / (8.0_dp * pi)
       end do
       !$omp end parallel do
    end subroutine velocity_at
+
+   !> What replaces the vertex rule of one P1 triangle (corners xv, densities fv) at an
+   !> off-surface point p, without 1/(8 pi): nothing beyond mid_radius and leaf_ratio
+   !> diameters from its centroid; beyond leaf_ratio diameters its 7-point rule (points qp,
+   !> strengths qs, from leaf_strengths) minus its vertex rule (strengths vs); nearer, the
+   !> subdivided 7-point rule minus the vertex rule (near_triangle_correction).
+   pure function triangle_correction(rule, p, mid_radius, centroid, diameter, area, xv, fv, qp, qs, vs) result(corr)
+      type(quadrature_rule_t), intent(in) :: rule
+      real(dp), intent(in) :: p(3), mid_radius, centroid(3), diameter, area, xv(3, 3), fv(3, 3), qp(:, :), qs(:, :), vs(3, 3)
+      real(dp) :: corr(3), dist
+      dist = norm2(p - centroid)
+      if (dist >= mid_radius .and. dist >= leaf_ratio * diameter) then
+         corr = 0.0_dp
+      else if (dist > leaf_ratio * diameter) then
+         corr = leaf_correction(p, qp, qs, xv, vs)
+      else
+         corr = near_triangle_correction(rule, p, xv, fv, area)
+      end if
+   end function triangle_correction
 
    !> Strengths of one P1 triangle's rules (density fv at the corners): qs(:, q) = weight_q x
    !> area x density at point q of the rule, vs(:, m) = area/3 x density at corner m (vertex rule).
