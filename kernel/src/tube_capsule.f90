@@ -264,7 +264,7 @@ contains
       real(dp), intent(in) :: x(:, :), points(:, :)
       real(dp), intent(out) :: u(:, :)
       integer :: n, nt, k, t
-      real(dp) :: p(3), acc(3), corr(3), z_lo, z_hi, r_hi, reach
+      real(dp) :: p(3), acc(3), corr(3), z_lo, z_hi, r_hi, reach, dist
 
       n = self%mesh%n_nodes
       nt = self%mesh%n_tri
@@ -287,7 +287,7 @@ contains
       z_hi = maxval(x(3, 1:n)) + reach
       r_hi = sqrt(maxval(x(1, 1:n)**2 + x(2, 1:n)**2)) + reach
       !$omp parallel do default(none) shared(self, points, u, n, nt, z_lo, z_hi, r_hi) &
-      !$omp private(k, t, p, acc, corr) schedule(dynamic, 16)
+      !$omp private(k, t, p, acc, corr, dist) schedule(dynamic, 16)
       do k = 1, size(points, 2)
          p = points(:, k)
          acc = 0.0_dp
@@ -296,8 +296,10 @@ contains
          corr = 0.0_dp
          if (p(3) > z_lo .and. p(3) < z_hi .and. p(1)**2 + p(2)**2 < r_hi**2) then
             do t = 1, nt
-               corr = corr + triangle_correction(self%near_rule, p, near_radius, self%tri_centroid(:, t), &
-                                                 self%tri_diameter(t), self%single_layer%tri_area(t), self%tri_x(:, :, t), &
+               dist = norm2(p - self%tri_centroid(:, t))
+               if (dist >= near_radius .and. dist >= leaf_ratio * self%tri_diameter(t)) cycle
+               corr = corr + triangle_correction(self%near_rule, p, dist, self%tri_diameter(t), &
+                                                 self%single_layer%tri_area(t), self%tri_x(:, :, t), &
                                                  self%tri_f(:, :, t), self%quad_point(:, :, t), self%quad_strength(:, :, t), &
                                                  self%vertex_strength(:, :, t))
             end do
