@@ -59,6 +59,7 @@ def axi_reference(capsim, tmp_path_factory):
     return read_case(out)
 
 
+@pytest.mark.slow
 def test_nearly_rigid_capsule_moves_at_the_haberman_sayre_velocity(coarse_run):
     # A small capsule (a/l = 0.4) at Ca_s = 0.05 is nearly rigid: the axisymmetric model puts
     # its v_c/V 0.5 % below the rigid sphere's (1.7871 against 1.7965), the deformation's
@@ -71,6 +72,7 @@ def test_nearly_rigid_capsule_moves_at_the_haberman_sayre_velocity(coarse_run):
     assert abs(case.history["volume"][-1] / case.history["volume"][0] - 1) < 5e-3
 
 
+@pytest.mark.slow
 def test_3d_agrees_with_the_axisymmetric_model(coarse_run, axi_reference):
     # Measured at level 2: v_c/V 1.7880 vs 1.7871 (0.05 %), L_z 0.7534 vs 0.7536 (0.03 %),
     # L_p 0.0557 vs 0.0533 l. The tolerances leave room for the level-2 discretisation
@@ -84,6 +86,7 @@ def test_3d_agrees_with_the_axisymmetric_model(coarse_run, axi_reference):
     assert case.steady_value("L_p") == pytest.approx(axi_reference.steady_value("L_p"), abs=0.012)
 
 
+@pytest.mark.slow
 def test_case_file_has_mesh_and_meridian_profile(coarse_run):
     case = coarse_run["case"]
     assert case.mesh["nodes"].shape == (162, 3) and case.mesh["triangles"].shape == (320, 3)
@@ -93,6 +96,7 @@ def test_case_file_has_mesh_and_meridian_profile(coarse_run):
     assert z[0] == pytest.approx(z.max(), abs=1e-3) and z[-1] < 0 < z[0]
 
 
+@pytest.mark.slow
 def test_wall_lu_is_cached_and_reused(capsim, coarse_run):
     cache = coarse_run["cache"]
     files = sorted(cache.iterdir())
