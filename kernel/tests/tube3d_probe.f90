@@ -7,7 +7,7 @@
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
-   use command_args, only: int_arg, real_arg, string_arg
+   use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use run_options, only: run_options_t
    use tube_capsule, only: tube_capsule_t
    implicit none
@@ -75,16 +75,5 @@ contains
       call put('max_speed', maxval(norm2(model%u0, dim=1)))
    end subroutine probe_timing
 
-   subroutine put(key, value)
-      character(len=*), intent(in) :: key
-      real(dp), intent(in) :: value
-      write (*, '(a,1x,es24.16)') key, value
-   end subroutine put
-
-   subroutine put_int(key, value)
-      character(len=*), intent(in) :: key
-      integer, intent(in) :: value
-      write (*, '(a,1x,i0)') key, value
-   end subroutine put_int
 
 end program tube3d_probe
