@@ -126,7 +126,7 @@ module axisymmetric_tube
    contains
       procedure :: init
       procedure :: velocity
-      procedure :: rk2_step
+      procedure :: advance
       procedure :: record
       procedure :: run
       procedure :: progress_text
@@ -564,8 +564,9 @@ contains
       centroid_z = m / volume
    end function centroid_z
 
-   !> Heun's RK2 in the capsule frame (time-accurate), then the centroid put back at z = 0.
-   subroutine rk2_step(self)
+   !> One time step: linearly implicit (implicit_step), or Heun's RK2 in the capsule frame
+   !> (time-accurate) with the centroid put back at z = 0.
+   subroutine advance(self)
       class(axisymmetric_tube_t), intent(inout) :: self
       if (self%solver == solver_implicit) then
          call implicit_step(self)
@@ -578,7 +579,7 @@ contains
       call restore_volume_and_centre(self, self%positions)
       self%t = self%t + self%dt
       self%step = self%step + 1
-   end subroutine rk2_step
+   end subroutine advance
 
    !> One linearly implicit (Rosenbrock-Euler) step, (I - dt J) delta = dt u(x), x <- x + delta,
    !> with J the velocity Jacobian (velocity_jacobian), reused over steps while it serves.

@@ -10,6 +10,7 @@ program capsim
    use capsule_model, only: capsule_model_t
    use capsule_dynamics, only: capsule_t
    use axisymmetric_tube, only: axisymmetric_tube_t
+   use tube_capsule, only: tube_capsule_t
    implicit none
 
    type(run_options_t) :: opts
@@ -29,7 +30,9 @@ program capsim
    if (opts%threads > 0) call omp_set_num_threads(opts%threads)
    call system_clock(clock_start, clock_rate)
 
-   if (trim(opts%flow) == 'tube') then
+   if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d') then
+      allocate (tube_capsule_t :: model)
+   else if (trim(opts%flow) == 'tube') then
       allocate (axisymmetric_tube_t :: model)
    else
       allocate (capsule_t :: model)
@@ -38,6 +41,8 @@ program capsim
    type is (capsule_t)
       call model%init(opts, stat, errmsg)
    type is (axisymmetric_tube_t)
+      call model%init(opts, stat, errmsg)
+   type is (tube_capsule_t)
       call model%init(opts, stat, errmsg)
    end select
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)

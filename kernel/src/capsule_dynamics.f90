@@ -43,7 +43,7 @@ module capsule_dynamics
    contains
       procedure :: init
       procedure :: velocity
-      procedure :: rk2_step
+      procedure :: advance => rk2_step
       procedure :: record
       procedure :: progress_text
       procedure :: write_geometry

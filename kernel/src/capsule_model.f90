@@ -2,7 +2,7 @@
 !> checkpoint and resume, periodic records, progress lines, and the classification of the
 !> run (steady, continuous elongation, mesh breakdown, failed, time limit).
 !>
-!> A model extends capsule_model_t: it advances its state by one RK2 step, appends one row
+!> A model extends capsule_model_t: it advances its state by one time step, appends one row
 !> of diagnostics to `history`, and says which history columns hold the time, area, volume,
 !> a length (for elongation), the largest element stretch (for breakdown) and the shape
 !> measures that must settle for a steady state.
@@ -50,7 +50,7 @@ module capsule_model
       !> Largest membrane velocity in the capsule frame (steady solvers report it).
       real(dp) :: residual = huge(1.0_dp)
    contains
-      procedure(advance_iface), deferred :: rk2_step
+      procedure(advance_iface), deferred :: advance
       procedure(advance_iface), deferred :: record
       procedure :: reset
       procedure :: state_size
@@ -158,7 +158,7 @@ contains
       clock_print = clock_start
       decided = .false.
       do while (self%t < opts%t_max - 0.5_dp * self%dt)
-         call self%rk2_step()
+         call self%advance()
          call self%get_state(state)
          if (.not. all(ieee_is_finite(state))) then
             summary%status = 'failed'

@@ -23,6 +23,12 @@ module run_options
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
       character(len=16) :: integrator = 'auto'
+      !> 3D tube model: wall element sizes [l] away from the centre and over |z| < 1 (the
+      !> paper's 0.14 and 0.07), and the directory of the cached wall LU ('' = the user's
+      !> cache, $XDG_CACHE_HOME/capsmech or ~/.cache/capsmech; 'none' = no cache).
+      real(dp) :: wall_h_far = 0.14_dp
+      real(dp) :: wall_h_centre = 0.07_dp
+      character(len=path_len) :: wall_cache = ''
       !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
       real(dp) :: newton_tol = 1.0e-8_dp
       real(dp) :: nu_s = 0.5_dp
@@ -52,7 +58,8 @@ module run_options
 
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
-      ' [--model axi] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2] [--level N] [--dt X]'// &
+      ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
+      ' [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -135,6 +142,13 @@ contains
             opts%integrator = value(:len(opts%integrator))
          case ('--tube-length')
             call read_real(key, value, opts%tube_length)
+         case ('--wall-h-far')
+            call read_real(key, value, opts%wall_h_far)
+         case ('--wall-h-centre')
+            call read_real(key, value, opts%wall_h_centre)
+         case ('--wall-cache')
+            opts%wall_cache = value
+            if (len_trim(value) == 0) call fail(trim(key), 'empty directory name (use none to disable the cache)')
          case ('--n-meridian')
             call read_int(key, value, opts%n_meridian)
          case ('--out')
@@ -287,16 +301,30 @@ contains
          else if (opts%a_over_l > 1.3_dp) then
             errmsg = '--a-over-l: must be <= 1.3 (larger capsules do not fit the model), got '// &
                      real_text(opts%a_over_l)
-         else if (trim(opts%model) == '3d') then
-            errmsg = '--model: the 3d tube solver is not available yet in this version (use axi)'
-         else if (trim(opts%model) /= 'axi') then
+         else if (all(trim(opts%model) /= [character(len=3) :: 'axi', '3d'])) then
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
          else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'newton', 'implicit', 'rk2'])) then
             errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton, implicit or rk2)'
+         else if (trim(opts%model) == '3d' .and. all(trim(opts%integrator) /= [character(len=4) :: 'auto', 'rk2'])) then
+            errmsg = '--integrator: the 3d tube model steps with rk2 only, got "'//trim(opts%integrator)//'"'
          else if (opts%tube_length < 4.0_dp .or. opts%tube_length > 40.0_dp) then
             errmsg = '--tube-length: must be between 4 and 40 tube radii, got '//real_text(opts%tube_length)
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
             errmsg = '--n-meridian: must be between 8 and 1024, got '//int_text(opts%n_meridian)
+         else if (.not. (opts%wall_h_far >= 0.02_dp .and. opts%wall_h_far <= 1.0_dp)) then
+            errmsg = '--wall-h-far: must be between 0.02 and 1 tube radii, got '//real_text(opts%wall_h_far)
+         else if (.not. (opts%wall_h_centre >= 0.02_dp .and. opts%wall_h_centre <= opts%wall_h_far)) then
+            errmsg = '--wall-h-centre: must be between 0.02 and --wall-h-far ('//real_text(opts%wall_h_far)// &
+                     ') tube radii, got '//real_text(opts%wall_h_centre)
+         else if (trim(opts%model) == '3d' .and. len_trim(opts%wall_cache) > 0 .and. trim(opts%wall_cache) /= 'none') then
+            ! A cache directory given explicitly must exist and be writable now.
+            open (newunit=unit, file=trim(opts%wall_cache)//'/.capsim-write-test', status='replace', action='write', &
+                  iostat=ios, iomsg=iomsg)
+            if (ios /= 0) then
+               errmsg = '--wall-cache: cannot write in "'//trim(opts%wall_cache)//'": '//trim(iomsg)
+            else
+               close (unit, status='delete')
+            end if
          end if
          if (len(errmsg) > 0) return
       case ('')
@@ -366,10 +394,10 @@ contains
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig
       character(len=1024) :: buf
-      write (buf, '(4(a,1x),2(i0,1x),l1,12(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
+      write (buf, '(4(a,1x),2(i0,1x),l1,14(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
          trim(opts%integrator), opts%level, opts%n_meridian, opts%volume_correction, opts%nu_s, opts%c, opts%ca, &
          opts%a_over_l, opts%dt, opts%dt_factor, opts%steady_tol, opts%shape_tol, opts%max_length, &
-         opts%record_every, opts%newton_tol, opts%tube_length
+         opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre
       sig = trim(buf)
    end function option_signature
 

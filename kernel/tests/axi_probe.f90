@@ -66,7 +66,7 @@ contains
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop 'init failed'
       do while (model%t < t_end - 0.5_dp * model%dt)
-         call model%rk2_step()
+         call model%advance()
       end do
       allocate (jac(2 * n_meridian, 2 * n_meridian))
       call velocity_jacobian(model, model%positions, 1.0e-5_dp * a_over_l, jac)

@@ -292,7 +292,7 @@ contains
       allocate (u(3, cap%mesh%n_nodes))
       ! A deformed state: a few steps first.
       do k = 1, 3
-         call cap%rk2_step()
+         call cap%advance()
       end do
       t0 = omp_get_wtime()
       do k = 1, repeats
@@ -301,7 +301,7 @@ contains
       t_velocity = (omp_get_wtime() - t0) / repeats
       t0 = omp_get_wtime()
       do k = 1, repeats
-         call cap%rk2_step()
+         call cap%advance()
       end do
       t_step = (omp_get_wtime() - t0) / repeats
       write (*, '(a,i0)') 'threads ', omp_get_max_threads()
@@ -418,7 +418,7 @@ contains
       call tube%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
       do k = 1, 20
-         call tube%rk2_step()
+         call tube%advance()
       end do
       m = 2 * size(tube%positions, 2) - 2
       allocate (jac(m, m), u0(2, size(tube%positions, 2)), u1(2, size(tube%positions, 2)), p0(m), p1(m))

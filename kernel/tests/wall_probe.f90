@@ -9,7 +9,7 @@
 program wall_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp, pi
-   use command_args, only: int_arg, real_arg, string_arg
+   use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use vector_algebra, only: cross
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
@@ -47,17 +47,6 @@ contains
       if (stat /= 0) error stop errmsg
    end function make_wall
 
-   subroutine put(key, value)
-      character(len=*), intent(in) :: key
-      real(dp), intent(in) :: value
-      write (*, '(a,1x,es24.16)') key, value
-   end subroutine put
-
-   subroutine put_int(key, value)
-      character(len=*), intent(in) :: key
-      integer, intent(in) :: value
-      write (*, '(a,1x,i0)') key, value
-   end subroutine put_int
 
    !> Topology (closed, consistently oriented, manifold), orientation, geometry, sizes.
    subroutine probe_mesh(wall)

@@ -1,0 +1,65 @@
+"""Time the 3D tube model (`--model 3d`): the wall's assembly and LU factorisation, the load
+of the cached LU, one membrane velocity evaluation and one RK2 step, at capsule levels 3 and
+4 on 1 and 2 OpenMP threads, and where a velocity evaluation spends its time (capsule single
+layer at the wall nodes, wall solve, wall single layer at the membrane nodes).
+
+Run through `make bench` or directly after `make build`:
+
+    .venv/bin/python bench/bench_tube_3d.py [--wall H_FAR H_CENTRE LENGTH] [--steps N]
+
+The default wall (0.2 / 0.1 l over 6 l, 2772 nodes) is the one of the level-3 validation;
+`--wall 0.14 0.07 10` is the paper's (7138 nodes: a 3.7 GB LU, minutes to factorise).
+Prints figures only: machines are shared and noisy, so nothing here is a test.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PROBE = REPO / "bin" / "tube3d_probe"
+SIZE_RATIO, CA = 0.8, 0.05
+
+
+def measure(level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), OMP_PROC_BIND="close")
+    args = [str(PROBE), "timing", str(level), str(SIZE_RATIO), str(CA), wall[2], wall[0], wall[1], str(cache), str(steps)]
+    out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
+    return {k: float(v) for k, v in (line.split() for line in out.splitlines())}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--wall", nargs=3, default=["0.2", "0.1", "6"], metavar=("H_FAR", "H_CENTRE", "LENGTH"))
+    parser.add_argument("--steps", type=int, default=3, help="RK2 steps timed per case")
+    args = parser.parse_args()
+    if not PROBE.exists():
+        print(f"{PROBE} is missing: run `make build` first", file=sys.stderr)
+        return 2
+    print(f"3D tube model, NH a/l = {SIZE_RATIO}, Ca_s = {CA}, wall h {args.wall[0]} / {args.wall[1]} l over "
+          f"{args.wall[2]} l; {os.cpu_count() or 1} cores on this machine")
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp)
+        first = True
+        print(f"{'level':>5} {'nodes':>6} {'threads':>7} {'wall setup [s]':>15} {'velocity [s]':>13} "
+              f"{'caps->wall':>11} {'solve':>7} {'wall->caps':>11} {'RK2 step [s]':>13}")
+        for level in (3, 4):
+            for threads in (1, 2):
+                r = measure(level, threads, args.wall, cache, args.steps)
+                if first:
+                    print(f"      wall of {int(r['n_wall_nodes'])} nodes: assembly {r['wall_assembly_s']:.2f} s, "
+                          f"LU {r['wall_factor_s']:.2f} s (1 thread), written to the cache")
+                    first = False
+                setup = f"{r['wall_setup_s']:.2f} (cache)" if r["from_cache"] else f"{r['wall_setup_s']:.2f}"
+                print(f"{level:>5} {int(r['n_nodes']):>6} {threads:>7} {setup:>15} {r['velocity_s']:>13.3f} "
+                      f"{r['capsule_at_wall_s']:>11.3f} {r['wall_solve_s']:>7.3f} {r['wall_at_capsule_s']:>11.3f} "
+                      f"{r['rk2_step_s']:>13.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
