@@ -20,18 +20,14 @@ module axisymmetric_tube
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
    use run_options, only: run_options_t, int_text
+   use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
+                           tube_history_names, tube_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t, num
    use case_output, only: case_summary_t
    implicit none
    private
    public :: axisymmetric_tube_t, tube_wall_elements, velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
 
-   integer, parameter :: h_t = 1, h_area = 2, h_volume = 3, h_lz = 4, h_lp = 5, h_vc = 6, h_rmax = 7, &
-                         h_energy = 8, h_stretch = 9
-   character(len=*), parameter :: tube_history_names(9) = [character(len=16) :: &
-                                  't', 'area', 'volume', 'L_z', 'L_p', 'v_c', 'r_max', 'energy', 'max_stretch']
-   character(len=*), parameter :: tube_history_units(9) = [character(len=16) :: &
-                                  'l/V', 'l^2', 'l^3', 'l', 'l', 'V', 'l', 'G_s l^2', '1']
 
    !> Wall element sizes: fine over |z| < 2, growing geometrically (ratio wall_growth) to
    !> coarse_size towards the end sections (the tube length is a run option).
@@ -1023,10 +1019,7 @@ contains
    function progress_text(self) result(text)
       class(axisymmetric_tube_t), intent(in) :: self
       character(len=:), allocatable :: text
-      character(len=80) :: buf
-      write (buf, '(a,f7.4,a,f7.4,a,f7.4)') 'L_z/l = ', self%history(h_lz, self%n_rec), '  L_p/l = ', &
-         self%history(h_lp, self%n_rec), '  v_c/V = ', self%history(h_vc, self%n_rec)
-      text = trim(buf)
+      text = tube_progress_text(self%history(:, self%n_rec))
    end function progress_text
 
    !> /mesh (reference and current meridian as (n, 2) arrays of (r, z)) and /profile (r, z).

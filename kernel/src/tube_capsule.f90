@@ -30,18 +30,13 @@ module tube_capsule
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
    use wall_single_layer, only: wall_operator_t, poiseuille_velocity, leaf_ratio, leaf_strengths, triangle_correction
    use run_options, only: run_options_t
+   use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
+                           tube_history_names, tube_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t
    implicit none
    private
    public :: tube_capsule_t, default_cache_dir
 
-   integer, parameter :: h_t = 1, h_area = 2, h_volume = 3, h_lz = 4, h_lp = 5, h_vc = 6, h_rmax = 7, &
-                         h_energy = 8, h_stretch = 9
-   !> The axisymmetric model's history columns, so that the two compare column by column.
-   character(len=*), parameter :: tube_history_names(9) = [character(len=16) :: &
-                                  't', 'area', 'volume', 'L_z', 'L_p', 'v_c', 'r_max', 'energy', 'max_stretch']
-   character(len=*), parameter :: tube_history_units(9) = [character(len=16) :: &
-                                  'l/V', 'l^2', 'l^3', 'l', 'l', 'V', 'l', 'G_s l^2', '1']
    !> Pre-deformation of large capsules, as in axisymmetric_tube: from a/l = 0.9 the run
    !> starts from the spheroid of equatorial radius 0.8 and the same volume; stresses are
    !> measured from the sphere of radius a.
@@ -429,10 +424,7 @@ contains
    function progress_text(self) result(text)
       class(tube_capsule_t), intent(in) :: self
       character(len=:), allocatable :: text
-      character(len=80) :: buf
-      write (buf, '(a,f7.4,a,f7.4,a,f7.4)') 'L_z/l = ', self%history(h_lz, self%n_rec), '  L_p/l = ', &
-         self%history(h_lp, self%n_rec), '  v_c/V = ', self%history(h_vc, self%n_rec)
-      text = trim(buf)
+      text = tube_progress_text(self%history(:, self%n_rec))
    end function progress_text
 
    !> /mesh (reference and current nodes (3, n), triangles 0-based), /profile (r, z: the
