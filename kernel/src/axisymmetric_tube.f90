@@ -85,6 +85,12 @@ module axisymmetric_tube
       end subroutine dgetrs
    end interface
 
+   !> Work arrays of velocity_jacobian (see jacobian_with_work), allocated at its first call.
+   type :: jacobian_work_t
+      real(dp), allocatable :: density0(:, :), raw0(:, :), b0(:), g0(:), influence(:, :), u0(:, :), packed0(:)
+      real(dp), allocatable :: element_at_wall(:, :, :), element_at_node(:, :, :)
+   end type jacobian_work_t
+
    type, extends(capsule_model_t) :: axisymmetric_tube_t
       type(meridian_reference_t) :: ref
       real(dp) :: ca = 0, a = 0, h_min = 0, energy = 0, v_c = 0, volume0 = 0, tube_length = 10
@@ -98,6 +104,7 @@ module axisymmetric_tube
       real(dp), allocatable :: rz_here(:, :), u_here(:, :)
       integer, allocatable :: step_pivot(:)
       integer :: jacobian_age = huge(1)
+      type(jacobian_work_t) :: jacobian_work
       !> Counts of the implicit solver: Jacobians computed, steps redone.
       integer :: n_jacobians = 0, n_rejected = 0
       !> Largest implicit step (l/V): the step is this or growth_step_limit / (largest growth
@@ -407,18 +414,38 @@ contains
       type(axisymmetric_tube_t), intent(inout) :: self
       real(dp), intent(in) :: rz(:, :), fd_step
       real(dp), intent(out) :: jacobian(:, :)
+      integer :: n, nw
+      n = size(rz, 2)
+      nw = self%n_wall
+      ! Work arrays kept by the model: the time loop refreshes the Jacobian every few steps.
+      associate (w => self%jacobian_work)
+         if (.not. allocated(w%density0)) then
+            allocate (w%density0(2, n), w%raw0(2, n), w%b0(2 * nw), w%g0(2 * nw), w%influence(2 * n, 2 * nw))
+            allocate (w%u0(2, n), w%packed0(2 * n - 2), w%element_at_wall(2, nw, n - 1), w%element_at_node(2, n, n - 1))
+         end if
+      end associate
+      call jacobian_with_work(self, rz, fd_step, jacobian, self%jacobian_work%density0, self%jacobian_work%raw0, &
+                              self%jacobian_work%b0, self%jacobian_work%g0, self%jacobian_work%influence, &
+                              self%jacobian_work%u0, self%jacobian_work%packed0, self%jacobian_work%element_at_wall, &
+                              self%jacobian_work%element_at_node)
+   end subroutine velocity_jacobian
+
+   !> velocity_jacobian's work, on arrays the caller keeps. element_at_wall/node: the single
+   !> layer of each membrane element e at every wall point and node (a column moves one node,
+   !> which changes four elements; their old contributions are looked up there).
+   subroutine jacobian_with_work(self, rz, fd_step, jacobian, density0, raw0, b0, g0, influence, u0, packed0, &
+                                 element_at_wall, element_at_node)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :), fd_step
+      real(dp), intent(out) :: jacobian(:, :)
+      real(dp), intent(out) :: density0(:, :), raw0(:, :), b0(:), g0(:), influence(:, :), u0(:, :), packed0(:)
+      real(dp), intent(out) :: element_at_wall(:, :, :), element_at_node(:, :, :)
       integer :: n, nw, i, k, j, m, comp, info, e
       real(dp) :: energy, v_c
-      real(dp), allocatable :: density0(:, :), raw0(:, :), b0(:), g0(:), influence(:, :), u0(:, :), packed0(:)
-      ! Single layer of each membrane element e at every wall point and node: a column moves
-      ! one node, which changes four elements; their old contributions are looked up here.
-      real(dp), allocatable :: element_at_wall(:, :, :), element_at_node(:, :, :)
 
       n = size(rz, 2)
       nw = self%n_wall
       m = 2 * n - 2
-      allocate (density0(2, n), raw0(2, n), b0(2 * nw), g0(2 * nw), influence(2 * n, 2 * nw), u0(2, n), packed0(m))
-      allocate (element_at_wall(2, nw, n - 1), element_at_node(2, n, n - 1))
       call membrane_density(self, rz, density0, energy)
       !$omp parallel do default(none) shared(self, rz, density0, element_at_wall, element_at_node, n, nw) &
       !$omp private(i, k, e) schedule(static)
@@ -497,7 +524,7 @@ contains
          jacobian(:, col) = (packed1 - packed0) / fd_step
       end subroutine one_column
 
-   end subroutine velocity_jacobian
+   end subroutine jacobian_with_work
 
    !> Node and component (1 = r, 2 = z) of packed degree of freedom j (see pack_dofs).
    pure subroutine dof_node(j, n, node, comp)
