@@ -15,6 +15,7 @@ module capsule_dynamics
    use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
    use run_options, only: run_options_t
+   use case_output, only: write_surface_mesh
    use capsule_model, only: capsule_model_t
    implicit none
    private
@@ -197,11 +198,7 @@ contains
       call shape_measures(self%mesh, self%positions, m)
       call shear_plane_contour(self%mesh, self%positions, m%centroid, y, z)
       call f%write_attr('/', 'n_nodes', self%mesh%n_nodes, stat, errmsg)
-      if (stat == 0) call f%make_group('/mesh', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/reference_nodes', self%x_ref, 'a', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/nodes', self%positions, 'a', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/triangles', self%mesh%tri - 1, '1', stat, errmsg)
-      if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
+      call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'a', stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)
       if (stat == 0) call f%write_attr('/profile', 'plane', 'x = x_centroid (shear plane yz)', stat, errmsg)
       if (stat == 0) call f%write_dataset('/profile/y', y, 'a', stat, errmsg)

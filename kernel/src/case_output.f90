@@ -8,7 +8,7 @@ module case_output
    use membrane_law, only: membrane_law_t
    implicit none
    private
-   public :: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint
+   public :: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint, write_surface_mesh
 
    !> What the run ends with: status, its reason, and timing.
    type :: case_summary_t
@@ -143,5 +143,21 @@ contains
       end if
       close (unit)
    end subroutine read_checkpoint
+
+   !> /mesh of a 3D capsule: reference and current nodes (3, n) in `length_unit`, triangles
+   !> 0-based (read as (n, 3) and (m, 3) in h5py). Does nothing if stat /= 0 on entry.
+   subroutine write_surface_mesh(f, reference_nodes, nodes, triangles, length_unit, stat, errmsg)
+      type(h5_file_t), intent(inout) :: f
+      real(dp), intent(in) :: reference_nodes(:, :), nodes(:, :)
+      integer, intent(in) :: triangles(:, :)
+      character(len=*), intent(in) :: length_unit
+      integer, intent(inout) :: stat
+      character(len=:), allocatable, intent(inout) :: errmsg
+      if (stat == 0) call f%make_group('/mesh', stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/reference_nodes', reference_nodes, length_unit, stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/nodes', nodes, length_unit, stat, errmsg)
+      if (stat == 0) call f%write_dataset('/mesh/triangles', triangles - 1, '1', stat, errmsg)
+      if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
+   end subroutine write_surface_mesh
 
 end module case_output

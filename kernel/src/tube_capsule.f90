@@ -30,6 +30,7 @@ module tube_capsule
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
    use wall_single_layer, only: wall_operator_t, poiseuille_velocity, leaf_ratio, leaf_strengths, triangle_correction
    use run_options, only: run_options_t
+   use case_output, only: write_surface_mesh
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
                            tube_history_names, tube_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t
@@ -452,11 +453,7 @@ contains
       if (stat == 0) call f%write_attr('/', 'n_wall_nodes', self%wall%mesh%n_nodes, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_from_cache', merge(1, 0, self%wall_op%from_cache), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_setup_s', self%wall_seconds, stat, errmsg)
-      if (stat == 0) call f%make_group('/mesh', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/reference_nodes', self%x_ref, 'l', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/nodes', self%positions, 'l', stat, errmsg)
-      if (stat == 0) call f%write_dataset('/mesh/triangles', self%mesh%tri - 1, '1', stat, errmsg)
-      if (stat == 0) call f%write_attr('/mesh/triangles', 'index_base', 0, stat, errmsg)
+      call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'l', stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)
       if (stat == 0) call f%write_attr('/profile', 'plane', 'y = 0, x > 0, front first (flow along +z)', stat, errmsg)
       if (stat == 0) call f%write_dataset('/profile/r', r, 'l', stat, errmsg)
