@@ -1,0 +1,195 @@
+"""Files that ``capsmech extract`` writes: the measurement CSV, contours, per-frame report, overlays.
+
+Every file is written to a temporary name and renamed, so it is whole or absent.
+
+- Measurement CSV (the tube format of ``capsmech.measurements``, read by ``fit-tube``):
+  ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px]``;
+  comment lines above the header give, per capsule, its frames, the spread of the lengths
+  over them and the standard error of v_c.
+- Contour files (``<csv stem>_contours/<id>.txt``, named in the CSV relative to its
+  directory): the mid-line contour of the capsule's representative frame, ``X\tY`` then two
+  tab-separated columns in pixels, image coordinates of the frame as analysed (mirrored when
+  the flow went in -x), the whole closed contour - ImageJ's "Save XY Coordinates" layout.
+- Per-frame report (CSV): every frame with its passage, flag (empty = measured) and values.
+- Overlays (PNG, one per capsule): the representative frame with the contour, the walls, the
+  axis and the points L_z and L_p are measured between.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from capsmech.extraction import CapsuleMeasurement, FrameResult, Walls
+
+
+def _write_text(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary name (whole or not at all)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def _g(value: float, digits: int = 6) -> str:
+    return "" if value is None or not math.isfinite(value) else f"{value:.{digits}g}"
+
+
+def contour_text(contour: np.ndarray) -> str:
+    """A contour as ImageJ's XY coordinates: header ``X\\tY``, then ``x\\ty`` lines (px)."""
+    return "X\tY\n" + "".join(f"{x:.3f}\t{y:.3f}\n" for x, y in contour)
+
+
+def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement], results: Sequence[FrameResult],
+                       walls: Walls, pixel_size_um: float, ids: Sequence[str], mu_pa_s: float | None = None,
+                       source: str = "", flow_direction: str = "right") -> tuple[Path, list[Path]]:
+    """Write the measurement CSV and the contour file of each measured capsule.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV to write.
+    capsules : sequence of CapsuleMeasurement
+        Measured capsules (all ``ok``), in the order of ``ids``.
+    results : sequence of FrameResult
+        Every frame's result (the contours of the representative frames are taken from it).
+    walls : Walls
+    pixel_size_um : float
+    ids : sequence of str
+        One id per capsule.
+    mu_pa_s : float, optional
+        Viscosity of the suspending liquid, written as the ``mu`` column when given.
+    source : str
+        The frames' names, for the comment line.
+    flow_direction : str
+        'left' when the frames were mirrored (said in a comment).
+
+    Returns
+    -------
+    (Path, list of Path)
+        The CSV and the contour files.
+    """
+    path = Path(path)
+    by_index = {r.index: r for r in results}
+    contour_dir = path.with_name(path.stem + "_contours")
+    contour_files = []
+    lines = io.StringIO()
+    lines.write(f"# capsmech extract: {source}\n")
+    lines.write(f"# tube radius {walls.radius_px:.3f} px (walls at rows {walls.top_row:.3f}, {walls.bottom_row:.3f}), "
+                f"pixel size {pixel_size_um:g} um" + (", frames mirrored (flow in -x)" if flow_direction == "left" else "")
+                + "\n")
+    for cap_id, cap in zip(ids, capsules):
+        lines.write(f"# {cap_id}: frames {cap.frames[0]}-{cap.frames[-1]}, {len(cap.good_frames)} measured; "
+                    f"L_z {cap.L_z_px:.3f} +- {cap.L_z_spread_px:.3f} px, L_p {cap.L_p_px:.3f} +- "
+                    f"{cap.L_p_spread_px:.3f} px (median +- std over the frames); v_c {cap.v_c_px_s:.5g} +- "
+                    f"{cap.v_c_se_px_s:.2g} px/s (slope +- standard error); contour of frame {cap.representative}\n")
+    writer = csv.writer(lines, lineterminator="\n")
+    header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "pixel_size [um]"]
+    if mu_pa_s is not None:
+        header.append("mu [Pa s]")
+    header.append("contour [px]")
+    writer.writerow(header)
+    for cap_id, cap in zip(ids, capsules):
+        contour_path = contour_dir / f"{cap_id}.txt"
+        _write_text(contour_path, contour_text(by_index[cap.representative].contour))
+        contour_files.append(contour_path)
+        row = [cap_id, _g(cap.L_z_px * pixel_size_um), _g(cap.L_p_px * pixel_size_um),
+               _g(cap.v_c_px_s * pixel_size_um * 1e-3), _g(walls.radius_px * pixel_size_um), _g(pixel_size_um)]
+        if mu_pa_s is not None:
+            row.append(_g(mu_pa_s))
+        row.append(contour_path.relative_to(path.parent).as_posix())
+        writer.writerow(row)
+    return _write_text(path, lines.getvalue()), contour_files
+
+
+REPORT_COLUMNS = ["frame", "source", "passage", "flag", "objects", "line_width [px]", "L_z [px]", "L_p [px]",
+                  "x_front [px]", "x_rear [px]", "x_rear_axis [px]", "centroid_x [px]", "centroid_y [px]",
+                  "asymmetry [1]"]
+
+
+def write_frame_report(path: str | Path, results: Sequence[FrameResult]) -> Path:
+    """Write one line per frame: its passage (-1: none), flag (empty: measured) and values."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(REPORT_COLUMNS)
+    for r in results:
+        writer.writerow([r.index, r.label, r.passage, r.flag, r.objects, _g(r.line_width_px, 4), _g(r.L_z_px),
+                         _g(r.L_p_px), _g(r.x_front), _g(r.x_rear), _g(r.x_rear_axis), _g(r.centroid_x),
+                         _g(r.centroid_y), _g(r.asymmetry, 3)])
+    return _write_text(Path(path), out.getvalue())
+
+
+def write_overlay(path: str | Path, image: np.ndarray, frame: FrameResult, walls: Walls, title: str) -> Path:
+    """Draw the frame with its contour, walls, axis and the L_z / L_p end points as a PNG."""
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend needed
+
+    path = Path(path)
+    rows, cols = image.shape
+    scale = max(1.0, 800 / cols)
+    fig = Figure(figsize=(cols * scale / 100, rows * scale / 100 + 0.45), dpi=100)
+    ax = fig.add_axes((0, 0, 1, rows * scale / (rows * scale + 45)))
+    ax.imshow(image, cmap="gray", interpolation="nearest")
+    for row in (walls.top_row, walls.bottom_row):
+        ax.axhline(row, color="deepskyblue", lw=1)
+    ax.axhline(walls.axis_row, color="gold", lw=0.8, ls="--")
+    closed = np.vstack([frame.contour, frame.contour[:1]])
+    ax.plot(closed[:, 0], closed[:, 1], "-", color="red", lw=1)
+    ax.plot([frame.x_front, frame.x_rear_axis], [walls.axis_row, walls.axis_row], "o", color="lime", ms=4)
+    rim = frame.contour[np.argmin(frame.contour[:, 0])]
+    ax.plot([rim[0]], [rim[1]], "o", color="magenta", ms=4)
+    ax.axvline(frame.x_rear, color="magenta", lw=0.6, ls=":")
+    ax.set_xlim(-0.5, cols - 0.5)
+    ax.set_ylim(rows - 0.5, -0.5)
+    ax.set_axis_off()
+    fig.text(0.01, 1 - 0.3 / fig.get_figheight(), title, fontsize=9, va="center")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, format="png")
+    os.replace(tmp, path)
+    return path
+
+
+# ---------------------------------------------------------------------------
+# Options with units, and the whole command
+# ---------------------------------------------------------------------------
+
+_QUANTITY = r"^\s*(?P<value>[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*(?P<unit>[^\d\s].*?)?\s*$"
+PIXEL_UNITS_UM = {"": 1.0, "um": 1.0, "µm": 1.0, "micron": 1.0, "nm": 1e-3, "mm": 1e3, "m": 1e6}
+RATE_UNITS_HZ = {"": 1.0, "hz": 1.0, "fps": 1.0, "1/s": 1.0, "/s": 1.0, "khz": 1e3}
+VISCOSITY_UNITS_PA_S = {"": 1.0, "pa s": 1.0, "pa.s": 1.0, "pas": 1.0, "mpa s": 1e-3, "mpa.s": 1e-3, "cp": 1e-3}
+
+
+def parse_quantity(text: str, option: str, units: dict[str, float], default_unit: str) -> float:
+    """A positive number with an optional unit (``'0.5um'``, ``'1000 Hz'``), in the unit of ``units``.
+
+    Raises
+    ------
+    ExtractionError
+        Naming the option, when the text is no positive number or its unit is unknown.
+    """
+    import re
+
+    from capsmech.extraction import ExtractionError
+
+    match = re.match(_QUANTITY, str(text))
+    unit = ((match["unit"] or "") if match else "").strip()
+    key = unit if unit in units else unit.lower()
+    if not match or key not in units:
+        known = ", ".join(u for u in units if u)
+        raise ExtractionError(f"{option}: {text!r} is not a number with a unit (bare numbers are in {default_unit}; "
+                              f"units: {known})")
+    value = float(match["value"]) * units[key]
+    if not (math.isfinite(value) and value > 0):
+        raise ExtractionError(f"{option}: must be positive, got {text!r}")
+    return value
+
+
+def default_ids(stem: str, count: int) -> list[str]:
+    """Capsule ids: the stem alone for one capsule, else stem-1, stem-2, ..."""
+    return [stem] if count == 1 else [f"{stem}-{k + 1}" for k in range(count)]
