@@ -469,15 +469,18 @@ def analyse_frame(image: np.ndarray, walls: Walls, index: int = 0, label: str = 
     if result.line_width_px > settings.max_line_width_px:
         result.flag = f"out of focus (line {result.line_width_px:.1f} px wide > {settings.max_line_width_px:g})"
         return result
+    # The border first: a capsule cut by it may fall apart into several arcs.
+    objects = np.isin(labels, keep) & mask
+    object_columns = np.nonzero(objects.any(axis=0))[0]
+    result.object_x = float(np.nonzero(objects)[1].mean())
+    if object_columns.min() <= 1 or object_columns.max() >= cols - 2:
+        result.flag = "touches the image border"
+        return result
     if len(keep) > 1:
         result.flag = f"{len(keep)} capsules"
         return result
     region = labels == keep[0]
     r_idx, c_idx = np.nonzero(region & mask)
-    result.object_x = float(c_idx.mean())
-    if c_idx.min() <= 1 or c_idx.max() >= cols - 2:
-        result.flag = "touches the image border"
-        return result
     # The edges are traced on a lighter smoothing than the detection's: blur pulls the edge
     # back around the parachute's sharp rim (L_p -0.35 px at 1 px, -0.16 px at 0.6 px for a
     # 28 px deep parachute), while too little lets the noise push the extremes out (+0.3 px
@@ -581,16 +584,17 @@ class CapsuleMeasurement:
 
 def assign_passages(results: Sequence[FrameResult], jump_px: float) -> None:
     """Number the capsules' passages: a new one after an empty frame or a jump against the flow."""
-    passage, last_x = -1, None
+    passage, last_x, inside = -1, math.nan, False
     for r in results:
         if r.objects == 0:
-            last_x = None
+            inside, last_x = False, math.nan
             continue
         # The contour's centroid where there is one, else the mean column of the object's pixels
         # (a capsule entering at the border): enough to see a jump back against the flow.
         x = r.centroid_x if math.isfinite(r.centroid_x) else r.object_x
-        if last_x is None or (math.isfinite(x) and x < last_x - jump_px):
+        if not inside or (math.isfinite(x) and math.isfinite(last_x) and x < last_x - jump_px):
             passage += 1
+        inside = True
         r.passage = passage
         if math.isfinite(x):
             last_x = x

@@ -1,0 +1,65 @@
+"""Time ``capsmech extract`` on a rendered stack of 1000 frames (issue 8: under a minute on 2 cores).
+
+The stack (400 x 200 px, 8 bit, one capsule per frame: a development-database NH profile,
+tube radius 60 px) is rendered first and written as one multi-page TIFF; the timed part is
+what the command does: reading the file, finding the walls, analysing every frame,
+measuring the capsules (velocity included) and writing the CSV, the contours and the
+per-frame report. Prints the frames per second and the total time; not a test.
+
+    .venv/bin/python bench/bench_extract.py [--frames 1000]
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capsmech.cli import main
+from capsmech.database import load_database
+from capsmech.microscopy import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def rendered_stack(n_frames: int) -> np.ndarray:
+    """n_frames of capsules crossing the field one after the other (40 frames each)."""
+    rows = load_database(REPO / "data" / "databases" / "dev" / "tube.h5").law("NH").steady_rows()
+    i = int(np.argmin(np.abs(rows["a_over_l"] - 0.9) + np.abs(rows["Ca_s"] - 0.06)))
+    outline = outline_from_meridian(rows["profile_r"][i], rows["profile_z"][i])
+    style = FrameStyle(shape=(200, 400), tube_radius_px=60.0)
+    rng = np.random.default_rng(0)
+    # Each passage: 40 frames moving 5 px a frame from x = 90 to 285 (the capsule stays inside).
+    return np.stack([render_frame([(outline, 90.0 + 5.0 * (k % 40))], style, rng) for k in range(n_frames)])
+
+
+def run(n_frames: int) -> None:
+    start = time.perf_counter()
+    frames = rendered_stack(n_frames)
+    render_s = time.perf_counter() - start
+    with tempfile.TemporaryDirectory() as tmp:
+        stack = write_tiff_stack(Path(tmp) / "stack.tif", frames, pixel_size_um=0.5, frame_rate=1000.0)
+        start = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()) as out:
+            code = main(["extract", str(stack), "--out", str(Path(tmp) / "m.csv")])
+        total = time.perf_counter() - start
+        rows = sum(1 for line in (Path(tmp) / "m.csv").read_text().splitlines()[1:] if line and line[0] != "#") \
+            if code == 0 else 0
+    print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f}")
+    print(f"rendered {n_frames} frames of 400x200 px in {render_s:.1f} s (not timed)")
+    print(f"capsmech extract: exit {code}, {rows - 1} capsule rows, {n_frames} frames in {total:.2f} s: "
+          f"{n_frames / total:.0f} frames/s ({1e3 * total / n_frames:.1f} ms a frame; target: 1000 frames < 60 s)")
+    if code != 0:
+        print(out.getvalue(), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=1000)
+    run(parser.parse_args().frames)
