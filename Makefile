@@ -77,7 +77,7 @@ demo: setup
 	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
 	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database data/databases/dev/tube.h5 \
 	    --law NH --law GH_nu0.5 --out demo/fit_tube_batch_NH.csv
-	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png
+	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
 
 bench: system-deps venv
 	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'

@@ -22,6 +22,8 @@ OUT = Path(__file__).resolve().parents[1] / "data" / "examples"
 BATCHES = {"NH": 0, "GH_nu0.5": 1}
 N_CAPSULES = 12
 G_S = 0.04
+#: Image scale of the traced contours (a 100 um capillary is 200 pixels wide).
+PIXEL_SIZE_UM = 0.5
 
 
 def main() -> int:
@@ -32,11 +34,11 @@ def main() -> int:
         ca = np.exp(rng.uniform(np.log(0.03), np.log(0.10), N_CAPSULES))
         with ThreadPoolExecutor(max_workers=2) as pool:
             capsules = list(pool.map(lambda p: simulate_tube(p[0], p[1], law), zip(a, ca)))
-        rows = tube_batch(capsules, g_s=G_S, seed=seed)
+        rows = tube_batch(capsules, g_s=G_S, seed=seed, pixel_size_um=PIXEL_SIZE_UM)
         name = f"tube_batch_{law}"
         write_tube_csv(rows, OUT / f"{name}.csv",
                        comment=f"synthetic batch made by scripts/make_examples.py with the kernel ({law}),\n"
-                               "2 % noise on lengths and velocity; the truth is in the _truth file")
+                               "2 % noise on lengths and velocity, contours traced to +-1 pixel; the truth is in the _truth file")
         with open(OUT / f"{name}_truth.csv", "w", newline="", encoding="utf-8") as stream:
             writer = csv.writer(stream)
             writer.writerow(["id", "law", "a_over_l", "Ca_s", "G_s [N/m]", "status"])

@@ -7,15 +7,13 @@ method must satisfy before it is used on simulated databases.
 - v_c/V from the Delaunay triangulation reproduces a field linear in (a/l, ln Ca_s) exactly.
 - A point outside the database is a flag, never a number.
 - Shear: D12 -> Ca_s along a monotone branch, a from volume conservation, G_s = mu gdot a / Ca_s.
-- The modified Hausdorff distance between concentric circles is the difference of radii.
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from capsmech.inverse import (FIVE_FITS, ShearInverter, TubeInverter, TubeTable, modified_hausdorff,
-                              profile_elongation)
+from capsmech.inverse import FIVE_FITS, ShearInverter, TubeInverter, TubeTable, profile_elongation
 
 A_GRID = np.arange(0.70, 1.101, 0.05)
 CA_GRID = np.array([0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.10, 0.12, 0.15, 0.18, 0.20])
@@ -142,13 +140,6 @@ def test_shear_small_deformation_and_out_of_range_are_flagged():
     assert "outside" in inverter.fit(D12=0.9).flag
     with pytest.raises(ValueError, match="does not increase"):
         ShearInverter([0.1, 0.2, 0.3], [0.2, 0.4, 0.3], [1, 1, 1])
-
-
-def test_modified_hausdorff_of_concentric_circles_is_the_radius_difference():
-    t = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
-    circle = lambda r: np.column_stack([r * np.cos(t), r * np.sin(t)])  # noqa: E731
-    assert modified_hausdorff(circle(1.0), circle(1.05)) == pytest.approx(0.05, rel=1e-3)
-    assert modified_hausdorff(circle(1.0), circle(1.0)) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_profile_elongation_of_a_sphere_is_one_and_grows_for_a_spheroid():

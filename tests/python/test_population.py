@@ -50,3 +50,22 @@ def test_every_law_drifting_reports_none():
 def test_too_few_capsules_is_an_error():
     with pytest.raises(ValueError, match="needs 3"):
         law_drift("NH", [1.1, 1.2], [0.04, 0.05])
+
+
+def test_population_table_round_trips_through_hdf5_and_csv(tmp_path):
+    import h5py
+
+    from capsmech.fitting import write_results
+    from capsmech.population import POPULATION_UNITS, population_rows, read_results
+
+    rng = np.random.default_rng(7)
+    rows = rows_from("NH", *batch(rng, 0.0)) + rows_from("GH_nu0.5", *batch(rng, -2.0))
+    drifts, best = population(rows)
+    table = population_rows(drifts, best)
+    assert [r["verdict"] for r in table] == ["supported", "drifts"]
+    write_results(table, POPULATION_UNITS, tmp_path / "pop.h5")
+    write_results(table, POPULATION_UNITS, tmp_path / "pop.csv")
+    with h5py.File(tmp_path / "pop.h5") as f:
+        assert f["G_s_mean"].attrs["units"] == "N/m"
+        assert f["p_value"][1] == pytest.approx(drifts["GH_nu0.5"].p_value)
+    assert float(read_results(tmp_path / "pop.csv")[0]["drift"]) == pytest.approx(drifts["NH"].slope, rel=1e-5)

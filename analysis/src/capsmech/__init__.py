@@ -3,12 +3,26 @@
 The kernel (``bin/capsim``, Fortran + OpenMP) simulates one microcapsule in
 Stokes flow and writes one HDF5 case file per run; :func:`read_case` turns such
 a file into a validated, immutable :class:`CaseResult`.
+
+The inverse analysis, as the CLI uses it::
+
+    import capsmech
+    capsules = capsmech.read_measurements("batch.csv", "tube")
+    rows = capsmech.fit_tube(capsules, capsmech.load_database("data/databases/tube.h5"))
+    drifts, law = capsmech.population(rows)
 """
 
 from __future__ import annotations
 
-from capsmech.io import CaseFileError, CaseResult, NotSteadyError, read_case
-
+# Set before the submodules are imported: some of them record it in the files they write.
 __version__ = "0.1.0"
 
-__all__ = ["CaseFileError", "CaseResult", "NotSteadyError", "__version__", "read_case"]
+from capsmech.database import load_database
+from capsmech.fitting import fit_shear, fit_tube, write_results
+from capsmech.io import CaseFileError, CaseResult, NotSteadyError, read_case
+from capsmech.measurements import read_measurements
+from capsmech.population import population
+
+
+__all__ = ["CaseFileError", "CaseResult", "NotSteadyError", "__version__", "fit_shear", "fit_tube", "load_database",
+           "population", "read_case", "read_measurements", "write_results"]

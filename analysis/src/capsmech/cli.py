@@ -383,7 +383,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_population(args: argparse.Namespace) -> int:
     """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
-    from capsmech.population import plot_population, population, read_results
+    from capsmech.fitting import write_results
+    from capsmech.population import POPULATION_UNITS, plot_population, population, population_rows, read_results
 
     rows = [row for path in args.results for row in read_results(path)]
     drifts, best = population(rows)
@@ -398,6 +399,8 @@ def cmd_population(args: argparse.Namespace) -> int:
               f"with Delta, p = {drifts[best].p_value:.2g})")
     if args.plot:
         print(f"wrote {plot_population(rows, drifts, args.plot)}")
+    for out in args.out or []:
+        print(f"wrote {write_results(population_rows(drifts, best), POPULATION_UNITS, out)}")
     return 0
 
 
@@ -530,6 +533,7 @@ def build_parser() -> argparse.ArgumentParser:
     pop = sub.add_parser("population", help="which law gives a G_s that does not drift with deformation")
     pop.add_argument("results", nargs="+", metavar="RESULTS.csv", help="fit-tube results")
     pop.add_argument("--plot", metavar="FIG.png", help="draw G_s against Delta (paper figure 10)")
+    pop.add_argument("--out", action="append", metavar="FILE", help="write the per-law table (.csv or .h5; repeatable)")
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
     ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
     ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the TIFF's metadata)")

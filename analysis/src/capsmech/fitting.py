@@ -21,6 +21,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from capsmech.contours import ASYMMETRY_PIXELS, MAX_ASYMMETRY, MAX_H_OVER_A, profile_misfit, symmetry_axis
 from capsmech.database import Database, ShearDatabase, TubeDatabase
 from capsmech.inverse import ShearInverter, TubeInverter, TubeTable, profile_elongation
 from capsmech.measurements import Capsule
@@ -29,7 +30,7 @@ from capsmech.measurements import Capsule
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
-                     "valid_fits": "1", "flag": ""}
+                     "valid_fits": "1", "H_over_a": "1", "asymmetry": "1", "flag": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
                       "G_s": "N/m", "flag": ""}
 
@@ -86,6 +87,15 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
         l_z, l_p = capsule["L_z"] / l, capsule["L_p"] / l
         v_c, mu = capsule["v_c"], capsule["mu"]
         has_velocity = math.isfinite(v_c) and math.isfinite(mu)
+        # The contour's symmetry does not depend on the law: measured once per capsule, over
+        # the radius of the capsule's volume-equivalent size estimated from the contour itself.
+        asymmetry, asymmetry_limit, axis_y = float("nan"), MAX_ASYMMETRY, None
+        if capsule.contour is not None:
+            axis_y, mirror_distance = symmetry_axis(capsule.contour)
+            radius = _contour_radius(capsule.contour, axis_y)
+            asymmetry = mirror_distance / radius
+            if math.isfinite(capsule["pixel_size"]):
+                asymmetry_limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * capsule["pixel_size"] / radius)
         for law in laws:
             fits = inverters[law].five_fits(l_z, l_p, v_c if has_velocity else None, mu if has_velocity else None)
             row: dict[str, Any] = {"id": capsule.id, "law": law, "L_z_over_l": l_z, "L_p_over_l": l_p,
@@ -93,16 +103,25 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
                                    "Ca_s": fits.mean("Ca_s"), "Ca_s_spread": fits.spread("Ca_s"),
                                    "vc_over_V": fits.mean("vc_over_V"), "G_s": fits.mean("G_s"),
                                    "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
-                                   "Delta": float("nan"), "valid_fits": fits.n_valid, "flag": ""}
+                                   "Delta": float("nan"), "valid_fits": fits.n_valid,
+                                   "H_over_a": float("nan"), "asymmetry": asymmetry, "flag": ""}
             central = fits.fits["fit1"]
-            if central.ok:
-                meridian = inverters[law].profile(central.a_over_l, central.Ca_s)
-                if meridian is not None:
-                    row["Delta"] = profile_elongation(meridian, central.a_over_l)
+            meridian = inverters[law].profile(central.a_over_l, central.Ca_s) if central.ok else None
+            if meridian is not None:
+                row["Delta"] = profile_elongation(meridian, central.a_over_l)
+                if capsule.contour is not None:
+                    misfit, _ = profile_misfit(capsule.contour, meridian * l, axis_y)
+                    row["H_over_a"] = misfit / (central.a_over_l * l)
             if fits.n_valid == 0:
                 row["flag"] = fits.fits["fit1"].flag or "no valid fit"
             elif not fits.fits["fit1"].ok:
                 row["flag"] = "central fit: " + fits.fits["fit1"].flag
+            elif asymmetry > asymmetry_limit:
+                row["flag"] = (f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
+                               "1 % of a or one pixel), not an axisymmetric centred capsule")
+            elif row["H_over_a"] > MAX_H_OVER_A:
+                row["flag"] = (f"profile misfit: H/a = {row['H_over_a']:.3f} > {MAX_H_OVER_A} "
+                               "(the fitted simulation does not have the measured shape)")
             elif not has_velocity:
                 row["flag"] = "no v_c or mu: G_s not computed"
             rows.append(row)
@@ -154,6 +173,19 @@ def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: st
         raise ValueError(f"{out}: results go to .csv or .h5")
     os.replace(tmp, out)
     return out
+
+
+def _contour_radius(contour: np.ndarray, axis_y: float) -> float:
+    """Radius of the sphere of the contour's volume, the contour revolved about y = axis_y.
+
+    V = 2 pi * integral of rho over the upper half's area = pi * integral of |rho| over the
+    whole (symmetric) area = pi |closed integral of rho |rho| / 2 dx| by Green's theorem,
+    which holds for any start point and for a rear that folds back (parachute)."""
+    closed = np.vstack([contour, contour[:1]])
+    rho = closed[:, 1] - axis_y
+    mid = 0.5 * (rho[1:] + rho[:-1])
+    volume = np.pi * abs(np.sum(0.5 * mid * np.abs(mid) * np.diff(closed[:, 0])))
+    return float((3 * volume / (4 * np.pi)) ** (1 / 3))
 
 
 def _cell(value: Any) -> str:

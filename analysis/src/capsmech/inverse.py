@@ -331,11 +331,3 @@ def profile_elongation(meridian: np.ndarray, a: float) -> float:
     arclength = np.sum(np.hypot(*np.diff(meridian, axis=0).T))
     return float(2 * arclength / (2 * np.pi * a))
 
-
-def modified_hausdorff(a: np.ndarray, b: np.ndarray) -> float:
-    """Modified (mean) Hausdorff distance (Dubuisson & Jain 1994) between point sets (n, 2), (m, 2):
-    max(mean_i min_j |a_i - b_j|, mean_j min_i |a_i - b_j|)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    d_ab = cKDTree(b).query(a)[0].mean()
-    d_ba = cKDTree(a).query(b)[0].mean()
-    return float(max(d_ab, d_ba))

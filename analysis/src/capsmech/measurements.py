@@ -12,8 +12,18 @@ Tube (``fit-tube``)::
     c01,182.4,21.0,1.52,50.0,1.41
 
 required ``id``, ``L_z``, ``L_p``, ``tube_radius``; ``v_c`` and ``mu`` are needed for G_s;
-optional ``V`` (mean flow velocity, when the flow rate is known) and ``pixel_size`` (then
-lengths may be given in ``px``).
+optional ``V`` (mean flow velocity, when the flow rate is known), ``pixel_size`` (then
+lengths may be given in ``px``) and ``contour``: the path (relative to the CSV's folder) of
+the capsule's contour file, in the unit of the column's header, e.g. ``contour [px]``::
+
+    id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s],pixel_size [um],contour [px]
+    c01,182.4,21.0,1.52,50.0,1.41,0.5,contours/c01.txt
+
+A contour file is what ImageJ's "Save XY Coordinates" writes: two columns x y (tab, space
+or comma separated, one optional header line), the capsule's mid-line in a plane through
+the tube axis, x along the axis with the flow in +x (see ``capsmech.contours``). With a
+contour, ``fit-tube`` measures the misfit H/a of the fitted profile and the contour's
+asymmetry, and flags the capsule when either is too large.
 
 Shear (``fit-shear``)::
 
@@ -39,6 +49,10 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from capsmech.contours import ContourError, read_contour
+
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
 VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
 VISCOSITY_UNITS = {"Pa s": 1.0, "Pa.s": 1.0, "mPa s": 1e-3, "mPa.s": 1e-3, "cP": 1e-3}
@@ -47,7 +61,7 @@ RATE_UNITS = {"1/s": 1.0, "s^-1": 1.0}
 #: Column -> (kind, required) per flow.
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
                 "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
-                "pixel_size": ("length", False)}
+                "pixel_size": ("length", False), "contour": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
                  "mu": ("viscosity", True), "pixel_size": ("length", False)}
 UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS}
@@ -70,11 +84,14 @@ class Capsule:
         Column name -> value [SI].
     line : int
         Line of the file it came from.
+    contour : np.ndarray or None
+        Contour (n, 2) of image coordinates [m] (x along the tube axis), when the row names one.
     """
 
     id: str
     values: dict[str, float]
     line: int
+    contour: np.ndarray | None = None
 
     def __getitem__(self, name: str) -> float:
         return self.values.get(name, math.nan)
@@ -147,12 +164,17 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
             raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
         raw: dict[str, tuple[float, str, float | None]] = {}
         capsule_id = ""
+        contour_cell: tuple[str, str, float | None] | None = None
         for (name, unit, scale), cell in zip(parsed, row):
             cell = cell.strip()
             if name == "id":
                 if not cell:
                     raise MeasurementError(f"{path}:{line}: field 'id' is empty")
                 capsule_id = cell
+                continue
+            if name == "contour":
+                if cell:
+                    contour_cell = (cell, unit, scale)
                 continue
             if not cell:
                 if columns[name][1]:
@@ -179,7 +201,10 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
                 values[name] = value * pixel
             else:
                 values[name] = value * scale
-        capsules.append(Capsule(id=capsule_id, values=values, line=line))
+        contour = None
+        if contour_cell is not None:
+            contour = _read_row_contour(path, line, contour_cell, pixel)
+        capsules.append(Capsule(id=capsule_id, values=values, line=line, contour=contour))
     if not capsules:
         raise MeasurementError(f"{path}: no capsule rows after the header")
     for capsule in capsules:
@@ -188,3 +213,18 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
         if flow == "shear" and capsule["L2"] > capsule["L1"]:
             raise MeasurementError(f"{path}:{capsule.line}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
     return capsules
+
+
+def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None], pixel: float | None) -> np.ndarray:
+    """The contour file a row names, in metres."""
+    name, unit, scale = cell
+    contour_path = Path(name) if Path(name).is_absolute() else path.parent / name
+    if unit == "px":
+        if pixel is None:
+            raise MeasurementError(f"{path}:{line}: field 'contour' is in px but the row has no pixel_size")
+        scale = pixel
+    try:
+        contour = read_contour(contour_path)
+    except ContourError as err:
+        raise MeasurementError(f"{path}:{line}: field 'contour': {err}") from None
+    return contour * scale

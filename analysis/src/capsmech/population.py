@@ -92,6 +92,23 @@ def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], 
     return drifts, best
 
 
+#: Columns of the population table (``write_population``) and their units.
+POPULATION_UNITS = {"law": "", "n": "1", "G_s_mean": "N/m", "G_s_std": "N/m", "drift": "1",
+                    "drift_ci_low": "1", "drift_ci_high": "1", "t": "1", "p_value": "1", "verdict": ""}
+
+
+def population_rows(drifts: Mapping[str, LawDrift], best: str | None) -> list[dict[str, Any]]:
+    """One row per law (columns of ``POPULATION_UNITS``); the verdict is 'supported' for the
+    law reported, 'no drift' for another law that does not drift, 'drifts' otherwise."""
+    rows = []
+    for law, d in drifts.items():
+        verdict = "supported" if law == best else ("drifts" if d.drifts else "no drift")
+        rows.append({"law": law, "n": float(d.n), "G_s_mean": d.mean, "G_s_std": d.std, "drift": d.slope,
+                     "drift_ci_low": d.ci_low, "drift_ci_high": d.ci_high, "t": d.t, "p_value": d.p_value,
+                     "verdict": verdict})
+    return rows
+
+
 def read_results(path: str | Path) -> list[dict[str, Any]]:
     """Read a fit-tube results CSV (header cells 'name [unit]')."""
     with open(path, newline="", encoding="utf-8") as stream:

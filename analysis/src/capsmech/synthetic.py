@@ -5,7 +5,9 @@ steady L_z, L_p, v_c/V and meridian; ``tube_batch(...)`` turns a list of such ca
 rows of the tube measurement format (``capsmech.measurements``) in micrometres for one
 material (one G_s; each capsule's Ca_s set by its flow rate), with realistic noise: each
 length off by a relative Gaussian error (2 % by default, the paper's estimate), the
-velocity likewise. The truth is kept beside the rows, never written into them.
+velocity likewise, and the contour traced with +-1 pixel errors (``noisy_contour``: points
+every 2 pixels, each coordinate off by a uniform error in [-1, 1] px). The truth is kept
+beside the rows, never written into them.
 """
 from __future__ import annotations
 
@@ -57,36 +59,74 @@ def simulate_tube(a_over_l: float, Ca_s: float, law: str, n_meridian: int = 64, 
                             case.steady_value("v_c"), meridian, case.status)
 
 
+def noisy_contour(meridian: np.ndarray, pixels_per_l: float, rng: np.random.Generator,
+                  error_px: float = 1.0, spacing_px: float = 2.0) -> np.ndarray:
+    """A hand-traced contour [px] of a simulated meridian (r, z) [l], as ImageJ would export it.
+
+    The profile (both halves) is placed at a random position in the image, flow in +x, and
+    sampled every ``spacing_px`` pixels; each coordinate is off by a uniform error in
+    [-error_px, error_px] (the paper's +-1 pixel).
+    """
+    from capsmech.contours import full_profile, resample_curve
+
+    profile = full_profile(meridian) * pixels_per_l
+    length = np.sum(np.hypot(*np.diff(np.vstack([profile, profile[:1]]), axis=0).T))
+    points = resample_curve(profile, n=max(int(length / spacing_px), 16), closed=True)
+    origin = np.array([rng.uniform(200, 400), rng.uniform(150, 250)])
+    return points + origin + rng.uniform(-error_px, error_px, points.shape)
+
+
 def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_radius_um: float = 50.0,
-               mu_pa_s: float = 1.0, noise: float = 0.02, seed: int = 0) -> list[dict[str, float | str]]:
-    """Measurement rows (L_z, L_p [um], v_c [mm/s], tube_radius [um], mu [Pa s]) with noise.
+               mu_pa_s: float = 1.0, noise: float = 0.02, seed: int = 0, pixel_size_um: float | None = None
+               ) -> list[dict[str, float | str | np.ndarray]]:
+    """Measurement rows (L_z, L_p [um], v_c [mm/s], tube_radius [um], mu [Pa s]) with noise,
+    and with ``pixel_size_um`` given, a traced contour [px] (``noisy_contour``) per capsule.
 
     The batch is one material: every capsule has the modulus g_s [N/m], and its Ca_s was
-    reached by its flow rate, V = Ca_s g_s / mu (so v_c = (v_c/V) V).
+    reached by its flow rate, V = Ca_s g_s / mu (so v_c = (v_c/V) V). The contours' errors
+    come from a generator of their own, so that adding contours leaves the lengths unchanged.
     """
     rng = np.random.default_rng(seed)
+    contour_rng = np.random.default_rng(seed + 1000)
     rows = []
     for k, capsule in enumerate(capsules):
         if capsule.status != "steady":
             continue
         scale = 1 + noise * rng.standard_normal(3)
         mean_velocity_mm_s = capsule.Ca_s * g_s / mu_pa_s * 1e3
-        rows.append({"id": f"s{k + 1:03d}",
-                     "L_z": capsule.L_z * tube_radius_um * scale[0],
-                     "L_p": capsule.L_p * tube_radius_um * scale[1],
-                     "v_c": capsule.vc_over_V * mean_velocity_mm_s * scale[2],
-                     "tube_radius": tube_radius_um, "mu": mu_pa_s})
+        row: dict[str, float | str | np.ndarray] = {
+            "id": f"s{k + 1:03d}", "L_z": capsule.L_z * tube_radius_um * scale[0],
+            "L_p": capsule.L_p * tube_radius_um * scale[1], "v_c": capsule.vc_over_V * mean_velocity_mm_s * scale[2],
+            "tube_radius": tube_radius_um, "mu": mu_pa_s}
+        if pixel_size_um is not None:
+            row["pixel_size"] = pixel_size_um
+            row["contour"] = noisy_contour(capsule.meridian, tube_radius_um / pixel_size_um, contour_rng)
+        rows.append(row)
     return rows
 
 
-def write_tube_csv(rows: Sequence[dict[str, float | str]], path: str | Path, comment: str = "") -> Path:
-    """Write rows in the tube measurement format."""
+def write_tube_csv(rows: Sequence[dict[str, float | str | np.ndarray]], path: str | Path, comment: str = "") -> Path:
+    """Write rows in the tube measurement format; rows with a contour also get their contour
+    file (ImageJ XY format, pixels) in the folder ``<csv stem>_contours`` beside the CSV."""
     path = Path(path)
+    columns = ["L_z", "L_p", "v_c", "tube_radius", "mu"]
+    header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "mu [Pa s]"]
+    with_contours = bool(rows) and "contour" in rows[0]
+    if with_contours:
+        columns.append("pixel_size")
+        header += ["pixel_size [um]", "contour [px]"]
+        folder = path.with_name(f"{path.stem}_contours")
+        folder.mkdir(exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as stream:
         for line in comment.splitlines():
             stream.write(f"# {line}\n")
         writer = csv.writer(stream)
-        writer.writerow(["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "mu [Pa s]"])
+        writer.writerow(header)
         for row in rows:
-            writer.writerow([row["id"], *(f"{row[k]:.6g}" for k in ("L_z", "L_p", "v_c", "tube_radius", "mu"))])
+            cells = [row["id"], *(f"{row[k]:.6g}" for k in columns)]
+            if with_contours:
+                contour_file = folder / f"{row['id']}.txt"
+                np.savetxt(contour_file, row["contour"], fmt="%.3f", delimiter="\t", header="X\tY", comments="")
+                cells.append(f"{folder.name}/{contour_file.name}")
+            writer.writerow(cells)
     return path
