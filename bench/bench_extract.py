@@ -5,8 +5,10 @@ tube radius 60 px) is rendered first and written as one multi-page TIFF; the tim
 what the command does: reading the file, finding the walls, analysing every frame,
 measuring the capsules (velocity included) and writing the CSV, the contours and the
 per-frame report. Prints the frames per second and the total time; not a test.
+With ``--accuracy``, instead: the L_z and L_p errors (px) of the extraction on every steady
+profile of the development database (6 rendered frames each, l = 60 px).
 
-    .venv/bin/python bench/bench_extract.py [--frames 1000]
+    .venv/bin/python bench/bench_extract.py [--frames 1000] [--accuracy]
 """
 from __future__ import annotations
 
@@ -59,7 +61,37 @@ def run(n_frames: int) -> None:
         print(out.getvalue(), file=sys.stderr)
 
 
+def accuracy(radius_px: float = 60.0, n_frames: int = 6) -> None:
+    """Print the mean L_z and L_p error (px) per database profile, and their maximum and rms."""
+    from capsmech.extraction import FrameStack, extract
+    from capsmech.microscopy import drawn_lengths, render_stack
+
+    database = load_database(REPO / "data" / "databases" / "dev" / "tube.h5")
+    errors = []
+    for law in database.laws:
+        rows = database.law(law).steady_rows()
+        for i in range(len(rows["a_over_l"])):
+            outline = outline_from_meridian(rows["profile_r"][i], rows["profile_z"][i])
+            L_z, L_p = (length * radius_px for length in drawn_lengths(outline))
+            frames = render_stack(outline, n_frames, 130.3, 3.1, FrameStyle(axis_row=99.3, tube_radius_px=radius_px))
+            _, results = extract(FrameStack(list(frames), [str(k) for k in range(n_frames)]))
+            good = [r for r in results if r.good]
+            e_z = float(np.mean([r.L_z_px for r in good]) - L_z)
+            e_p = float(np.mean([r.L_p_px for r in good]) - L_p)
+            errors.append((e_z, e_p))
+            print(f"{law:>9} a/l {rows['a_over_l'][i]:.2f} Ca_s {rows['Ca_s'][i]:.3f}  L_z {L_z:6.1f} px  "
+                  f"L_p {L_p:5.1f} px  good {len(good)}/{n_frames}  error L_z {e_z:+.2f} px, L_p {e_p:+.2f} px")
+    e = np.array(errors)
+    print(f"{len(e)} profiles: largest |error| L_z {np.abs(e[:, 0]).max():.2f} px, L_p {np.abs(e[:, 1]).max():.2f} px; "
+          f"rms {np.sqrt((e[:, 0] ** 2).mean()):.2f}, {np.sqrt((e[:, 1] ** 2).mean()):.2f} px")
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000)
-    run(parser.parse_args().frames)
+    parser.add_argument("--accuracy", action="store_true", help="length errors over the database's profiles instead")
+    options = parser.parse_args()
+    if options.accuracy:
+        accuracy()
+    else:
+        run(options.frames)
