@@ -513,7 +513,8 @@ def analyse_frame(image: np.ndarray, walls: Walls, index: int = 0, label: str = 
     # The axial extremes from the outer edge, one half line width in: at the parachute's rim
     # the membrane folds back within a few line widths, the inner edge cannot enter the
     # fold and the mid-line there falls short (by 3 px for a 28 px deep parachute); the
-    # outer edge stays parallel to the membrane (mid-line: +3.3 px, outer edge: +0.3 px).
+    # outer edge stays parallel to the membrane (at 1 px smoothing, rear-most point of a 28 px
+    # deep parachute: mid-line +3.3 px, outer edge +0.3 px; +0.16 px at 0.6 px).
     half_width = float(np.median(np.hypot(*(outer - inner_dense[nearest]).T))) / 2
     result.x_front = float(outer[:, 0].max()) + c0 - 1 - half_width
     result.x_rear = float(outer[:, 0].min()) + c0 - 1 + half_width
