@@ -167,8 +167,9 @@ contains
       self%rz_ref(1, [1, n]) = 0.0_dp
       self%start_positions(1, [1, n]) = 0.0_dp
       self%positions = self%start_positions
-      call self%ref%init(self%rz_ref)
-      self%h_min = minval(self%ref%length0)
+      ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
+      call self%ref%init(self%rz_ref / (1.0_dp + opts%prestress))
+      self%h_min = minval(self%ref%length0) * (1.0_dp + opts%prestress)
       allocate (self%rz_pred(2, n), self%u0(2, n), self%u1(2, n), self%force(2, n), self%density(2, n))
       allocate (self%node_area(n), self%grad(2, n))
 

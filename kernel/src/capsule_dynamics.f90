@@ -67,7 +67,8 @@ contains
       n = self%mesh%n_nodes
       self%positions = self%x_ref
       self%start_positions = self%x_ref
-      call self%ref%init(self%mesh, self%x_ref)
+      ! Strains are measured from the stress-free sphere of radius 1/(1 + alpha).
+      call self%ref%init(self%mesh, self%x_ref / (1.0_dp + opts%prestress))
       ! Duffy 4x4 on touching triangles, 7-point rule on the next ring: the quadrature error is
       ! then far below the flat-triangle geometry error (translating-sphere test, orders 3-6).
       call self%single_layer%init(self%mesh, 4, 0)

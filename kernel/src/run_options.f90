@@ -32,6 +32,9 @@ module run_options
       !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
       real(dp) :: newton_tol = 1.0e-8_dp
       real(dp) :: nu_s = 0.5_dp
+      !> Pre-stress alpha: the stress-free membrane is the sphere of radius a/(1 + alpha),
+      !> inflated to radius a at rest (an isotropic pre-tension).
+      real(dp) :: prestress = 0.0_dp
       real(dp) :: c = 1.0_dp
       real(dp) :: ca = -huge(1.0_dp)
       integer :: level = 3
@@ -59,7 +62,7 @@ module run_options
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
-      ' [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
+      ' [--prestress ALPHA] [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -186,6 +189,8 @@ contains
             end select
          case ('--level')
             call read_int(key, value, opts%level)
+         case ('--prestress')
+            call read_real(key, value, opts%prestress)
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -345,6 +350,9 @@ contains
       end select
       if (.not. (opts%nu_s > -1.0_dp .and. opts%nu_s < 1.0_dp)) then
          errmsg = '--nu-s: must lie in (-1, 1), got '//real_text(opts%nu_s)
+      else if (.not. (opts%prestress >= 0.0_dp .and. opts%prestress <= 0.5_dp)) then
+         ! A compressed reference (alpha < 0) would buckle at rest: the model has no bending stiffness.
+         errmsg = '--prestress: must lie in [0, 0.5] (inflation of the stress-free sphere), got '//real_text(opts%prestress)
       else if (.not. (opts%c > -0.5_dp)) then
          errmsg = '--C: must be > -0.5 so that K_s = (1 + 2C) G_s > 0, got '//real_text(opts%c)
       else if (opts%ca == -huge(1.0_dp)) then
@@ -394,10 +402,10 @@ contains
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig
       character(len=1024) :: buf
-      write (buf, '(4(a,1x),2(i0,1x),l1,14(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
+      write (buf, '(4(a,1x),2(i0,1x),l1,15(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
          trim(opts%integrator), opts%level, opts%n_meridian, opts%volume_correction, opts%nu_s, opts%c, opts%ca, &
          opts%a_over_l, opts%dt, opts%dt_factor, opts%steady_tol, opts%shape_tol, opts%max_length, &
-         opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre
+         opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre, opts%prestress
       sig = trim(buf)
    end function option_signature
 

@@ -117,7 +117,8 @@ contains
          self%start_positions(3, :) = (c_axis / self%a) * self%x_ref(3, :)
       end if
       self%positions = self%start_positions
-      call self%ref%init(self%mesh, self%x_ref)
+      ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
+      call self%ref%init(self%mesh, self%x_ref / (1.0_dp + opts%prestress))
       ! As capsule_dynamics: Duffy 4x4 on touching triangles, 7-point rule on the next ring.
       call self%single_layer%init(self%mesh, 4, 0)
       self%near_rule = dunavant7_rule(0)

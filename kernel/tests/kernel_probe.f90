@@ -11,6 +11,7 @@
 !>   kernel_probe axi-laplace LAW NU_S C LAMBDA N_ELEMENTS
 !>   kernel_probe tube-jacobian A_OVER_L CA   (incremental vs brute-force Jacobian)
 !>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
+!>   kernel_probe rest LAW NU_S C ALPHA LEVEL STEPS   (pre-stressed capsule, no outer flow)
 program kernel_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
@@ -42,6 +43,8 @@ program kernel_probe
       call probe_bench(int_arg(2), int_arg(3))
    case ('translate')
       call probe_translate(int_arg(2), int_arg(3), int_arg(4))
+   case ('rest')
+      call probe_rest(real_arg(5), int_arg(6), int_arg(7))
    case default
       write (*, '(a)') 'usage: kernel_probe mesh|uniaxial|fd-forces|laplace|translate ...'
       error stop 2
@@ -269,6 +272,52 @@ contains
                                                           dim=1)) / exact
       write (*, '(a,es24.16)') 'pi_check ', pi
    end subroutine probe_translate
+
+   !> A capsule pre-stressed by alpha (--prestress) in a quiescent fluid: the load is the Laplace
+   !> pressure of the pre-tension, which drives no flow, so the capsule must stay at rest.
+   !> Prints the pressure against 2 T(1 + alpha)/a, the largest membrane velocity in units of
+   !> the pre-tension's velocity scale T/mu, and the largest radial drift after STEPS RK2 steps.
+   subroutine probe_rest(alpha, level, steps)
+      use capsule_dynamics, only: capsule_t
+      use run_options, only: run_options_t
+      real(dp), intent(in) :: alpha
+      integer, intent(in) :: level, steps
+      type(capsule_t) :: cap
+      type(run_options_t) :: opts
+      type(membrane_law_t) :: law
+      integer :: k, stat
+      character(len=:), allocatable :: errmsg
+      real(dp), allocatable :: u(:, :)
+      real(dp) :: t1, t2, pressure
+      character(len=64) :: name
+      call get_command_argument(2, name)
+      opts%flow = 'shear'
+      opts%law = trim(name)
+      opts%nu_s = real_arg(3)
+      opts%c = real_arg(4)
+      opts%prestress = alpha
+      opts%ca = 1.0_dp
+      opts%level = level
+      call cap%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      cap%flow = 0   ! no outer flow
+      law = cap%law
+      allocate (u(3, cap%mesh%n_nodes))
+      call cap%velocity(cap%positions, u)
+      call law%tensions(1.0_dp + alpha, 1.0_dp + alpha, t1, t2)
+      ! Tensions per current length are in G_s; u/Ca is in G_s/mu, the pressure in G_s/a.
+      pressure = 2.0_dp * t1
+      write (*, '(a,es24.16)') 'tension ', t1
+      write (*, '(a,es24.16)') 'pressure_exact ', pressure
+      write (*, '(a,es24.16)') 'pressure_mean ', -sum(sum(cap%density * cap%positions, dim=1) * cap%node_area) / sum(cap%node_area)
+      write (*, '(a,es24.16)') 'max_velocity ', maxval(norm2(u, dim=1))
+      if (t1 > 0.0_dp) write (*, '(a,es24.16)') 'max_velocity_over_tension ', maxval(norm2(u, dim=1)) / t1
+      do k = 1, steps
+         call cap%advance()
+      end do
+      write (*, '(a,es24.16)') 'time ', cap%t
+      write (*, '(a,es24.16)') 'max_radius_drift ', maxval(abs(norm2(cap%positions, dim=1) - 1.0_dp))
+   end subroutine probe_rest
 
    !> Timing of the hot path on a sheared capsule: one velocity evaluation (forces, single
    !> layer, volume-flux correction) and one RK2 step, on the current OpenMP thread count.
