@@ -29,7 +29,7 @@ GRID = {
     "databases_dir": "db",
     "results_dir": "res",
     "profile_points": 16,
-    "tube": {"laws": ["NH", "GH_nu0.5"], "a_over_l": [0.5], "Ca_s": [0.002],
+    "tube": {"laws": ["NH", "GH_nu0.5", "NH+prestress0.05"], "a_over_l": [0.5], "Ca_s": [0.002],
              "settings": {"n_meridian": 16}},
     "shear": {"laws": ["NH"], "Ca_s": [0.1, 3.0], "settings": {"level": 2, "t_max": 6}},
 }
@@ -89,6 +89,22 @@ def test_round_trip_tube(cases_dir: Path, tmp_path: Path) -> None:
     assert set(steady) == set(nh.columns) | set(nh.profiles)
     assert steady["L_z"].tolist() == [case.steady_value("L_z")] and steady["profile_z"].shape == (1, 16)
     assert gh.steady_rows()["vc_over_V"].size == 0
+
+
+def test_effect_is_a_database_dimension(cases_dir: Path, tmp_path: Path) -> None:
+    """A law key with an effect (issue 6) is its own group, made by the kernel with the effect's
+    flag, recorded in the group's attributes; a base-model case file in its place is refused."""
+    database = load_database(assemble_database(GRID, "tube", cases_dir, tmp_path / "tube.h5"))
+    inflated, base = database.law("NH+prestress0.05"), database.law("NH")
+    assert inflated.attrs["prestress"] == 0.05 and base.attrs["prestress"] == 0.0
+    assert read_case(cases_dir / "tube/NH+prestress0.05/a0.5_Ca0.002.h5").effects["prestress"] == 0.05
+    # The effect reached the kernel (its physics: tests/kernel/test_prestress.py).
+    assert inflated.columns["L_z"][0] != base.columns["L_z"][0]
+    copy = tmp_path / "cases"
+    shutil.copytree(cases_dir, copy)
+    shutil.copy(copy / "tube/NH/a0.5_Ca0.002.h5", copy / "tube/NH+prestress0.05/a0.5_Ca0.002.h5")
+    with pytest.raises(DatabaseError, match=r"not the case of the grid: prestress 0\.0, grid wants 0\.05"):
+        assemble_database(GRID, "tube", copy, tmp_path / "tube2.h5")
 
 
 def test_round_trip_shear_records_non_steady_rows(cases_dir: Path, tmp_path: Path) -> None:

@@ -32,6 +32,8 @@ BAD_GRIDS = [
     ("unknown setting", malformed(("tube", "settings"), {"n_meridan": 24}), "tube.settings: Additional properties are not allowed ('n_meridan'"),
     ("nu_s out of range", malformed(("tube", "laws"), ["GH_nu1.5"]), "tube.laws[0]: law key 'GH_nu1.5': nu_s must lie in (-1, 1)"),
     ("duplicate Ca", malformed(("shear", "Ca_s"), [0.05, 0.05]), "shear.Ca_s: duplicate values"),
+    ("unknown effect", malformed(("tube", "laws"), ["NH+swelling0.1"]), "tube.laws[0]: law key 'NH+swelling0.1': unknown effect 'swelling'"),
+    ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
 ]
 
 
@@ -80,6 +82,8 @@ def test_paper_grid_is_valid() -> None:
     ("SK_C1", Law("SK_C1", "SK", C=1.0), ["--law", "SK", "--C", "1"]),
     ("GH_nu0.5", Law("GH_nu0.5", "GH", nu_s=0.5), ["--law", "GH", "--nu-s", "0.5"]),
     ("GH_nu0", Law("GH_nu0", "GH", nu_s=0.0), ["--law", "GH", "--nu-s", "0"]),
+    ("GH_nu0.5+prestress0.05", Law("GH_nu0.5+prestress0.05", "GH", nu_s=0.5, effects=(("prestress", 0.05),)),
+     ["--law", "GH", "--nu-s", "0.5", "--prestress", "0.05"]),
 ])
 def test_law_keys_map_to_kernel_flags(key: str, law: Law, flags: list[str]) -> None:
     assert parse_law(key) == law

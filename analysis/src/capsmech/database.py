@@ -37,7 +37,7 @@ import numpy as np
 
 from capsmech import __version__
 from capsmech.grid import Case, expand_cases, flow_settings, grid_json, parse_law
-from capsmech.io import STATUSES, CaseResult, decode_str, require_hdf5_file
+from capsmech.io import EFFECT_DEFAULTS, STATUSES, CaseResult, decode_str, require_hdf5_file
 from capsmech.runner import read_outcome
 
 FORMAT = "capsmech-database"
@@ -122,6 +122,9 @@ def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
         numbers.append(("nu_s", expected.nu_s, result.nu_s))
     if expected.C is not None:
         numbers.append(("C", expected.C, result.C))
+    wanted_effects = dict(expected.effects)
+    for name, neutral in EFFECT_DEFAULTS.items():
+        numbers.append((name, wanted_effects.get(name, neutral), result.effects.get(name, neutral)))
     mismatch += [f"{name} {found!r}, grid wants {want!r}" for name, want, found in numbers
                  if not math.isclose(want, found, rel_tol=1e-12, abs_tol=1e-15)]
     if mismatch:
@@ -229,6 +232,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
                 "law": law.name,
                 "nu_s": math.nan if law.nu_s is None else law.nu_s,
                 "C": math.nan if law.C is None else law.C,
+                **{name: dict(law.effects).get(name, neutral) for name, neutral in EFFECT_DEFAULTS.items()},
                 "case_count": len(law_rows),
                 "steady_count": sum(row["status"] == "steady" for row in law_rows),
             })

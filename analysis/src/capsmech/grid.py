@@ -8,6 +8,8 @@ parameters in the kernel's ranges, no duplicate values). Every error names the k
 
 Law keys are the database's group names and map to kernel flags:
 ``NH`` -> ``--law NH``; ``SK_C1`` -> ``--law SK --C 1``; ``GH_nu0.5`` -> ``--law GH --nu-s 0.5``.
+A key may add effects beyond the base model (issue 6), each a further database dimension:
+``NH+prestress0.05`` -> ``--law NH --prestress 0.05`` (``EFFECTS`` lists those the kernel has).
 """
 
 from __future__ import annotations
@@ -33,7 +35,13 @@ SETTING_FLAGS = {
 }
 
 _NUMBER = r"-?[0-9]+(?:\.[0-9]+)?"
-_LAW_KEY = re.compile(rf"^(?:NH|SK_C(?P<C>{_NUMBER})|GH_nu(?P<nu_s>{_NUMBER}))$")
+_LAW_KEY = re.compile(rf"^(?:NH|SK_C(?P<C>{_NUMBER})|GH_nu(?P<nu_s>{_NUMBER}))(?P<effects>(?:\+[a-z_]+{_NUMBER})*)$")
+_EFFECT = re.compile(rf"\+(?P<name>[a-z_]+)(?P<value>{_NUMBER})")
+
+#: Effects a law key may add: name -> (kernel flag, range check, the range in words).
+EFFECTS = {
+    "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
+}
 
 
 class GridError(ValueError):
@@ -59,20 +67,25 @@ class Law:
         Surface Poisson ratio [-] (GH only).
     C : float or None
         Skalak area-dilatation parameter [-] (SK only).
+    effects : tuple of (str, float)
+        Effects beyond the base model, e.g. ``(('prestress', 0.05),)``.
     """
 
     key: str
     name: str
     nu_s: float | None = None
     C: float | None = None
+    effects: tuple[tuple[str, float], ...] = ()
 
     def kernel_args(self) -> list[str]:
-        """Return the capsim flags that select this law."""
+        """Return the capsim flags that select this law (and its effects)."""
         args = ["--law", self.name]
         if self.C is not None:
             args += ["--C", f"{self.C:g}"]
         if self.nu_s is not None:
             args += ["--nu-s", f"{self.nu_s:g}"]
+        for name, value in self.effects:
+            args += [EFFECTS[name][0], repr(value)]
         return args
 
 
@@ -92,18 +105,29 @@ def parse_law(key: str) -> Law:
     """
     match = _LAW_KEY.match(key)
     if match is None:
-        raise GridError(f"unknown law key {key!r}: expected NH, SK_C<C> or GH_nu<nu_s>")
+        raise GridError(f"unknown law key {key!r}: expected NH, SK_C<C> or GH_nu<nu_s>, "
+                        f"optionally followed by effects +<name><value> ({', '.join(EFFECTS)})")
+    effects: list[tuple[str, float]] = []
+    for effect in _EFFECT.finditer(match["effects"]):
+        name, value = effect["name"], float(effect["value"])
+        if name not in EFFECTS:
+            raise GridError(f"law key {key!r}: unknown effect {name!r} (the kernel has {', '.join(EFFECTS)})")
+        if any(name == seen for seen, _ in effects):
+            raise GridError(f"law key {key!r}: effect {name!r} given twice")
+        if not EFFECTS[name][1](value):
+            raise GridError(f"law key {key!r}: {name} must lie {EFFECTS[name][2]}")
+        effects.append((name, value))
     if match["C"] is not None:
         C = float(match["C"])
         if not C > -0.5:
             raise GridError(f"law key {key!r}: Skalak C must be > -0.5")
-        return Law(key, "SK", C=C)
+        return Law(key, "SK", C=C, effects=tuple(effects))
     if match["nu_s"] is not None:
         nu_s = float(match["nu_s"])
         if not -1.0 < nu_s < 1.0:
             raise GridError(f"law key {key!r}: nu_s must lie in (-1, 1)")
-        return Law(key, "GH", nu_s=nu_s)
-    return Law(key, "NH")
+        return Law(key, "GH", nu_s=nu_s, effects=tuple(effects))
+    return Law(key, "NH", effects=tuple(effects))
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,9 @@ REQUIRED_ATTRS = (
 _STR_ATTRS = ("code_version", "flow", "law", "status", "message")
 _INT_ATTRS = ("schema_version", "mesh_level", "threads")
 _FLOAT_ATTRS = ("nu_s", "C", "Ca_s", "dt", "wall_time_s")
+#: Effects beyond the base model (issue 6): root attribute -> its neutral value, which a case
+#: file written before the effect existed implicitly has.
+EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0}
 
 
 class CaseFileError(ValueError):
@@ -122,6 +125,9 @@ class CaseResult:
         e.g. ``'steady/D12'``.
     path : str
         File the case was read from.
+    effects : dict[str, float]
+        Effects beyond the base model (``EFFECT_DEFAULTS``: pre-stress alpha, viscosity ratio
+        lambda), their neutral values when the file does not record them.
     """
 
     flow: str
@@ -144,6 +150,7 @@ class CaseResult:
     mesh: dict[str, np.ndarray]
     units: dict[str, str] = field(default_factory=dict)
     path: str = ""
+    effects: dict[str, float] = field(default_factory=dict)
 
     @property
     def is_steady(self) -> bool:
@@ -508,6 +515,8 @@ def _read_open_case(f: h5py.File, where: str) -> CaseResult:
         mesh=_read_mesh(f, where, attrs["flow"]),
         units=units,
         path=where,
+        effects={name: float(to_scalar(f.attrs[name])) if name in f.attrs else default
+                 for name, default in EFFECT_DEFAULTS.items()},
     )
 
 
