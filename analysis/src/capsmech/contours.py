@@ -184,3 +184,22 @@ def profile_misfit(contour: np.ndarray, meridian: np.ndarray, axis_y: float | No
     best = minimize_scalar(distance, bounds=(start - 0.1 * length, start + 0.1 * length), method="bounded",
                            options={"xatol": 1e-5 * length})
     return float(best.fun), float(best.x)
+
+
+def volume_radius(contour: np.ndarray, axis_y: float, half: str | None = None) -> float:
+    """Radius of the sphere with the volume of the contour revolved about y = axis_y.
+
+    V = pi |closed integral of rho |rho| / 2 dx| over the closed contour (Green's theorem;
+    holds for any start point and for a rear that folds back). With ``half`` = 'upper' or
+    'lower', the volume of that half mirrored (rho replaced by the half's own distances).
+    """
+    closed = np.vstack([contour, contour[:1]])
+    rho = closed[:, 1] - axis_y
+    if half == "upper":
+        rho = np.maximum(rho, 0.0)
+    elif half == "lower":
+        rho = np.minimum(rho, 0.0)
+    mid = 0.5 * (rho[1:] + rho[:-1])
+    factor = 1.0 if half is None else 2.0
+    volume = factor * np.pi * abs(np.sum(0.5 * mid * np.abs(mid) * np.diff(closed[:, 0])))
+    return float((3 * volume / (4 * np.pi)) ** (1 / 3))

@@ -21,16 +21,19 @@ from typing import Any
 import h5py
 import numpy as np
 
-from capsmech.contours import ASYMMETRY_PIXELS, MAX_ASYMMETRY, MAX_H_OVER_A, profile_misfit, symmetry_axis
+from capsmech.contours import (ASYMMETRY_PIXELS, MAX_ASYMMETRY, MAX_H_OVER_A, profile_misfit, symmetry_axis,
+                               volume_radius)
 from capsmech.database import Database, ShearDatabase, TubeDatabase
 from capsmech.inverse import ShearInverter, TubeInverter, TubeTable, profile_elongation
 from capsmech.measurements import Capsule
+from capsmech.residuals import size_residual, velocity_residual
 
 #: Result columns and their units.
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
-                     "valid_fits": "1", "H_over_a": "1", "asymmetry": "1", "flag": ""}
+                     "valid_fits": "1", "H_over_a": "1", "asymmetry": "1", "size_residual": "1",
+                     "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
                       "G_s": "N/m", "flag": ""}
 
@@ -92,7 +95,7 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
         asymmetry, asymmetry_limit, axis_y = float("nan"), MAX_ASYMMETRY, None
         if capsule.contour is not None:
             axis_y, mirror_distance = symmetry_axis(capsule.contour)
-            radius = _contour_radius(capsule.contour, axis_y)
+            radius = volume_radius(capsule.contour, axis_y)
             asymmetry = mirror_distance / radius
             if math.isfinite(capsule["pixel_size"]):
                 asymmetry_limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * capsule["pixel_size"] / radius)
@@ -104,7 +107,9 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
                                    "vc_over_V": fits.mean("vc_over_V"), "G_s": fits.mean("G_s"),
                                    "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
-                                   "H_over_a": float("nan"), "asymmetry": asymmetry, "flag": ""}
+                                   "H_over_a": float("nan"), "asymmetry": asymmetry,
+                                   "size_residual": float("nan"), "size_residual_error": float("nan"),
+                                   "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": ""}
             central = fits.fits["fit1"]
             meridian = inverters[law].profile(central.a_over_l, central.Ca_s) if central.ok else None
             if meridian is not None:
@@ -112,6 +117,13 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
                 if capsule.contour is not None:
                     misfit, _ = profile_misfit(capsule.contour, meridian * l, axis_y)
                     row["H_over_a"] = misfit / (central.a_over_l * l)
+                    # Its uncertainty: the contour's (two halves) and the fitted a's (five fits).
+                    residual, contour_error = size_residual(capsule.contour, central.a_over_l * l)
+                    row["size_residual"] = residual
+                    row["size_residual_error"] = math.hypot(contour_error, row["a_over_l_spread"] / central.a_over_l)
+            if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
+                row["vc_residual"], row["vc_residual_error"] = velocity_residual(
+                    v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
             if fits.n_valid == 0:
                 row["flag"] = fits.fits["fit1"].flag or "no valid fit"
             elif not fits.fits["fit1"].ok:
@@ -173,19 +185,6 @@ def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: st
         raise ValueError(f"{out}: results go to .csv or .h5")
     os.replace(tmp, out)
     return out
-
-
-def _contour_radius(contour: np.ndarray, axis_y: float) -> float:
-    """Radius of the sphere of the contour's volume, the contour revolved about y = axis_y.
-
-    V = 2 pi * integral of rho over the upper half's area = pi * integral of |rho| over the
-    whole (symmetric) area = pi |closed integral of rho |rho| / 2 dx| by Green's theorem,
-    which holds for any start point and for a rear that folds back (parachute)."""
-    closed = np.vstack([contour, contour[:1]])
-    rho = closed[:, 1] - axis_y
-    mid = 0.5 * (rho[1:] + rho[:-1])
-    volume = np.pi * abs(np.sum(0.5 * mid * np.abs(mid) * np.diff(closed[:, 0])))
-    return float((3 * volume / (4 * np.pi)) ** (1 / 3))
 
 
 def _cell(value: Any) -> str:

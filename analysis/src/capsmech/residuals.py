@@ -1,0 +1,160 @@
+"""What a fit leaves unexplained (issue 7, part 1): residuals of fitted tube capsules, each
+with its uncertainty, for one capsule and averaged over a batch.
+
+- **Contour profile**: the signed normal distance from the fitted (simulated) meridian to the
+  measured contour, along the meridian's arclength s (0 at the front pole, 1 at the rear
+  pole), positive when the measured membrane lies outside. Each half of the contour (above
+  and below the axis) gives one estimate; their mean is the residual and half their
+  difference its standard error (the two halves see independent tracing errors).
+- **Size**: the radius of the sphere of the contour's volume against the fitted a = (a/l) l,
+  as a relative residual; its uncertainty from the two halves' volumes.
+- **Velocity** (when the mean flow velocity V is known): measured v_c/V against the fitted
+  v_c/V, relative; uncertainty: the spread of the five fits.
+
+A batch's profile residual is the mean over its capsules at each s, with the standard error
+of that mean: a systematic pattern (an offset everywhere, a bulge at the rim) is what points
+to a missing effect, while tracing noise averages out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from capsmech.contours import profile_misfit, resample_curve, symmetry_axis, volume_radius
+
+#: Points of the residual profile along the meridian.
+PROFILE_POINTS = 64
+#: Regions of the profile by normalised arclength s (front pole 0, rear pole 1), for reports.
+REGIONS = (("front", 0.0, 0.3), ("side", 0.3, 0.6), ("rear", 0.6, 1.0))
+
+
+@dataclass(frozen=True)
+class ProfileResidual:
+    """Signed normal distance, measured minus fitted, along the fitted meridian.
+
+    Attributes
+    ----------
+    s : np.ndarray
+        Normalised arclength from the front pole (0) to the rear pole (1).
+    distance : np.ndarray
+        Mean over the contour's two halves [units of the inputs]; positive outward.
+    error : np.ndarray
+        Standard error of ``distance`` (half the two halves' difference).
+    """
+
+    s: np.ndarray
+    distance: np.ndarray
+    error: np.ndarray
+
+
+def _meridian_normals(meridian_zr: np.ndarray) -> np.ndarray:
+    """Outward unit normals of a meridian given as (z, r) from the front pole (largest z) to the
+    rear pole: the curve runs counter-clockwise in the (z, r) half-plane, so the outward normal
+    is the tangent turned clockwise."""
+    tangent = np.gradient(meridian_zr, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1)[:, None]
+    return np.column_stack([tangent[:, 1], -tangent[:, 0]])
+
+
+def profile_residual(contour: np.ndarray, meridian: np.ndarray, points: int = PROFILE_POINTS) -> ProfileResidual:
+    """Residual profile of one capsule.
+
+    The contour's axis is its axis of symmetry. Its axial position, which the image does not
+    fix, is the one that leaves no residual along the axial-shift mode: the least-squares
+    shift, i.e. the weighted mean of the residual's component along n_z vanishes. (The
+    Hausdorff distance cannot fix it: a uniform outward offset has the same mean distance
+    for every small shift.)
+
+    Parameters
+    ----------
+    contour : np.ndarray
+        Measured contour (n, 2) of image coordinates (x along the axis, flow in +x).
+    meridian : np.ndarray
+        Fitted meridian (m, 2) of (r, z) in the contour's units, front pole first.
+    points : int
+        Points of the profile along the meridian.
+    """
+    axis_y, _ = symmetry_axis(contour)
+    _, shift = profile_misfit(contour, meridian, axis_y)
+    measured = resample_curve(contour, closed=True)
+    rho = measured[:, 1] - axis_y
+    simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
+    normals = _meridian_normals(simulated)
+    step = np.linalg.norm(np.diff(simulated, axis=0), axis=1)
+    weight = np.concatenate([[0.5 * step[0]], 0.5 * (step[1:] + step[:-1]), [0.5 * step[-1]]])
+
+    def halves_at(shift: float) -> list[np.ndarray]:
+        estimates = []
+        for side in (rho >= 0, rho < 0):
+            half = np.column_stack([measured[side, 0] - shift, np.abs(rho[side])])
+            if len(half) < 2:
+                raise ValueError("contour has no points on one side of its axis")
+            _, nearest = cKDTree(half).query(simulated)
+            estimates.append(np.sum((half[nearest] - simulated) * normals, axis=1))
+        return estimates
+
+    for _ in range(4):
+        upper, lower = halves_at(shift)
+        mean = 0.5 * (upper + lower)
+        # Moving the contour by +dz changes the residual by n_z dz to first order.
+        correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
+        shift += correction
+        if abs(correction) < 1e-6 * np.ptp(simulated[:, 0]):
+            break
+    upper, lower = halves_at(shift)
+    arclength = np.concatenate([[0.0], np.cumsum(step)])
+    return ProfileResidual(s=arclength / arclength[-1], distance=0.5 * (upper + lower), error=0.5 * np.abs(upper - lower))
+
+
+def size_residual(contour: np.ndarray, a_fit: float) -> tuple[float, float]:
+    """(a_contour / a_fit - 1, its standard error from the two halves' volumes)."""
+    axis_y, _ = symmetry_axis(contour)
+    whole = volume_radius(contour, axis_y)
+    upper, lower = volume_radius(contour, axis_y, "upper"), volume_radius(contour, axis_y, "lower")
+    return whole / a_fit - 1.0, 0.5 * abs(upper - lower) / a_fit
+
+
+def velocity_residual(measured_vc_over_V: float, fitted_vc_over_V: float, fitted_spread: float) -> tuple[float, float]:
+    """(measured / fitted v_c/V - 1, its uncertainty from the five fits' spread)."""
+    return measured_vc_over_V / fitted_vc_over_V - 1.0, fitted_spread / fitted_vc_over_V
+
+
+@dataclass(frozen=True)
+class BatchProfile:
+    """Mean residual profile of a batch at common s, with the standard error of the mean."""
+
+    s: np.ndarray
+    distance: np.ndarray
+    error: np.ndarray
+    count: int
+
+    def region_means(self) -> dict[str, tuple[float, float]]:
+        """Mean distance and its standard error over each of ``REGIONS``."""
+        out = {}
+        for name, low, high in REGIONS:
+            keep = (self.s >= low) & (self.s <= high)
+            out[name] = (float(self.distance[keep].mean()), float(np.sqrt(np.mean(self.error[keep] ** 2))))
+        return out
+
+
+def batch_profile(residuals: list[ProfileResidual], scales: list[float] | None = None) -> BatchProfile:
+    """Average capsules' residual profiles (each divided by its scale, e.g. its radius a).
+
+    The standard error at each s combines the scatter between capsules (standard deviation
+    over sqrt(n)), which holds every source of noise, with the halves' own errors when the
+    batch is too small for a scatter (one capsule).
+    """
+    if not residuals:
+        raise ValueError("no residual profiles to average")
+    s = residuals[0].s
+    scales = scales or [1.0] * len(residuals)
+    stack = np.array([np.interp(s, r.s, r.distance) / k for r, k in zip(residuals, scales)])
+    halves = np.array([np.interp(s, r.s, r.error) / k for r, k in zip(residuals, scales)])
+    n = len(residuals)
+    if n > 1:
+        error = stack.std(axis=0, ddof=1) / np.sqrt(n)
+    else:
+        error = halves[0]
+    return BatchProfile(s=s, distance=stack.mean(axis=0), error=error, count=n)
