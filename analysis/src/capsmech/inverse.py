@@ -238,6 +238,10 @@ class TubeInverter:
         z = weights @ self.table.profile_z[vertices]
         return np.column_stack([r, z])
 
+    def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
+        """v_c/V at (a/l, Ca_s), linear in the Delaunay triangle (NaN outside the database)."""
+        return float(self._velocity((np.array([a_over_l, np.log(Ca_s)]) / self._p_scale)[None, :])[0])
+
     def five_fits(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> FiveFits:
         """Fits 1-5 of paper section 4.2 (L_z and L_p -+2 %, then L_p alone -+2 %)."""
         return FiveFits({name: self.fit(L_z * fz, L_p * fp, v_c, mu) for name, fz, fp in FIVE_FITS})

@@ -1,0 +1,407 @@
+"""Close the loop (issue 7): which effect the base model lacks, from what the fits leave.
+
+For a batch fitted with a base law, each candidate effect adds one parameter theta (shared
+by the batch) to the forward model. The batch is refitted over a grid of theta, and every
+capsule's contour residual (``capsmech.residuals.profile_residual``) is scored by
+
+    chi2_i(theta) = sum over PROFILE_POINTS points of (d(s) / sigma_i)**2,
+
+sigma_i the capsule's own noise level, measured once on the base fit from the disagreement
+of its contour's two halves (independent tracing errors; ``ProfileResidual.error``). The
+points are few enough (16 along the meridian, ~20 px apart on a 90 px capsule) to be nearly
+independent.
+
+A candidate is **supported** when both
+- leave-one-capsule-out cross-validation improves: theta fitted on the other capsules
+  lowers the held-out capsules' chi2 (one-sided Wilcoxon signed-rank test across
+  capsules, p < 0.05); and
+- the Bayesian information criterion falls by more than ``MIN_BIC_DROP`` (strong evidence),
+  counting one parameter.
+The supported candidate with the largest BIC drop is reported, with theta and its interval
+(two jackknife standard errors from the leave-one-out fits), and G_s before and after. When no
+candidate is supported, the residual is within noise: that is a valid answer.
+
+Candidates
+----------
+Measurement effects need no new simulation:
+- ``contour_offset`` (pixels): the traced line lies delta outside the membrane (e.g. the
+  dark line's outer edge instead of its middle); the contour is moved in by delta along its
+  normals and L_z shortened by 2 delta.
+- ``tube_radius`` (relative): the capillary's radius is l (1 + eps), not the nominal l.
+Model effects come from the database: every other law group (another law or nu_s, or a
+law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
+one discrete parameter.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from scipy import stats
+from scipy.optimize import minimize
+from scipy.spatial import cKDTree
+
+from capsmech.contours import resample_curve, symmetry_axis
+from capsmech.database import TubeDatabase
+from capsmech.fitting import fit_tube, tube_inverter
+from capsmech.inverse import TubeInverter, profile_elongation
+from capsmech.measurements import Capsule
+from capsmech.population import law_drift
+from capsmech.residuals import _meridian_normals
+
+#: Points of each capsule's residual profile in the score.
+PROFILE_POINTS = 16
+#: BIC drop that counts as strong evidence (Kass & Raftery 1995: > 6).
+MIN_BIC_DROP = 6.0
+#: Significance of the cross-validated improvement (one-sided Wilcoxon signed-rank test).
+CV_ALPHA = 0.05
+
+
+def offset_contour(contour: np.ndarray, delta: float) -> np.ndarray:
+    """The closed contour moved outward by delta along its normals (inward for delta < 0).
+
+    The normals come from the contour smoothed over 5 neighbouring points, so that tracing
+    noise does not turn them; the traced points themselves are moved."""
+    kernel = np.ones(5) / 5
+    padded = np.vstack([contour[-2:], contour, contour[:2]])
+    smooth = np.column_stack([np.convolve(padded[:, k], kernel, mode="valid") for k in range(2)])
+    tangent = np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1)[:, None]
+    normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    if np.mean(np.sum((smooth - smooth.mean(axis=0)) * normal, axis=1)) < 0:
+        normal = -normal
+    return contour + delta * normal
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect: a name, its parameter's name and unit, the grid of values to try, the
+    neutral value (the base model), and how a value changes the capsules or the law."""
+
+    name: str
+    parameter: str
+    unit: str
+    values: tuple[float, ...]
+    neutral: float
+    apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
+
+
+def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
+    """Traced contour offset outward by delta pixels (needs a ``pixel_size`` column)."""
+
+    def apply(capsules: Sequence[Capsule], delta: float) -> tuple[list[Capsule], str]:
+        out = []
+        for c in capsules:
+            pixel = c["pixel_size"]
+            if c.contour is None or not math.isfinite(pixel):
+                out.append(c)
+                continue
+            values = dict(c.values)
+            values["L_z"] = c["L_z"] - 2 * delta * pixel
+            out.append(replace(c, values=values, contour=offset_contour(c.contour, -delta * pixel)))
+        return out, base_law
+
+    values = tuple(np.round(np.arange(-2 * step_px, max_px + 1e-9, step_px), 6))
+    return Candidate("contour_offset", "delta", "px", values, 0.0, apply)
+
+
+def tube_radius_candidate(base_law: str, max_rel: float = 0.045, step: float = 0.015) -> Candidate:
+    """The capillary radius is l (1 + eps) instead of the nominal l."""
+
+    def apply(capsules: Sequence[Capsule], eps: float) -> tuple[list[Capsule], str]:
+        out = []
+        for c in capsules:
+            values = dict(c.values)
+            values["tube_radius"] = c["tube_radius"] * (1 + eps)
+            out.append(replace(c, values=values))
+        return out, base_law
+
+    values = tuple(np.round(np.arange(-max_rel, max_rel + 1e-9, step), 6))
+    return Candidate("tube_radius", "eps", "1", values, 0.0, apply)
+
+
+def law_candidate(base_law: str, other_law: str) -> Candidate:
+    """Another database group (law, nu_s, or a law key with an effect) instead of the base:
+    one discrete parameter, 0 = base, 1 = the other group."""
+
+    def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str]:
+        return list(capsules), other_law if which >= 0.5 else base_law
+
+    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply)
+
+
+@dataclass
+class CandidateResult:
+    """The outcome of one candidate on a batch."""
+
+    name: str
+    parameter: str
+    unit: str
+    theta: float = math.nan
+    interval: tuple[float, float] = (math.nan, math.nan)
+    chi2_base: float = math.nan
+    chi2: float = math.nan
+    bic_drop: float = math.nan
+    cv_gain: float = math.nan
+    cv_gain_error: float = math.nan
+    cv_p_value: float = math.nan
+    supported: bool = False
+    g_s_before: tuple[float, float] = (math.nan, math.nan)
+    g_s_after: tuple[float, float] = (math.nan, math.nan)
+    drift_p_before: float = math.nan
+    drift_p_after: float = math.nan
+    capsules: int = 0
+    note: str = ""
+    profile_chi2: dict[float, np.ndarray] = field(default_factory=dict, repr=False)
+
+
+@dataclass
+class BatchScore:
+    """Per-capsule chi2, G_s and Delta of one contour fit of the batch (NaN: no fit)."""
+
+    chi2: np.ndarray
+    g_s: np.ndarray
+    delta: np.ndarray
+
+
+class PreparedContour:
+    """A measured contour folded about its axis into its two halves (z, r), with a k-d tree per
+    half, so that residuals against many trial meridians cost two tree queries each."""
+
+    def __init__(self, contour: np.ndarray) -> None:
+        self.axis_y, _ = symmetry_axis(contour)
+        measured = resample_curve(contour, closed=True)
+        rho = measured[:, 1] - self.axis_y
+        self.halves = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]
+        if min(len(h) for h in self.halves) < 2:
+            raise ValueError("contour has no points on one side of its axis")
+        self.trees = [cKDTree(h) for h in self.halves]
+        self.front = float(measured[:, 0].max())
+
+    def residual(self, meridian: np.ndarray, points: int = PROFILE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+        """(distance, error) along the meridian (r, z) [contour units]: measured minus simulated
+        along the outward normal, mean and half difference of the halves; the axial position
+        by least squares (no residual along the shift mode)."""
+        simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
+        normals = _meridian_normals(simulated)
+        step = np.linalg.norm(np.diff(simulated, axis=0), axis=1)
+        weight = np.concatenate([[0.5 * step[0]], 0.5 * (step[1:] + step[:-1]), [0.5 * step[-1]]])
+        shift = self.front - simulated[:, 0].max()
+        for _ in range(4):
+            placed = simulated + [shift, 0.0]
+            estimates = [np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
+                         for half, tree in zip(self.halves, self.trees)]
+            mean = 0.5 * (estimates[0] + estimates[1])
+            correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
+            shift -= correction
+            if abs(correction) < 1e-4 * np.ptp(simulated[:, 0]):
+                break
+        placed = simulated + [shift, 0.0]
+        upper, lower = (np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
+                        for half, tree in zip(self.halves, self.trees))
+        return 0.5 * (upper + lower), 0.5 * np.abs(upper - lower)
+
+
+def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float, start: tuple[float, float],
+                sigma: float) -> tuple[float, float, float]:
+    """(a/l, Ca_s, chi2): the database point whose profile best fits the contour (least
+    squares of the residual profile, Nelder-Mead in (a/l, ln Ca_s) from ``start``)."""
+
+    def chi2(p: np.ndarray) -> float:
+        meridian = inverter.profile(float(p[0]), float(np.exp(p[1])))
+        if meridian is None:
+            return 1e12
+        distance, _ = prepared.residual(meridian * tube_radius)
+        return float(np.sum((distance / sigma) ** 2))
+
+    x0 = np.array([start[0], math.log(start[1])])
+    # Tolerances: 1e-3 in a/l and ln Ca_s is far below the five fits' spread; 0.05 in chi2 is
+    # far below the differences the criteria act on.
+    best = minimize(chi2, x0, method="Nelder-Mead",
+                    options={"xatol": 1e-3, "fatol": 0.05, "initial_simplex": [x0, x0 + [0.02, 0], x0 + [0, 0.1]]})
+    return float(best.x[0]), float(np.exp(best.x[1])), float(best.fun)
+
+
+def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, sigma: np.ndarray,
+                prepared: Sequence[PreparedContour] | None = None) -> BatchScore:
+    """Fit every capsule's contour with one law; chi2, G_s and Delta per capsule."""
+    rows = fit_tube(capsules, database, [law], contour_checks=False)
+    inverter = tube_inverter(database, law)
+    n = len(capsules)
+    chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    for i, (capsule, row) in enumerate(zip(capsules, rows)):
+        if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
+            continue
+        contour = prepared[i] if prepared is not None else PreparedContour(capsule.contour)
+        l = capsule["tube_radius"]
+        a_over_l, ca, chi2[i] = contour_fit(contour, inverter, l, (row["a_over_l"], row["Ca_s"]), sigma[i])
+        if chi2[i] >= 1e12:
+            chi2[i] = np.nan
+            continue
+        velocity = inverter.velocity_ratio(a_over_l, ca)
+        if math.isfinite(capsule["v_c"]) and math.isfinite(capsule["mu"]) and velocity > 0:
+            g_s[i] = capsule["mu"] * capsule["v_c"] / (ca * velocity)
+        meridian = inverter.profile(a_over_l, ca)
+        if meridian is not None:
+            delta[i] = profile_elongation(meridian, a_over_l)
+    return BatchScore(chi2, g_s, delta)
+
+
+def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) -> np.ndarray:
+    """Each capsule's tracing-noise level: the rms over the meridian of the half difference of
+    its contour's two halves (the standard error of the mean residual at a point), measured
+    against its length-based fit."""
+    rows = fit_tube(capsules, database, [law], contour_checks=False)
+    inverter = tube_inverter(database, law)
+    sigma = np.full(len(capsules), np.nan)
+    for i, (capsule, row) in enumerate(zip(capsules, rows)):
+        if capsule.contour is None or not math.isfinite(row["a_over_l"]):
+            continue
+        meridian = inverter.profile(row["a_over_l"], row["Ca_s"])
+        if meridian is None:
+            continue
+        _, error = PreparedContour(capsule.contour).residual(meridian * capsule["tube_radius"], points=64)
+        sigma[i] = float(np.sqrt(np.mean(error ** 2)))
+    return sigma
+
+
+def _parabola_minimum(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Minimum of y(x) on a grid refined by a parabola through the lowest point and its two
+    neighbours: (x_min, y_min)."""
+    k = int(np.nanargmin(y))
+    if k == 0 or k == len(x) - 1 or not np.all(np.isfinite(y[k - 1:k + 2])):
+        return float(x[k]), float(y[k])
+    a, b, c = np.polyfit(x[k - 1:k + 2], y[k - 1:k + 2], 2)
+    if a <= 0:
+        return float(x[k]), float(y[k])
+    x_min = float(np.clip(-b / (2 * a), x[k - 1], x[k + 1]))
+    return x_min, float(np.polyval([a, b, c], x_min))
+
+
+def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, float], float]:
+    g = score.g_s[keep]
+    g = g[np.isfinite(g)]
+    summary = (float(np.mean(g)), float(np.std(g, ddof=1))) if len(g) > 1 else (math.nan, math.nan)
+    p = math.nan
+    finite = keep & np.isfinite(score.g_s) & np.isfinite(score.delta)
+    if finite.sum() >= 3 and np.ptp(score.delta[finite]) > 0:
+        p = law_drift("batch", score.delta[finite], score.g_s[finite]).p_value
+    return summary, p
+
+
+def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
+                       sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour]) -> CandidateResult:
+    """Refit the batch over the candidate's grid; fit theta, its interval, the criteria."""
+    result = CandidateResult(candidate.name, candidate.parameter, candidate.unit)
+    values = np.array(candidate.values, dtype=float)
+
+    def refit(value: float) -> BatchScore:
+        changed, law = candidate.apply(capsules, value)
+        # Contours the candidate leaves alone keep their prepared halves.
+        same = all(c.contour is o.contour for c, o in zip(changed, capsules))
+        return score_batch(changed, database, law, sigma, prepared if same else None)
+
+    scores = [base if value == candidate.neutral else refit(float(value)) for value in values]
+    table = np.array([s.chi2 for s in scores])                  # (values, capsules)
+    usable = np.all(np.isfinite(table), axis=0) & np.isfinite(base.chi2)
+    result.capsules = int(usable.sum())
+    if result.capsules < 3:
+        result.note = f"only {result.capsules} capsules fitted at every {candidate.parameter}: not assessed"
+        return result
+    table = table[:, usable]
+    # Refine on the fly: evaluate at the parabola's minimum and add it to the grid (twice), so
+    # that the minimum chi2 the criteria compare is computed, not extrapolated.
+    if len(values) > 2:
+        for _ in range(2):
+            theta, _ = _parabola_minimum(values, table.sum(axis=1))
+            if np.any(np.isclose(values, theta, rtol=0, atol=1e-9)):
+                break
+            extra = refit(theta).chi2[usable]
+            if not np.all(np.isfinite(extra)):
+                break
+            order = np.argsort(np.append(values, theta))
+            values = np.append(values, theta)[order]
+            table = np.vstack([table, extra])[order]
+    total = table.sum(axis=1)
+    k = int(np.argmin(total))
+    theta, chi2_min = float(values[k]), float(total[k])
+    result.theta, result.chi2 = theta, chi2_min
+    result.chi2_base = float(base.chi2[usable].sum())
+    n_points = result.capsules * PROFILE_POINTS
+    result.bic_drop = float(result.chi2_base - chi2_min - math.log(n_points))
+    # Leave one capsule out: theta from the others, scored on the one left out.
+    gains, thetas = [], []
+    for i in range(result.capsules):
+        others = total - table[:, i]
+        theta_i, _ = _parabola_minimum(values, others)
+        thetas.append(theta_i)
+        held_out = float(np.interp(theta_i, values, table[:, i]))
+        gains.append(float(base.chi2[usable][i]) - held_out)
+    gains, thetas = np.array(gains), np.array(thetas)
+    # The interval is the jackknife's: it holds the scatter between capsules (model error
+    # included), which a chi2 rise of 1 would not.
+    n = len(thetas)
+    jackknife = math.sqrt((n - 1) / n * np.sum((thetas - thetas.mean()) ** 2))
+    result.interval = (theta - 2 * jackknife, theta + 2 * jackknife)
+    result.cv_gain = float(gains.mean())
+    result.cv_gain_error = float(gains.std(ddof=1) / np.sqrt(n))
+    # Paired, one-sided: do held-out capsules fit better? (Wilcoxon: the gains are far from normal.)
+    p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
+    result.cv_p_value = p_value
+    result.supported = bool(p_value < CV_ALPHA and result.bic_drop > MIN_BIC_DROP)
+    after = refit(theta)
+    result.g_s_before, result.drift_p_before = _g_s_summary(base, usable)
+    result.g_s_after, result.drift_p_after = _g_s_summary(after, usable)
+    return result
+
+
+@dataclass
+class Diagnosis:
+    """Every candidate's result and the verdict."""
+
+    base_law: str
+    results: list[CandidateResult]
+    chosen: CandidateResult | None
+
+    @property
+    def rivals(self) -> list[CandidateResult]:
+        """Other supported candidates the data cannot tell from the chosen one (BIC within
+        MIN_BIC_DROP of it)."""
+        if self.chosen is None:
+            return []
+        return [r for r in self.results if r.supported and r is not self.chosen
+                and self.chosen.bic_drop - r.bic_drop < MIN_BIC_DROP]
+
+    @property
+    def verdict(self) -> str:
+        if self.chosen is None:
+            return "no candidate effect is supported: the residual is within noise"
+        c = self.chosen
+        rivals = ""
+        if self.rivals:
+            rivals = ("; these data cannot tell it from " + ", ".join(
+                f"{r.name} ({r.parameter} = {r.theta:.3g} {r.unit}, BIC drop {r.bic_drop:.1f})" for r in self.rivals)
+                + ": measure what separates them (the flow rate, the tube radius) to decide")
+        return (f"{c.name}: {c.parameter} = {c.theta:.3g} {c.unit} [{c.interval[0]:.3g}, {c.interval[1]:.3g}], "
+                f"BIC drop {c.bic_drop:.1f}, cross-validated chi2 gain {c.cv_gain:.2f} +- {c.cv_gain_error:.2f} "
+                f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
+
+
+def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
+             candidates: Sequence[Candidate] | None = None) -> Diagnosis:
+    """Test the candidate effects on a batch fitted with ``base_law`` (see the module)."""
+    if candidates is None:
+        candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
+    with_contours = [c for c in capsules if c.contour is not None]
+    if len(with_contours) < 3:
+        raise ValueError(f"diagnose needs contours of at least 3 capsules, the batch has {len(with_contours)}")
+    sigma = noise_levels(with_contours, database, base_law)
+    prepared = [PreparedContour(c.contour) for c in with_contours]
+    base = score_batch(with_contours, database, base_law, sigma, prepared)
+    results = [evaluate_candidate(c, with_contours, database, base_law, sigma, base, prepared) for c in candidates]
+    supported = [r for r in results if r.supported]
+    chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
+    return Diagnosis(base_law, results, chosen)
