@@ -8,6 +8,7 @@
 !>   double_layer_probe translate LEVEL LAMBDA  uniform load on a sphere: U = 2/3 whatever lambda
 !>   double_layer_probe lambda-one LEVEL DLAMBDA  capsule velocity at lambda = 1 + DLAMBDA (GMRES path)
 !>                                               against lambda = 1 (explicit path)
+!>   double_layer_probe bench LEVEL REPEATS  seconds per single-layer velocity and per double-layer application
 program double_layer_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
@@ -32,8 +33,10 @@ program double_layer_probe
       call probe_translate(int_arg(2), real_arg(3))
    case ('lambda-one')
       call probe_lambda_one(int_arg(2), real_arg(3))
+   case ('bench')
+      call probe_bench(int_arg(2), int_arg(3))
    case default
-      write (*, '(a)') 'usage: double_layer_probe identity|normal|rigid|translate|lambda-one ...'
+      write (*, '(a)') 'usage: double_layer_probe identity|normal|rigid|translate|lambda-one|bench ...'
       error stop 2
    end select
 
@@ -200,5 +203,32 @@ contains
       call put('max_rel_difference', maxval(abs(u_ratio - u_base)) / maxval(abs(u_base)))
       call put('applications', real(ratio%interface%last_applications, dp))
    end subroutine probe_lambda_one
+
+   subroutine probe_bench(level, repeats)
+      integer, intent(in) :: level, repeats
+      type(surface_mesh_t) :: mesh
+      real(dp), allocatable :: x(:, :), f(:, :), w(:, :)
+      type(single_layer_t) :: sl
+      type(double_layer_t) :: dl
+      integer :: k
+      integer(8) :: c0, c1, rate
+      call sphere(level, mesh, x, sl, dl)
+      allocate (f(3, mesh%n_nodes), w(3, mesh%n_nodes))
+      f = x
+      call system_clock(c0, rate)
+      do k = 1, repeats
+         call sl%velocity(mesh, x, f, w)
+         f(1, 1) = f(1, 1) + 1.0e-3_dp * w(1, 1)
+      end do
+      call system_clock(c1)
+      call put('single_layer_s', real(c1 - c0, dp) / rate / repeats)
+      call system_clock(c0, rate)
+      do k = 1, repeats
+         call dl%apply(mesh, f, w)
+         f(1, 1) = f(1, 1) + 1.0e-3_dp * w(1, 1)
+      end do
+      call system_clock(c1)
+      call put('double_layer_s', real(c1 - c0, dp) / rate / repeats)
+   end subroutine probe_bench
 
 end program double_layer_probe
