@@ -40,6 +40,8 @@ module interface_equation
       !> criterion of 1e-4 on D12 per time unit: the iteration error never shows.
       real(dp) :: tol = 1.0e-8_dp
       integer :: restart = 30, max_iter = 400
+      !> The Wielandt deflation of the normal mode (off only to measure what it does).
+      logical :: deflate = .true.
       real(dp), allocatable :: basis(:, :, :), hess(:, :), cs(:), sn(:), g(:), y(:), r(:, :), w(:, :)
       !> Statistics: operator applications of the last solve and of all solves, number of solves.
       integer :: last_applications = 0
@@ -74,7 +76,8 @@ contains
       real(dp), intent(out) :: au(:, :)
       real(dp) :: mean_flux
       call dl%apply(mesh, u, au)
-      mean_flux = dl%normal_flux(u) / dl%area_sum
+      mean_flux = 0
+      if (self%deflate) mean_flux = dl%normal_flux(u) / dl%area_sum
       au = u - self%kappa * (2.0_dp * au - mean_flux * dl%node_normal)
    end subroutine apply_operator
 

@@ -5,9 +5,13 @@
 !>   double_layer_probe identity LEVEL        raw quadrature of 1/(8 pi) PV int T . n dS against -I/2
 !>   double_layer_probe normal LEVEL          D[n] against +n/2 on the unit sphere (subtracted form)
 !>   double_layer_probe rigid LEVEL           D[U + Omega x y] against -(U + Omega x x)/2, sphere and ellipsoid
-!>   double_layer_probe translate LEVEL LAMBDA  uniform load on a sphere: U = 2/3 whatever lambda
+!>   double_layer_probe translate LEVEL LAMBDA [DEFLATE]  uniform load on a sphere: U = 2/3 whatever
+!>                                               lambda (DEFLATE 0 switches the deflation off)
 !>   double_layer_probe lambda-one LEVEL DLAMBDA  capsule velocity at lambda = 1 + DLAMBDA (GMRES path)
 !>                                               against lambda = 1 (explicit path)
+!>   double_layer_probe capsule LEVEL LAMBDA DEFLATE  one capsule velocity (NH, Ca 0.2, ellipsoid, no
+!>                                               volume correction) from the right-hand side: GMRES
+!>                                               applications and the net flux, with or without deflation
 !>   double_layer_probe bench LEVEL REPEATS  seconds per single-layer velocity and per double-layer application
 program double_layer_probe
    use capsim_kinds, only: dp, pi
@@ -30,9 +34,15 @@ program double_layer_probe
    case ('rigid')
       call probe_rigid(int_arg(2))
    case ('translate')
-      call probe_translate(int_arg(2), real_arg(3))
+      if (command_argument_count() >= 4) then
+         call probe_translate(int_arg(2), real_arg(3), int_arg(4) /= 0)
+      else
+         call probe_translate(int_arg(2), real_arg(3), .true.)
+      end if
    case ('lambda-one')
       call probe_lambda_one(int_arg(2), real_arg(3))
+   case ('capsule')
+      call probe_capsule(int_arg(2), real_arg(3), int_arg(4) /= 0)
    case ('bench')
       call probe_bench(int_arg(2), int_arg(3))
    case default
@@ -146,9 +156,10 @@ contains
 
    !> A uniform load f = e_z on a sphere: the rigid sphere's Stokes traction, so the interface
    !> translates at U = 2/3 (2 a f / (3 mu)) whatever lambda (the interior moves rigidly).
-   subroutine probe_translate(level, lambda)
+   subroutine probe_translate(level, lambda, deflate)
       integer, intent(in) :: level
       real(dp), intent(in) :: lambda
+      logical, intent(in) :: deflate
       type(surface_mesh_t) :: mesh
       real(dp), allocatable :: x(:, :), f(:, :), s(:, :), b(:, :), u(:, :)
       type(single_layer_t) :: sl
@@ -162,10 +173,14 @@ contains
       f(3, :) = 1
       call sl%velocity(mesh, x, f, s)
       call eq%init(mesh%n_nodes, lambda)
+      eq%deflate = deflate
       b = (2.0_dp / (1.0_dp + lambda)) * s
       u = b
       call eq%solve(dl, mesh, b, u, stat, errmsg)
       if (stat /= 0) error stop errmsg
+      ! Net flux through the surface over (area x U): zero for the exact solution.
+      call put('relative_flux', dl%normal_flux(u) / (dl%area_sum * 2.0_dp / 3.0_dp))
+      call put('rhs_relative_flux', dl%normal_flux(b) / (dl%area_sum * 2.0_dp / 3.0_dp))
       u(3, :) = u(3, :) - 2.0_dp / 3.0_dp
       call put('translate_max_rel_error', maxval(norm2(u, dim=1)) / (2.0_dp / 3.0_dp))
       s(3, :) = s(3, :) - 2.0_dp / 3.0_dp
@@ -203,6 +218,36 @@ contains
       call put('max_rel_difference', maxval(abs(u_ratio - u_base)) / maxval(abs(u_base)))
       call put('applications', real(ratio%interface%last_applications, dp))
    end subroutine probe_lambda_one
+
+   subroutine probe_capsule(level, lambda, deflate)
+      integer, intent(in) :: level
+      real(dp), intent(in) :: lambda
+      logical, intent(in) :: deflate
+      type(run_options_t) :: opts
+      type(capsule_t) :: capsule
+      real(dp), allocatable :: x(:, :), u(:, :)
+      integer :: stat
+      character(len=:), allocatable :: errmsg
+      opts%flow = 'shear'
+      opts%law = 'NH'
+      opts%ca = 0.2_dp
+      opts%level = level
+      opts%lambda = lambda
+      opts%volume_correction = .false.
+      call capsule%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      capsule%interface%deflate = deflate
+      x = capsule%x_ref
+      x(3, :) = 1.2_dp * x(3, :) + 0.1_dp * x(2, :)
+      x(2, :) = x(2, :) / 1.1_dp
+      allocate (u(3, size(x, 2)))
+      call capsule%velocity(x, u)
+      if (allocated(capsule%fault)) error stop capsule%fault
+      call put('applications', real(capsule%interface%last_applications, dp))
+      call put('relative_flux', capsule%double_layer%normal_flux(u) / (capsule%double_layer%area_sum * maxval(norm2(u, dim=1))))
+      call put('rhs_relative_flux', capsule%double_layer%normal_flux(capsule%rhs) / &
+               (capsule%double_layer%area_sum * maxval(norm2(capsule%rhs, dim=1))))
+   end subroutine probe_capsule
 
    subroutine probe_bench(level, repeats)
       integer, intent(in) :: level, repeats
