@@ -52,6 +52,7 @@ module stokes_double_layer
       procedure :: set_geometry
       procedure :: apply
       procedure :: principal_value_tensor
+      procedure :: tensor_off_surface
       procedure :: normal_flux
    end type double_layer_t
 
@@ -138,6 +139,26 @@ contains
          m(:, k, :) = w
       end do
    end subroutine principal_value_tensor
+
+   !> 1/(8 pi) integral T(y - x0) . n(y) dS_y at a point x0 off the surface, by the vertex rule
+   !> alone (accurate for x0 several element sizes away). The Gauss identity gives -I inside,
+   !> 0 outside, exactly for the polyhedron too, so the error is the far-field rule's.
+   pure function tensor_off_surface(self, x0) result(m)
+      class(double_layer_t), intent(in) :: self
+      real(dp), intent(in) :: x0(3)
+      real(dp) :: m(3, 3), r(3), a(3), r2
+      integer :: j, k
+      m = 0
+      do j = 1, self%n_nodes
+         r = [self%xs(j), self%ys(j), self%zs(j)] - x0
+         a = [self%ax(j), self%ay(j), self%az(j)]
+         r2 = dot_product(r, r)
+         do k = 1, 3
+            m(:, k) = m(:, k) - 6.0_dp * r(k) * dot_product(r, a) / (r2 * r2 * sqrt(r2)) * r
+         end do
+      end do
+      m = m / (8.0_dp * pi)
+   end function tensor_off_surface
 
    !> Discrete flux sum_j u_j . a_j (the integral of u . n over the surface).
    pure real(dp) function normal_flux(self, u)

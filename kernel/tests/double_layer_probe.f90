@@ -3,6 +3,7 @@
 !> "key value" lines; tests/kernel/test_viscosity_ratio.py asserts them.
 !>
 !>   double_layer_probe identity LEVEL        raw quadrature of 1/(8 pi) PV int T . n dS against -I/2
+!>   double_layer_probe identity-off LEVEL   the same off the surface: -I at 0 and 0.5 e_z, 0 at 1.5 e_z
 !>   double_layer_probe normal LEVEL          D[n] against +n/2 on the unit sphere (subtracted form)
 !>   double_layer_probe rigid LEVEL           D[U + Omega x y] against -(U + Omega x x)/2, sphere and ellipsoid
 !>   double_layer_probe translate LEVEL LAMBDA [DEFLATE]  uniform load on a sphere: U = 2/3 whatever
@@ -29,6 +30,8 @@ program double_layer_probe
    select case (command)
    case ('identity')
       call probe_identity(int_arg(2))
+   case ('identity-off')
+      call probe_identity_off(int_arg(2))
    case ('normal')
       call probe_normal(int_arg(2))
    case ('rigid')
@@ -109,6 +112,27 @@ contains
       ! Mean over the nodes of trace(M_i) + 3/2 (m now holds M + I/2): the scalar part of the error.
       call put('trace_mean_error', sum([(m(1, 1, i) + m(2, 2, i) + m(3, 3, i), i=1, mesh%n_nodes)]) / mesh%n_nodes)
    end subroutine probe_identity
+
+   subroutine probe_identity_off(level)
+      integer, intent(in) :: level
+      type(surface_mesh_t) :: mesh
+      real(dp), allocatable :: x(:, :)
+      type(single_layer_t) :: sl
+      type(double_layer_t) :: dl
+      real(dp) :: m(3, 3), eye(3, 3)
+      integer :: k
+      call sphere(level, mesh, x, sl, dl)
+      eye = 0
+      do k = 1, 3
+         eye(k, k) = 1
+      end do
+      m = dl%tensor_off_surface([0.0_dp, 0.0_dp, 0.0_dp])
+      call put('centre_max_error', maxval(abs(m + eye)))
+      m = dl%tensor_off_surface([0.1_dp, 0.2_dp, 0.5_dp])
+      call put('inside_max_error', maxval(abs(m + eye)))
+      m = dl%tensor_off_surface([0.2_dp, 0.1_dp, 1.5_dp])
+      call put('outside_max_error', maxval(abs(m)))
+   end subroutine probe_identity_off
 
    !> On the unit sphere n(y) = y and D[n] = n/2 exactly (the eigenvalue +1 of 2D).
    subroutine probe_normal(level)
