@@ -15,7 +15,7 @@
 !>                                               applications and the net flux, with or without deflation
 !>   double_layer_probe bench LEVEL REPEATS  seconds per single-layer velocity and per double-layer application
 program double_layer_probe
-   use capsim_kinds, only: dp, pi
+   use capsim_kinds, only: dp
    use command_args, only: int_arg, real_arg, string_arg
    use sphere_mesh, only: surface_mesh_t, icosphere
    use stokes_single_layer, only: single_layer_t

@@ -171,8 +171,8 @@ def test_small_deformation_slope_does_not_depend_on_lambda(shear_case):
     # Ca_s = 0.02, measured 2.044 (lambda 0.2), 2.039 (1), 1.998 (5). Tolerances: lambda = 1
     # within 3 % of 25/12 (the level-2 discretisation error is -2.1 %; level 3 gives 2.08);
     # the other lambdas within 3 % of the lambda = 1 value on the same mesh, which bounds the
-    # O(Ca_s) correction (-2.0 % at lambda = 5, Ca_s = 0.02; it halves at Ca_s = 0.01, see the
-    # validate test) and cancels the discretisation error common to all lambda.
+    # higher-order correction in Ca_s (-2.0 % at lambda = 5, Ca_s = 0.02; -0.55 % at 0.01, see
+    # the validate test) and cancels the discretisation error common to all lambda.
     slopes = {lam: steady_d12_slope(shear_case, lam) for lam in LAMBDAS}
     assert slopes["1"] == pytest.approx(25 / 12, rel=0.03)
     for lam in ("0.2", "5"):
@@ -257,8 +257,9 @@ def test_help_names_the_flag(capsim):
 @pytest.mark.validate
 @pytest.mark.parametrize("lam", ["0.2", "5"])
 def test_lambda_dependence_of_the_slope_is_first_order_in_ca(shear_case, lam):
-    # The lambda-dependent part of D12/Ca_s is an O(Ca_s) correction: its deviation from the
-    # lambda = 1 slope roughly halves from Ca_s = 0.02 to 0.01 (level 2).
+    # The lambda-dependent part of D12/Ca_s is a higher-order correction in Ca_s: its deviation
+    # from the lambda = 1 slope falls when Ca_s halves (level 2, measured +0.22 % -> +0.05 % at
+    # lambda = 0.2, -2.0 % -> -0.55 % at lambda = 5, Ca_s 0.02 -> 0.01).
     def slope(ca, la):
         case = read_case(shear_case("--ca", ca, "--level", "2", "--lambda", la))
         assert case.status == "steady", case.message
