@@ -256,7 +256,7 @@ def test_help_names_the_flag(capsim):
 
 @pytest.mark.validate
 @pytest.mark.parametrize("lam", ["0.2", "5"])
-def test_lambda_dependence_of_the_slope_is_first_order_in_ca(shear_case, lam):
+def test_lambda_dependence_of_the_slope_vanishes_with_ca(shear_case, lam):
     # The lambda-dependent part of D12/Ca_s is a higher-order correction in Ca_s: its deviation
     # from the lambda = 1 slope falls when Ca_s halves (level 2, measured +0.22 % -> +0.05 % at
     # lambda = 0.2, -2.0 % -> -0.55 % at lambda = 5, Ca_s 0.02 -> 0.01).
