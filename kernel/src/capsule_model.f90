@@ -49,6 +49,9 @@ module capsule_model
       real(dp) :: shape_rel_tol = 5.0e-3_dp, shape_abs_tol = 1.0e-4_dp
       !> Largest membrane velocity in the capsule frame (steady solvers report it).
       real(dp) :: residual = huge(1.0_dp)
+      !> Set by `advance` when a step could not be computed (an inner solver failed): the run
+      !> then ends as failed with this reason.
+      character(len=:), allocatable :: fault
    contains
       procedure(advance_iface), deferred :: advance
       procedure(advance_iface), deferred :: record
@@ -159,6 +162,12 @@ contains
       decided = .false.
       do while (self%t < opts%t_max - 0.5_dp * self%dt)
          call self%advance()
+         if (allocated(self%fault)) then
+            summary%status = 'failed'
+            summary%message = self%fault//' at t = '//num(self%t)
+            decided = .true.
+            exit
+         end if
          call self%get_state(state)
          if (.not. all(ieee_is_finite(state))) then
             summary%status = 'failed'

@@ -36,6 +36,8 @@ module run_options
       !> inflated to radius a at rest (an isotropic pre-tension).
       real(dp) :: prestress = 0.0_dp
       real(dp) :: c = 1.0_dp
+      !> Viscosity ratio lambda = inner / outer viscosity (shear only for now; 1 = the base model).
+      real(dp) :: lambda = 1.0_dp
       real(dp) :: ca = -huge(1.0_dp)
       integer :: level = 3
       !> Time step; 0 selects dt_factor * Ca * h_min.
@@ -60,7 +62,7 @@ module run_options
    end type run_options_t
 
    character(len=*), parameter :: usage_text = &
-      'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--a-over-l X]'// &
+      'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
       ' [--prestress ALPHA] [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
@@ -162,6 +164,8 @@ contains
             call read_real(key, value, opts%c)
          case ('--ca')
             call read_real(key, value, opts%ca)
+         case ('--lambda')
+            call read_real(key, value, opts%lambda)
          case ('--dt')
             call read_real(key, value, opts%dt)
          case ('--dt-factor')
@@ -239,10 +243,10 @@ contains
       character(len=:), allocatable, intent(out) :: errmsg
       character(len=16) :: flow, law, model
       character(len=path_len) :: out
-      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l
+      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l, lambda
       integer :: level, threads, unit, ios, n_meridian
       character(len=256) :: iomsg
-      namelist /capsim/ flow, law, model, nu_s, c, ca, a_over_l, level, n_meridian, dt, t_max, threads, out
+      namelist /capsim/ flow, law, model, nu_s, c, ca, lambda, a_over_l, level, n_meridian, dt, t_max, threads, out
 
       stat = 0
       errmsg = ''
@@ -254,6 +258,7 @@ contains
       nu_s = opts%nu_s
       c = opts%c
       ca = opts%ca
+      lambda = opts%lambda
       level = opts%level
       dt = opts%dt
       t_max = opts%t_max
@@ -280,6 +285,7 @@ contains
       opts%nu_s = nu_s
       opts%c = c
       opts%ca = ca
+      opts%lambda = lambda
       opts%level = level
       opts%dt = dt
       opts%t_max = t_max
@@ -359,6 +365,13 @@ contains
          errmsg = '--ca: missing (capillary number Ca_s > 0)'
       else if (.not. (opts%ca > 0.0_dp)) then
          errmsg = '--ca: must be > 0, got '//real_text(opts%ca)
+      else if (.not. (opts%lambda > 0.0_dp)) then
+         errmsg = '--lambda: must be > 0 (viscosity ratio inner/outer), got '//real_text(opts%lambda)
+      else if (opts%lambda > 1.0e6_dp) then
+         errmsg = '--lambda: must be <= 1e6 (beyond, the capsule is rigid), got '//real_text(opts%lambda)
+      else if (trim(opts%flow) == 'tube' .and. opts%lambda /= 1.0_dp) then
+         errmsg = '--lambda: a viscosity ratio other than 1 is only implemented for --flow shear so far, got '// &
+                  real_text(opts%lambda)
       else if (opts%ca > 100.0_dp) then
          errmsg = '--ca: must be <= 100 (no membrane law supports a larger value), got '//real_text(opts%ca)
       else if (opts%level < 1 .or. opts%level > 5) then
@@ -402,11 +415,21 @@ contains
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig
       character(len=1024) :: buf
-      write (buf, '(4(a,1x),2(i0,1x),l1,15(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
+      write (buf, '(4(a,1x),2(i0,1x),l1,14(1x,es23.16))') trim(opts%flow), trim(opts%law), trim(opts%model), &
          trim(opts%integrator), opts%level, opts%n_meridian, opts%volume_correction, opts%nu_s, opts%c, opts%ca, &
          opts%a_over_l, opts%dt, opts%dt_factor, opts%steady_tol, opts%shape_tol, opts%max_length, &
-         opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre, opts%prestress
+         opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre
       sig = trim(buf)
+      ! Effects are appended only when present, so that the signatures (and checkpoints) of
+      ! the base model are those of kernel versions without the options.
+      if (opts%prestress /= 0.0_dp) then
+         write (buf, '(a,es23.16)') ' prestress ', opts%prestress
+         sig = sig//trim(buf)
+      end if
+      if (opts%lambda /= 1.0_dp) then
+         write (buf, '(a,es23.16)') ' lambda ', opts%lambda
+         sig = sig//trim(buf)
+      end if
    end function option_signature
 
    function real_text(x) result(s)
