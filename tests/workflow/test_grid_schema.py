@@ -33,6 +33,7 @@ BAD_GRIDS = [
     ("nu_s out of range", malformed(("tube", "laws"), ["GH_nu1.5"]), "tube.laws[0]: law key 'GH_nu1.5': nu_s must lie in (-1, 1)"),
     ("duplicate Ca", malformed(("shear", "Ca_s"), [0.05, 0.05]), "shear.Ca_s: duplicate values"),
     ("unknown effect", malformed(("tube", "laws"), ["NH+swelling0.1"]), "tube.laws[0]: law key 'NH+swelling0.1': unknown effect 'swelling'"),
+    ("effect in the wrong flow", malformed(("tube", "laws"), ["NH+lambda0.1"]), "tube.laws[0]: law key 'NH+lambda0.1': the kernel has lambda only in shear flow"),
     ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
 ]
 

@@ -41,7 +41,10 @@ _EFFECT = re.compile(rf"\+(?P<name>[a-z_]+)(?P<value>{_NUMBER})")
 #: Effects a law key may add: name -> (kernel flag, range check, the range in words).
 EFFECTS = {
     "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
+    "lambda": ("--lambda", lambda v: 0.0 < v <= 1e6, "in (0, 1e6]"),
 }
+#: Flows where the kernel has each effect (others refuse it).
+EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",)}
 
 
 class GridError(ValueError):
@@ -217,9 +220,14 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                 continue
             for i, key in enumerate(grid[flow]["laws"]):
                 try:
-                    parse_law(key)
+                    law = parse_law(key)
                 except GridError as exc:
                     problems.append(f"{flow}.laws[{i}]: {exc}")
+                    continue
+                for name, _ in law.effects:
+                    if flow not in EFFECT_FLOWS[name]:
+                        problems.append(f"{flow}.laws[{i}]: law key {key!r}: the kernel has {name} only in "
+                                        f"{', '.join(EFFECT_FLOWS[name])} flow")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
