@@ -75,7 +75,7 @@ test: setup
 demo: setup
 	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
 	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
-	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database data/databases/dev/tube.h5 \
+	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database data/databases/tube.h5 \
 	    --law NH --law GH_nu0.5 --out demo/fit_tube_batch_NH.csv
 	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
 

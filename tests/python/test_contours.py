@@ -28,7 +28,7 @@ from capsmech.synthetic import noisy_contour
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "data" / "examples"
-DEV_TUBE = ROOT / "data" / "databases" / "dev" / "tube.h5"
+DEV_TUBE = ROOT / "data" / "databases" / "tube.h5"
 
 
 def ellipse(cx: float, cy: float, ax: float, ay: float, n: int = 400) -> np.ndarray:

@@ -33,7 +33,7 @@ def batch():
 
 @pytest.fixture(scope="module")
 def database():
-    return load_database(ROOT / "data" / "databases" / "dev" / "tube.h5")
+    return load_database(ROOT / "data" / "databases" / "tube.h5")
 
 
 def candidates():

@@ -22,7 +22,7 @@ from capsmech.microscopy import (FrameStyle, blurred, drawn_lengths, outline_fro
 from capsmech.synthetic import simulate_tube
 
 REPO = Path(__file__).resolve().parents[2]
-TUBE_DB = REPO / "data" / "databases" / "dev" / "tube.h5"
+TUBE_DB = REPO / "data" / "databases" / "tube.h5"
 
 
 @pytest.fixture(scope="module")

@@ -97,7 +97,7 @@ def test_fitted_batch_size_residuals_are_noise_and_catch_a_scaled_image():
 
     root = Path(__file__).resolve().parents[2]
     capsules = read_measurements(root / "data" / "examples" / "tube_batch_NH.csv", "tube")
-    database = load_database(root / "data" / "databases" / "dev" / "tube.h5")
+    database = load_database(root / "data" / "databases" / "tube.h5")
     rows = fit_tube(capsules, database, ["NH"])
     residual = np.array([r["size_residual"] for r in rows])
     error = np.array([r["size_residual_error"] for r in rows])

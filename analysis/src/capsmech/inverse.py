@@ -164,6 +164,7 @@ class TubeInverter:
         self._p_scale = self._p.std(axis=0)
         self._p_scale[self._p_scale == 0] = 1.0
         self._tree = cKDTree(self._q / self._q_scale)
+        self._p_tree = cKDTree(self._p / self._p_scale)
         self._hull = Delaunay(self._p / self._p_scale)
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
 
@@ -211,7 +212,13 @@ class TubeInverter:
         q, _ = _quadratic_value_and_jacobian(coefficients, x)
         if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
             return TubeFit(flag="no parameters of the database reproduce these lengths (local fit has no root)")
-        p = centre + x * self._p_scale
+        first = centre + x * self._p_scale
+        p = self._refine_in_parameter_space(q_star, first)
+        if p is None and self._hull.find_simplex(first / self._p_scale) < 0:
+            p = first  # reported as outside the database below
+        if p is None:
+            return TubeFit(flag="no consistent parameters: the lengths' nearest database points lie on different "
+                                "branches and the local forward map around the first root does not reproduce them")
         if self._hull.find_simplex(p / self._p_scale) < 0:
             return TubeFit(a_over_l=float("nan"), flag=f"outside the database: fitted a/l = {p[0]:.3f}, "
                                                        f"Ca_s = {np.exp(p[1]):.3g} lie outside its grid")
@@ -220,6 +227,37 @@ class TubeInverter:
         if v_c is not None and mu is not None:
             result.G_s = mu * v_c / (result.Ca_s * velocity)
         return result
+
+    def _refine_in_parameter_space(self, q_star: np.ndarray, p: np.ndarray) -> np.ndarray | None:
+        """Newton on local fits of q(p) over the points nearest to p in parameter space, until
+        p is a root of the fit around itself (None if that never happens).
+
+        The first root comes from the points nearest in q, which near a fold of the map (L_p
+        falls with a/l at small Ca_s and rises at large Ca_s) may come from two branches, and
+        a quadratic through both can have a root that neither supports. In parameter space
+        the forward map is smooth and the neighbours are those of p itself."""
+        scaled = p / self._p_scale
+        for _ in range(30):
+            _, index = self._p_tree.query(scaled, k=self.n_neighbours)
+            centre = self._p[index[0]]
+            x_points = (self._p[index] - centre) / self._p_scale
+            distance = np.linalg.norm(x_points - (scaled - centre / self._p_scale), axis=1)
+            weight = (1 - (distance / (1.01 * distance.max() + 1e-300)) ** 2) ** 2
+            sqrt_w = np.sqrt(weight)[:, None]
+            coefficients, *_ = np.linalg.lstsq(sqrt_w * _quadratic_basis(x_points), sqrt_w * self._q[index], rcond=None)
+            x = scaled - centre / self._p_scale
+            q, jac = _quadratic_value_and_jacobian(coefficients, x)
+            step = np.linalg.lstsq(jac, q_star - q, rcond=None)[0]
+            norm = np.linalg.norm(step)
+            if norm > 0.25:
+                step *= 0.25 / norm
+            scaled = scaled + step
+            if norm < 1e-10:
+                break
+        q, _ = _quadratic_value_and_jacobian(coefficients, scaled - centre / self._p_scale)
+        if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
+            return None
+        return scaled * self._p_scale
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
         """Meridian (points, 2) of (r, z) [l] at (a/l, Ca_s): the database profiles blended with
