@@ -25,7 +25,7 @@ PY      := $(VENV)/bin/python
 # Modules in dependency order (one concept per module, file name = module name). Each module
 # may use any module before it: compiling in list order is the dependency rule. Names not
 # (yet) present in kernel/src are skipped.
-MODULE_ORDER := capsim_kinds file_ops command_args vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
+MODULE_ORDER := capsim_kinds text_format file_ops command_args vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
            elliptic_integrals ring_stokeslet membrane_law membrane_forces axisymmetric_membrane \
            stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh wall_single_layer surface_diagnostics background_flow \
            run_options case_output capsule_model tube_history capsule_dynamics axisymmetric_tube tube_capsule

@@ -19,7 +19,8 @@ module axisymmetric_tube
    use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_node_areas, &
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
-   use run_options, only: run_options_t, int_text
+   use run_options, only: run_options_t
+   use text_format, only: int_text
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
                            tube_history_names, tube_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t, num

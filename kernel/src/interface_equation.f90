@@ -27,6 +27,7 @@
 !> Work arrays are allocated by init: a solve allocates nothing.
 module interface_equation
    use capsim_kinds, only: dp
+   use text_format, only: real_text, int_text
    use sphere_mesh, only: surface_mesh_t
    use stokes_double_layer, only: double_layer_t
    implicit none
@@ -163,21 +164,5 @@ contains
       self%last_applications = applications
       self%total_applications = self%total_applications + applications
    end subroutine solve
-
-   function real_text(x) result(s)
-      real(dp), intent(in) :: x
-      character(len=:), allocatable :: s
-      character(len=32) :: buf
-      write (buf, '(es10.3)') x
-      s = trim(adjustl(buf))
-   end function real_text
-
-   function int_text(i) result(s)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: s
-      character(len=16) :: buf
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function int_text
 
 end module interface_equation

@@ -3,10 +3,11 @@
 !> turns them into one line on stderr and exit code 2.
 module run_options
    use capsim_kinds, only: dp
+   use text_format, only: real_text, int_text
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, usage_text, int_text
+   public :: run_options_t, parse_command_line, option_signature, usage_text
 
    integer, parameter :: path_len = 1024
 
@@ -431,21 +432,5 @@ contains
          sig = sig//trim(buf)
       end if
    end function option_signature
-
-   function real_text(x) result(s)
-      real(dp), intent(in) :: x
-      character(len=:), allocatable :: s
-      character(len=32) :: buf
-      write (buf, '(g0.6)') x
-      s = trim(adjustl(buf))
-   end function real_text
-
-   pure function int_text(i) result(s)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: s
-      character(len=16) :: buf
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function int_text
 
 end module run_options
