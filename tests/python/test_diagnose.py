@@ -59,3 +59,14 @@ def test_undeclared_contour_offset_is_named_and_corrected(batch, database):
     assert result.chosen is not None
     if result.chosen is not offset:
         assert offset in result.rivals and "cannot tell" in result.verdict, result.verdict
+
+
+def test_cli_writes_the_report(tmp_path):
+    from capsmech.cli import main
+
+    report = tmp_path / "report.md"
+    assert main(["diagnose", str(ROOT / "data" / "examples" / "tube_batch_NH.csv"), "--law", "NH",
+                 "--other-law", "GH_nu0.5", "--out", str(report)]) == 0
+    text = report.read_text()
+    assert "**Verdict:** no candidate effect is supported" in text
+    assert "| contour_offset |" in text and "| law GH_nu0.5 |" in text

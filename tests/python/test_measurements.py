@@ -3,6 +3,7 @@ every way a user can get a file wrong (nothing is half-read)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
@@ -74,3 +75,15 @@ def test_malformed_files_name_file_line_and_field(tmp_path, text, line, field):
 def test_missing_file_is_an_error_naming_it(tmp_path):
     with pytest.raises(MeasurementError, match="cannot read"):
         read_measurements(tmp_path / "absent.csv", "tube")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--law", "XX"], "no law 'XX'"),
+    (["--other-law", "GH_nu9"], "no law 'GH_nu9'"),
+])
+def test_diagnose_refuses_unknown_law_keys(args, message, capsys):
+    from capsmech.cli import main
+
+    root = Path(__file__).resolve().parents[2]
+    assert main(["diagnose", str(root / "data" / "examples" / "tube_batch_NH.csv"), *args]) == 2
+    assert message in capsys.readouterr().err

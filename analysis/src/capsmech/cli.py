@@ -381,6 +381,32 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """``diagnose``: which candidate effect the batch's contour residuals support."""
+    from capsmech.database import load_database
+    from capsmech.diagnose import (contour_offset_candidate, diagnose, law_candidate, tube_radius_candidate,
+                                   write_report)
+    from capsmech.measurements import read_measurements
+
+    capsules = read_measurements(args.measurements, "tube")
+    database = load_database(args.database)
+    if database.flow != "tube":
+        raise DatabaseError(f"{args.database}: a {database.flow} database, diagnose needs a tube one")
+    for key in [args.law, *(args.other_law or [])]:
+        if key not in database.laws:
+            raise DatabaseError(f"{args.database}: no law {key!r} (it has {', '.join(database.laws)})")
+    candidates = [contour_offset_candidate(args.law), tube_radius_candidate(args.law)]
+    candidates += [law_candidate(args.law, key) for key in args.other_law or []]
+    try:
+        result = diagnose(capsules, database, args.law, candidates)
+    except ValueError as err:
+        raise MeasurementError(f"{args.measurements}: {err}") from None
+    print(f"verdict: {result.verdict}")
+    if args.out:
+        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+    return 0
+
+
 def cmd_population(args: argparse.Namespace) -> int:
     """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
     from capsmech.fitting import write_results
@@ -534,6 +560,13 @@ def build_parser() -> argparse.ArgumentParser:
     pop.add_argument("results", nargs="+", metavar="RESULTS.csv", help="fit-tube results")
     pop.add_argument("--plot", metavar="FIG.png", help="draw G_s against Delta (paper figure 10)")
     pop.add_argument("--out", action="append", metavar="FILE", help="write the per-law table (.csv or .h5; repeatable)")
+    diag = sub.add_parser("diagnose", help="which effect the base model lacks, from the batch's contour residuals")
+    diag.add_argument("measurements", metavar="CSV", help="tube measurements with contour files")
+    diag.add_argument("--database", default="data/databases/tube.h5", help="tube database file")
+    diag.add_argument("--law", default="NH", help="base law key (default NH)")
+    diag.add_argument("--other-law", action="append", metavar="KEY",
+                      help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05")
+    diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report")
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
     ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
     ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the TIFF's metadata)")
@@ -572,7 +605,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command != "simulate" and rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
-                "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract}
+                "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract,
+                "diagnose": cmd_diagnose}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

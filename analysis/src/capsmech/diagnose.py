@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -405,3 +406,31 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
     supported = [r for r in results if r.supported]
     chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
     return Diagnosis(base_law, results, chosen)
+
+
+def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "") -> Path:
+    """A Markdown report: the verdict, and per candidate its parameter with the interval, the
+    criteria and G_s before and after (written whole: temporary name, then renamed)."""
+    out = Path(out)
+    lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
+             f"Base law: `{diagnosis.base_law}`.", "", f"**Verdict:** {diagnosis.verdict}.", "",
+             "| candidate | parameter | interval | chi2 base -> fitted | BIC drop | CV gain per capsule (p) "
+             "| G_s before [N/m] | G_s after [N/m] | supported |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in diagnosis.results:
+        if r.note:
+            lines.append(f"| {r.name} | | | | | | | | {r.note} |")
+            continue
+        lines.append(
+            f"| {r.name} | {r.parameter} = {r.theta:.3g} {r.unit} | [{r.interval[0]:.3g}, {r.interval[1]:.3g}] "
+            f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
+            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
+            f"| {'yes' if r.supported else 'no'} |")
+    lines += ["", "Supported: leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < "
+              f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
+              "standard errors. chi2: contour residuals over each capsule's tracing noise, "
+              f"{PROFILE_POINTS} points a capsule.", ""]
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text("\n".join(lines), encoding="utf-8")
+    tmp.replace(out)
+    return out
