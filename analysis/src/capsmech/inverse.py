@@ -200,14 +200,9 @@ class TubeInverter:
         coefficients, centre, _ = self._local_forward_map(q_star)
         x = np.zeros(2)
         for _ in range(50):
-            q, jac = _quadratic_value_and_jacobian(coefficients, x)
-            step = np.linalg.lstsq(jac, q_star - q, rcond=None)[0]
             # Damped: stay within a few grid spacings of the neighbours the fit is valid over.
-            norm = np.linalg.norm(step)
-            if norm > 0.5:
-                step *= 0.5 / norm
-            x = x + step
-            if np.linalg.norm(step) < 1e-12:
+            x, norm = _damped_newton_step(coefficients, x, q_star, 0.5)
+            if norm < 1e-12:
                 break
         q, _ = _quadratic_value_and_jacobian(coefficients, x)
         if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
@@ -246,12 +241,8 @@ class TubeInverter:
             sqrt_w = np.sqrt(weight)[:, None]
             coefficients, *_ = np.linalg.lstsq(sqrt_w * _quadratic_basis(x_points), sqrt_w * self._q[index], rcond=None)
             x = scaled - centre / self._p_scale
-            q, jac = _quadratic_value_and_jacobian(coefficients, x)
-            step = np.linalg.lstsq(jac, q_star - q, rcond=None)[0]
-            norm = np.linalg.norm(step)
-            if norm > 0.25:
-                step *= 0.25 / norm
-            scaled = scaled + step
+            x_new, norm = _damped_newton_step(coefficients, x, q_star, 0.25)
+            scaled = scaled + (x_new - x)
             if norm < 1e-10:
                 break
         q, _ = _quadratic_value_and_jacobian(coefficients, scaled - centre / self._p_scale)
@@ -283,6 +274,18 @@ class TubeInverter:
     def five_fits(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> FiveFits:
         """Fits 1-5 of paper section 4.2 (L_z and L_p -+2 %, then L_p alone -+2 %)."""
         return FiveFits({name: self.fit(L_z * fz, L_p * fp, v_c, mu) for name, fz, fp in FIVE_FITS})
+
+
+def _damped_newton_step(coefficients: np.ndarray, x: np.ndarray, q_star: np.ndarray, max_step: float
+                        ) -> tuple[np.ndarray, float]:
+    """One Newton step towards q(x) = q_star on the fitted quadratic map, its length capped at
+    max_step (scaled units): (new x, length of the undamped step)."""
+    q, jac = _quadratic_value_and_jacobian(coefficients, x)
+    step = np.linalg.lstsq(jac, q_star - q, rcond=None)[0]
+    norm = float(np.linalg.norm(step))
+    if norm > max_step:
+        step *= max_step / norm
+    return x + step, norm
 
 
 def _quadratic_basis(x: np.ndarray) -> np.ndarray:
