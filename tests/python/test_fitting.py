@@ -3,9 +3,7 @@
 spread pattern of Table 1, and law discrimination on the synthetic example batches
 (data/examples, made by scripts/make_examples.py).
 
-The tube database is the paper grid's (data/databases/tube.h5); the shear database is still
-the development grid's (data/databases/dev/shear.h5) until the paper grid's shear cases
-are done (issue 4)."""
+The databases are the paper grid's (data/databases/tube.h5, shear.h5), made by the workflow."""
 from __future__ import annotations
 
 import csv
@@ -22,7 +20,7 @@ from capsmech.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = REPO / "data" / "databases" / "tube.h5"
-SHEAR_DB = REPO / "data" / "databases" / "dev" / "shear.h5"
+SHEAR_DB = REPO / "data" / "databases" / "shear.h5"
 G_S = 0.04      # modulus of the synthetic capsules [N/m]
 EXAMPLES = REPO / "data" / "examples"
 
