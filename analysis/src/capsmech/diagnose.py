@@ -43,15 +43,13 @@ import numpy as np
 
 from scipy import stats
 from scipy.optimize import minimize
-from scipy.spatial import cKDTree
 
-from capsmech.contours import resample_curve, symmetry_axis
 from capsmech.database import TubeDatabase
-from capsmech.fitting import fit_tube, tube_inverter
+from capsmech.fitting import tube_inverter
 from capsmech.inverse import TubeInverter, profile_elongation
 from capsmech.measurements import Capsule
 from capsmech.population import law_drift
-from capsmech.residuals import _meridian_normals
+from capsmech.residuals import PreparedContour
 
 #: Points of each capsule's residual profile in the score.
 PROFILE_POINTS = 16
@@ -168,44 +166,6 @@ class BatchScore:
     delta: np.ndarray
 
 
-class PreparedContour:
-    """A measured contour folded about its axis into its two halves (z, r), with a k-d tree per
-    half, so that residuals against many trial meridians cost two tree queries each."""
-
-    def __init__(self, contour: np.ndarray) -> None:
-        self.axis_y, _ = symmetry_axis(contour)
-        measured = resample_curve(contour, closed=True)
-        rho = measured[:, 1] - self.axis_y
-        self.halves = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]
-        if min(len(h) for h in self.halves) < 2:
-            raise ValueError("contour has no points on one side of its axis")
-        self.trees = [cKDTree(h) for h in self.halves]
-        self.front = float(measured[:, 0].max())
-
-    def residual(self, meridian: np.ndarray, points: int = PROFILE_POINTS) -> tuple[np.ndarray, np.ndarray]:
-        """(distance, error) along the meridian (r, z) [contour units]: measured minus simulated
-        along the outward normal, mean and half difference of the halves; the axial position
-        by least squares (no residual along the shift mode)."""
-        simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
-        normals = _meridian_normals(simulated)
-        step = np.linalg.norm(np.diff(simulated, axis=0), axis=1)
-        weight = np.concatenate([[0.5 * step[0]], 0.5 * (step[1:] + step[:-1]), [0.5 * step[-1]]])
-        shift = self.front - simulated[:, 0].max()
-        for _ in range(4):
-            placed = simulated + [shift, 0.0]
-            estimates = [np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
-                         for half, tree in zip(self.halves, self.trees)]
-            mean = 0.5 * (estimates[0] + estimates[1])
-            correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
-            shift -= correction
-            if abs(correction) < 1e-4 * np.ptp(simulated[:, 0]):
-                break
-        placed = simulated + [shift, 0.0]
-        upper, lower = (np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
-                        for half, tree in zip(self.halves, self.trees))
-        return 0.5 * (upper + lower), 0.5 * np.abs(upper - lower)
-
-
 def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float, start: tuple[float, float],
                 sigma: float) -> tuple[float, float, float]:
     """(a/l, Ca_s, chi2): the database point whose profile best fits the contour (least
@@ -215,7 +175,7 @@ def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: 
         meridian = inverter.profile(float(p[0]), float(np.exp(p[1])))
         if meridian is None:
             return 1e12
-        distance, _ = prepared.residual(meridian * tube_radius)
+        _, distance, _ = prepared.residual(meridian * tube_radius, points=PROFILE_POINTS)
         return float(np.sum((distance / sigma) ** 2))
 
     x0 = np.array([start[0], math.log(start[1])])
@@ -226,11 +186,21 @@ def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: 
     return float(best.x[0]), float(np.exp(best.x[1])), float(best.fun)
 
 
+def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float]]:
+    """The length-based central fit of each capsule (the start of its contour fit)."""
+    rows = []
+    for capsule in capsules:
+        l = capsule["tube_radius"]
+        fit = inverter.fit(capsule["L_z"] / l, capsule["L_p"] / l)
+        rows.append({"a_over_l": fit.a_over_l if fit.ok else float("nan"), "Ca_s": fit.Ca_s})
+    return rows
+
+
 def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, sigma: np.ndarray,
                 prepared: Sequence[PreparedContour] | None = None) -> BatchScore:
     """Fit every capsule's contour with one law; chi2, G_s and Delta per capsule."""
-    rows = fit_tube(capsules, database, [law], contour_checks=False)
     inverter = tube_inverter(database, law)
+    rows = _central_fits(capsules, inverter)
     n = len(capsules)
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
@@ -255,8 +225,8 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) 
     """Each capsule's tracing-noise level: the rms over the meridian of the half difference of
     its contour's two halves (the standard error of the mean residual at a point), measured
     against its length-based fit."""
-    rows = fit_tube(capsules, database, [law], contour_checks=False)
     inverter = tube_inverter(database, law)
+    rows = _central_fits(capsules, inverter)
     sigma = np.full(len(capsules), np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
         if capsule.contour is None or not math.isfinite(row["a_over_l"]):
@@ -264,7 +234,7 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) 
         meridian = inverter.profile(row["a_over_l"], row["Ca_s"])
         if meridian is None:
             continue
-        _, error = PreparedContour(capsule.contour).residual(meridian * capsule["tube_radius"], points=64)
+        _, error = PreparedContour(capsule.contour).residual(meridian * capsule["tube_radius"], points=64)[1:]
         sigma[i] = float(np.sqrt(np.mean(error ** 2)))
     return sigma
 

@@ -63,8 +63,8 @@ def _progress(done: int, total: int, stream=sys.stderr) -> None:
     stream.flush()
 
 
-def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None,
-             contour_checks: bool = True) -> list[dict[str, Any]]:
+def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None
+             ) -> list[dict[str, Any]]:
     """Fit every capsule with every law (all the database's laws by default).
 
     Parameters
@@ -75,8 +75,6 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
         A loaded tube database.
     laws : iterable of str, optional
         Law keys to fit with.
-    contour_checks : bool
-        Measure the contours' asymmetry, misfit H/a and size (off: lengths only, faster).
 
     Returns
     -------
@@ -95,7 +93,7 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
         # The contour's symmetry does not depend on the law: measured once per capsule, over
         # the radius of the capsule's volume-equivalent size estimated from the contour itself.
         asymmetry, asymmetry_limit, axis_y = float("nan"), MAX_ASYMMETRY, None
-        if capsule.contour is not None and contour_checks:
+        if capsule.contour is not None:
             axis_y, mirror_distance = symmetry_axis(capsule.contour)
             radius = volume_radius(capsule.contour, axis_y)
             asymmetry = mirror_distance / radius
@@ -116,7 +114,7 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
             meridian = inverters[law].profile(central.a_over_l, central.Ca_s) if central.ok else None
             if meridian is not None:
                 row["Delta"] = profile_elongation(meridian, central.a_over_l)
-                if capsule.contour is not None and contour_checks:
+                if capsule.contour is not None:
                     misfit, _ = profile_misfit(capsule.contour, meridian * l, axis_y)
                     row["H_over_a"] = misfit / (central.a_over_l * l)
                     # Its uncertainty: the contour's (two halves) and the fitted a's (five fits).

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from capsmech.contours import profile_misfit, resample_curve, symmetry_axis, volume_radius
+from capsmech.contours import resample_curve, symmetry_axis, volume_radius
 
 #: Points of the residual profile along the meridian.
 PROFILE_POINTS = 64
@@ -58,14 +58,52 @@ def _meridian_normals(meridian_zr: np.ndarray) -> np.ndarray:
     return np.column_stack([tangent[:, 1], -tangent[:, 0]])
 
 
-def profile_residual(contour: np.ndarray, meridian: np.ndarray, points: int = PROFILE_POINTS) -> ProfileResidual:
-    """Residual profile of one capsule.
+class PreparedContour:
+    """A measured contour folded about its axis into its two halves (z, r), with a k-d tree per
+    half, so that residuals against many trial meridians cost two tree queries each."""
 
-    The contour's axis is its axis of symmetry. Its axial position, which the image does not
-    fix, is the one that leaves no residual along the axial-shift mode: the least-squares
-    shift, i.e. the weighted mean of the residual's component along n_z vanishes. (The
-    Hausdorff distance cannot fix it: a uniform outward offset has the same mean distance
-    for every small shift.)
+    def __init__(self, contour: np.ndarray) -> None:
+        self.axis_y, _ = symmetry_axis(contour)
+        measured = resample_curve(contour, closed=True)
+        rho = measured[:, 1] - self.axis_y
+        self.halves = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]
+        if min(len(h) for h in self.halves) < 2:
+            raise ValueError("contour has no points on one side of its axis")
+        self.trees = [cKDTree(h) for h in self.halves]
+        self.front = float(measured[:, 0].max())
+
+    def residual(self, meridian: np.ndarray, points: int = PROFILE_POINTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, distance, error) along the meridian (r, z) [contour units]: measured minus
+        simulated along the outward normal, mean and half difference of the halves.
+
+        The contour's axial position, which the image does not fix, is the one that leaves no
+        residual along the axial-shift mode: the least-squares shift, i.e. the weighted mean of
+        the residual's component along n_z vanishes. (The Hausdorff distance cannot fix it: a
+        uniform outward offset has the same mean distance for every small shift.)"""
+        simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
+        normals = _meridian_normals(simulated)
+        step = np.linalg.norm(np.diff(simulated, axis=0), axis=1)
+        weight = np.concatenate([[0.5 * step[0]], 0.5 * (step[1:] + step[:-1]), [0.5 * step[-1]]])
+        shift = self.front - simulated[:, 0].max()
+        for _ in range(6):
+            placed = simulated + [shift, 0.0]
+            estimates = [np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
+                         for half, tree in zip(self.halves, self.trees)]
+            mean = 0.5 * (estimates[0] + estimates[1])
+            correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
+            # Moving the simulated meridian by +dz changes the residual by -n_z dz to first order.
+            shift += correction
+            if abs(correction) < 1e-4 * np.ptp(simulated[:, 0]):
+                break
+        placed = simulated + [shift, 0.0]
+        upper, lower = (np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
+                        for half, tree in zip(self.halves, self.trees))
+        arclength = np.concatenate([[0.0], np.cumsum(step)])
+        return arclength / arclength[-1], 0.5 * (upper + lower), 0.5 * np.abs(upper - lower)
+
+
+def profile_residual(contour: np.ndarray, meridian: np.ndarray, points: int = PROFILE_POINTS) -> ProfileResidual:
+    """Residual profile of one capsule (``PreparedContour.residual``).
 
     Parameters
     ----------
@@ -76,36 +114,8 @@ def profile_residual(contour: np.ndarray, meridian: np.ndarray, points: int = PR
     points : int
         Points of the profile along the meridian.
     """
-    axis_y, _ = symmetry_axis(contour)
-    _, shift = profile_misfit(contour, meridian, axis_y)
-    measured = resample_curve(contour, closed=True)
-    rho = measured[:, 1] - axis_y
-    simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
-    normals = _meridian_normals(simulated)
-    step = np.linalg.norm(np.diff(simulated, axis=0), axis=1)
-    weight = np.concatenate([[0.5 * step[0]], 0.5 * (step[1:] + step[:-1]), [0.5 * step[-1]]])
-
-    def halves_at(shift: float) -> list[np.ndarray]:
-        estimates = []
-        for side in (rho >= 0, rho < 0):
-            half = np.column_stack([measured[side, 0] - shift, np.abs(rho[side])])
-            if len(half) < 2:
-                raise ValueError("contour has no points on one side of its axis")
-            _, nearest = cKDTree(half).query(simulated)
-            estimates.append(np.sum((half[nearest] - simulated) * normals, axis=1))
-        return estimates
-
-    for _ in range(4):
-        upper, lower = halves_at(shift)
-        mean = 0.5 * (upper + lower)
-        # Moving the contour by +dz changes the residual by n_z dz to first order.
-        correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
-        shift += correction
-        if abs(correction) < 1e-6 * np.ptp(simulated[:, 0]):
-            break
-    upper, lower = halves_at(shift)
-    arclength = np.concatenate([[0.0], np.cumsum(step)])
-    return ProfileResidual(s=arclength / arclength[-1], distance=0.5 * (upper + lower), error=0.5 * np.abs(upper - lower))
+    s, distance, error = PreparedContour(contour).residual(meridian, points)
+    return ProfileResidual(s=s, distance=distance, error=error)
 
 
 def size_residual(contour: np.ndarray, a_fit: float) -> tuple[float, float]:
