@@ -275,7 +275,7 @@ contains
       call shape_measures(self%mesh, self%positions, m)
       call shear_plane_contour(self%mesh, self%positions, m%centroid, y, z)
       call f%write_attr('/', 'n_nodes', self%mesh%n_nodes, stat, errmsg)
-      call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'a', stat, errmsg)
+      if (stat == 0) call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'a', stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)
       if (stat == 0) call f%write_attr('/profile', 'plane', 'x = x_centroid (shear plane yz)', stat, errmsg)
       if (stat == 0) call f%write_dataset('/profile/y', y, 'a', stat, errmsg)

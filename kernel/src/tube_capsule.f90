@@ -454,7 +454,7 @@ contains
       if (stat == 0) call f%write_attr('/', 'n_wall_nodes', self%wall%mesh%n_nodes, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_from_cache', merge(1, 0, self%wall_op%from_cache), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_setup_s', self%wall_seconds, stat, errmsg)
-      call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'l', stat, errmsg)
+      if (stat == 0) call write_surface_mesh(f, self%x_ref, self%positions, self%mesh%tri, 'l', stat, errmsg)
       if (stat == 0) call f%make_group('/profile', stat, errmsg)
       if (stat == 0) call f%write_attr('/profile', 'plane', 'y = 0, x > 0, front first (flow along +z)', stat, errmsg)
       if (stat == 0) call f%write_dataset('/profile/r', r, 'l', stat, errmsg)
