@@ -4,7 +4,9 @@ Tube database
     figure 2: steady profiles for the GH laws (effect of nu_s), one panel per Ca_s;
     figure 3: L_z, L_p and v_c/V against Ca_s for the GH laws, one symbol per a/l;
     figure 4: as figure 2 for the laws with K_s = 3 G_s (NH, SK_C1, GH_nu0.5);
-    figure 5: as figure 3 for NH against GH_nu0.5.
+    figure 5: as figure 3 for NH against GH_nu0.5;
+    steady range (ours): the last steady Ca_s against a/l for every law, with where and how
+    each steady branch ends (continuous elongation, mesh breakdown, time limit).
 Shear database
     figure 6: D12 against Ca_s, and L3/a against D12, for every law.
 
@@ -111,15 +113,16 @@ def profile_figure(database: TubeDatabase, laws: Sequence[str], ca_values: Seque
     return fig
 
 
-def lengths_figure(database: TubeDatabase, laws: Sequence[str]) -> Figure:
-    """L_z/l, L_p/l and v_c/V against Ca_s: colour and line style per law, symbol per a/l."""
+def lengths_figure(database: TubeDatabase, laws: Sequence[str], ca_max: float = np.inf) -> Figure:
+    """L_z/l, L_p/l and v_c/V against Ca_s up to ``ca_max``: colour and line style per law,
+    symbol per a/l."""
     fig = Figure(figsize=(13, 4.3), layout="constrained")
     axes = fig.subplots(1, 3)
     quantities = (("L_z", "L_z/l"), ("L_p", "L_p/l"), ("vc_over_V", "v_c/V"))
     for i, key in enumerate(laws):
         table = database.law(key)
         for j, size in enumerate(np.unique(table.columns["a_over_l"])):
-            rows = (table.columns["a_over_l"] == size) & table.steady
+            rows = (table.columns["a_over_l"] == size) & table.steady & (table.columns["Ca_s"] <= ca_max)
             order = np.argsort(table.columns["Ca_s"][rows])
             for ax, (name, _) in zip(axes, quantities):
                 ax.plot(table.columns["Ca_s"][rows][order], table.columns[name][rows][order],
@@ -131,6 +134,50 @@ def lengths_figure(database: TubeDatabase, laws: Sequence[str]) -> Figure:
         ax.grid(True, alpha=0.3)
     if axes[1].get_legend_handles_labels()[0]:
         axes[1].legend(fontsize="x-small", ncol=2)
+    return fig
+
+
+#: How a steady branch ends, by the status of the first case past it: marker and label.
+BRANCH_ENDS = {"continuous_elongation": ("^", "continuous elongation"), "failed": ("x", "failed (mesh breakdown)"),
+               "max_time": ("s", "no steady state by t_max")}
+
+
+def steady_range_figure(database: TubeDatabase, laws: Sequence[str]) -> Figure:
+    """The last steady Ca_s against a/l, one line per law, and the status of the next case.
+
+    A branch that is steady up to the grid's largest Ca_s is drawn with an open circle there:
+    its end lies beyond the grid.
+    """
+    fig = Figure(figsize=(6.5, 4.6), layout="constrained")
+    ax = fig.subplots()
+    labelled: set[str] = set()
+    for i, key in enumerate(laws):
+        table = database.law(key)
+        sizes = np.unique(table.columns["a_over_l"])
+        last = np.full(len(sizes), np.nan)
+        for j, size in enumerate(sizes):
+            rows = np.flatnonzero(table.columns["a_over_l"] == size)
+            rows = rows[np.argsort(table.columns["Ca_s"][rows])]
+            steady = table.steady[rows]
+            # The branch ends at the first case that is not steady (from the small-Ca_s end).
+            first_bad = int(np.argmin(steady)) if not steady.all() else len(rows)
+            if first_bad == 0:
+                continue
+            last[j] = table.columns["Ca_s"][rows[first_bad - 1]]
+            if first_bad < len(rows):
+                status = str(table.status[rows[first_bad]])
+                marker, label = BRANCH_ENDS.get(status, ("d", status))
+                ax.plot(size, table.columns["Ca_s"][rows[first_bad]], marker, color=f"C{i}", ms=6,
+                        mfc="none", label=None if label in labelled else f"next case: {label}")
+                labelled.add(label)
+            else:
+                ax.plot(size, last[j], "o", color=f"C{i}", ms=7, mfc="none",
+                        label=None if "beyond" in labelled else "steady up to the grid's end")
+                labelled.add("beyond")
+        ax.plot(sizes, last, LINESTYLES[i % len(LINESTYLES)], marker=".", color=f"C{i}", lw=1.4, label=key)
+    ax.set(xlabel="a/l [-]", ylabel="last steady Ca_s [-]", yscale="log")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.legend(fontsize="small")
     return fig
 
 
@@ -182,7 +229,9 @@ def draw_figures(database_path: str | Path, out_dir: str | Path,
         fig = shear_figure(database, laws)
         return _finish(fig, "Figure 6: simple shear flow", _omitted_note([database.law(k) for k in laws]),
                        out_dir, "figure6_shear_D12_L3")
-    ca_values = (grid or {}).get("figures", {}).get("profile_Ca_s", PAPER_PROFILE_CA)
+    figure_settings = (grid or {}).get("figures", {})
+    ca_values = figure_settings.get("profile_Ca_s", PAPER_PROFILE_CA)
+    ca_max = float(figure_settings.get("lengths_Ca_s_max", np.inf))
     specs = (
         ("figure2_tube_profiles_nu_s", GH_LAWS, "Figure 2: tube flow, effect of Ca_s and nu_s on the profile", True),
         ("figure3_tube_lengths_nu_s", GH_LAWS, "Figure 3: tube flow, lengths and velocity (GH laws)", False),
@@ -192,6 +241,9 @@ def draw_figures(database_path: str | Path, out_dir: str | Path,
     for stem, wanted, title, is_profile in specs:
         laws = _laws(database, wanted)
         fig = (profile_figure(database, laws, ca_values) if is_profile
-               else lengths_figure(database, laws))
+               else lengths_figure(database, laws, ca_max))
         written += _finish(fig, title, _omitted_note([database.law(k) for k in laws]), out_dir, stem)
+    laws = list(database.laws)
+    written += _finish(steady_range_figure(database, laws), "Tube flow: where each law's steady branch ends",
+                       "", out_dir, "tube_steady_range")
     return written
