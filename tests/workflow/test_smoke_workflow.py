@@ -189,3 +189,19 @@ def test_new_code_version_marks_every_case_stale(smoke_run: dict, tmp_path: Path
     stale = set(re.findall(r"output: \S+/cases/(\S+\.h5)", result.stdout))
     assert stale == {c.relative_path for flow in ("tube", "shear") for c in expand_cases(GRID, flow)}
     assert f"before: '{version}' now: '{version}-next'" in result.stdout
+
+
+def test_shear_only_grid_with_effects_runs_exactly_its_cases(tmp_path: Path) -> None:
+    """A grid with one flow and law keys that carry an effect (NH+lambda0.2) plans exactly its
+    own cases: no case of the default (smoke) grid's other flow, and every effect case."""
+    grid = {"name": "effects", "databases_dir": "db", "results_dir": "results",
+            "shear": {"laws": ["NH+lambda0.2", "GH_nu0.5+prestress0.05"], "Ca_s": [0.1, 0.3],
+                      "settings": {"level": 2, "t_max": 2}}}
+    grid_file = tmp_path / "effects.yaml"
+    grid_file.write_text(yaml.safe_dump(grid))
+    result = run_snakemake(tmp_path / "work", grid_file, "--dry-run")
+    assert result.returncode == 0, result.stdout[-4000:]
+    planned = {Path(p).relative_to("results/cases").as_posix()
+               for p in re.findall(r"output: (\S+/cases/\S+\.h5)", result.stdout)}
+    assert planned == {c.relative_path for c in expand_cases(grid, "shear")}
+    assert len(planned) == 4
