@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.population import law_drift, plot_population, population
+from capsmech.population import law_drift, plot_population, population, population_verdict
 
 
 def batch(rng, slope, n=30, g0=0.043, noise=0.05):
@@ -69,3 +69,52 @@ def test_population_table_round_trips_through_hdf5_and_csv(tmp_path):
         assert f["G_s_mean"].attrs["units"] == "N/m"
         assert f["p_value"][1] == pytest.approx(drifts["GH_nu0.5"].p_value)
     assert float(read_results(tmp_path / "pop.csv")[0]["drift"]) == pytest.approx(drifts["NH"].slope, rel=1e-5)
+
+
+def flat_batch(rng, n=12, g0=0.043, noise=0.05):
+    """A batch with no drift at all: the noise's regression on Delta removed (slope exactly 0),
+    so that the verdict tests below do not hinge on a chance drift."""
+    delta = rng.uniform(1.02, 1.25, n)
+    e = rng.standard_normal(n)
+    e -= np.polyval(np.polyfit(delta, e, 1), delta)
+    return delta, g0 * (1 + noise * e)
+
+
+def rows_with_contours(law, delta, g, misfit):
+    return [{"id": f"c{i}", "law": law, "Delta": d, "G_s": x, "flag": "", "H_over_a": h}
+            for i, (d, x, h) in enumerate(zip(delta, g, misfit))]
+
+
+def test_contours_decide_where_the_drift_test_cannot():
+    # Two laws that both give a constant G_s (one rescaled): the drift test alone reports the
+    # one with the larger p-value; the paired contour comparison picks the law whose profiles
+    # fit every capsule better, and the verdict follows it.
+    rng = np.random.default_rng(11)
+    delta, g = flat_batch(rng)
+    good = 0.010 + 0.002 * rng.random(12)
+    rows = (rows_with_contours("A", delta, g, good + 0.004 + 0.002 * rng.random(12))
+            + rows_with_contours("B", delta, 2 * g, good))
+    verdict = population_verdict(rows)
+    assert verdict.shape.n == 12 and verdict.shape.best == "B"
+    assert verdict.shape.p_values[("A", "B")] < 0.001        # 12 of 12 pairs on one side: 2/2^12
+    assert verdict.best == "B" and not verdict.drifts["B"].drifts
+
+
+def test_contours_and_drift_disagreeing_report_no_law():
+    rng = np.random.default_rng(12)
+    delta, g = batch(rng, -3.0, n=12)
+    good = 0.010 + 0.002 * rng.random(12)
+    rows = rows_with_contours("A", delta, g, good) + rows_with_contours("B", *flat_batch(rng), good + 0.01)
+    verdict = population_verdict(rows)
+    assert verdict.shape.best == "A" and verdict.drifts["A"].drifts
+    assert verdict.best is None and "disagree" in verdict.reason
+
+
+def test_indistinguishable_contours_fall_back_on_the_drift_test():
+    rng = np.random.default_rng(13)
+    misfit = 0.01 + 0.003 * rng.random(12)
+    rows = (rows_with_contours("NH", *flat_batch(rng), misfit + 1e-4 * rng.standard_normal(12))
+            + rows_with_contours("GH", *batch(rng, -3.0, n=12), misfit + 1e-4 * rng.standard_normal(12)))
+    verdict = population_verdict(rows)
+    assert verdict.shape is not None and verdict.shape.best is None
+    assert verdict.best == "NH"

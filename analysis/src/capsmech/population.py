@@ -4,8 +4,18 @@ G_s is a material property: fitted with the right law it does not drift with the
 deformation, measured by the mean profile elongation Delta = p / (2 pi a). For each law the
 fitted G_s of a batch are regressed on Delta (least squares, ``scipy.stats.linregress``); the
 drift is the slope relative to the mean G_s, with its 95 % confidence interval (Student t)
-and the p-value of "no drift". The law reported is the one whose drift is least significant
-(largest p-value) among those with p >= alpha; when every law drifts, none is reported.
+and the p-value of "no drift".
+
+The drift test alone has little power where two laws map the same lengths onto each other by
+a rescaling of G_s (an NH fit of a GH nu_s = 0.5 batch gives twice the modulus and no drift
+over Delta 1.03-1.2). The contours tell those laws apart: each capsule's misfit H/a to the
+profile fitted with each law is compared across the batch by a paired Wilcoxon signed-rank
+test (``shape_comparison``). The verdict (``population_verdict``):
+
+- when the contours single out a law (smaller H/a than every other law, p < alpha), that law,
+  provided its G_s does not drift; if it drifts, no law (the two tests disagree);
+- otherwise (no contours, or no significant difference) the law whose drift is least
+  significant (largest p-value) among those with p >= alpha; when every law drifts, none.
 """
 from __future__ import annotations
 
@@ -76,9 +86,76 @@ def law_drift(law: str, delta: Sequence[float], g_s: Sequence[float]) -> LawDrif
                     t=float(t_stat), p_value=float(fit.pvalue))
 
 
-def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], str | None]:
-    """Drift per law from fit-tube result rows (columns law, Delta, G_s, flag) and the law the
-    data support (None when every law drifts). Flagged rows are excluded."""
+#: Capsules with a contour misfit under every law that the shape comparison needs (the
+#: two-sided signed-rank test cannot reach p < 0.05 with fewer than 6 pairs).
+MIN_SHAPE_PAIRS = 6
+
+
+@dataclass(frozen=True)
+class ShapeComparison:
+    """Contour misfit H/a of the same capsules under each law.
+
+    Attributes
+    ----------
+    n : int
+        Capsules fitted (without flag, finite H/a) by every law compared.
+    median : dict
+        Median H/a per law over those capsules.
+    p_values : dict
+        Two-sided p-value of the paired signed-rank test per pair of laws (sorted keys).
+    best : str or None
+        The law whose H/a is the smallest and smaller than each other law's with p < alpha.
+    """
+
+    n: int
+    median: dict[str, float]
+    p_values: dict[tuple[str, str], float]
+    best: str | None
+
+
+@dataclass(frozen=True)
+class PopulationVerdict:
+    """Drift per law, the shape comparison (None without contours) and the law reported."""
+
+    drifts: dict[str, LawDrift]
+    shape: ShapeComparison | None
+    best: str | None
+    reason: str
+
+
+def _number(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def shape_comparison(rows: Iterable[Mapping[str, Any]]) -> ShapeComparison | None:
+    """Compare the laws by the contour misfit ``H_over_a`` of fit-tube rows (flagged rows
+    excluded); None when fewer than two laws or ``MIN_SHAPE_PAIRS`` capsules have one."""
+    misfit: dict[str, dict[str, float]] = {}
+    for row in rows:
+        h = _number(row.get("H_over_a"))
+        if not row.get("flag") and np.isfinite(h):
+            misfit.setdefault(str(row["law"]), {})[str(row["id"])] = h
+    laws = sorted(misfit)
+    if len(laws) < 2:
+        return None
+    common = sorted(set.intersection(*(set(misfit[law]) for law in laws)))
+    if len(common) < MIN_SHAPE_PAIRS:
+        return None
+    h = {law: np.array([misfit[law][c] for c in common]) for law in laws}
+    p_values = {(a, b): float(stats.wilcoxon(h[a], h[b]).pvalue) for i, a in enumerate(laws) for b in laws[i + 1:]}
+    median = {law: float(np.median(h[law])) for law in laws}
+    smallest = min(laws, key=median.__getitem__)
+    decisive = all(p_values[tuple(sorted((smallest, other)))] < ALPHA for other in laws if other != smallest)
+    return ShapeComparison(len(common), median, p_values, smallest if decisive else None)
+
+
+def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
+    """Drift per law from fit-tube result rows (columns id, law, Delta, G_s, flag, and
+    H_over_a where contours were measured) and the law the data support (see the module)."""
+    rows = list(rows)
     by_law: dict[str, tuple[list[float], list[float]]] = {}
     for row in rows:
         if row.get("flag"):
@@ -87,9 +164,27 @@ def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], 
         delta.append(float(row["Delta"]))
         g.append(float(row["G_s"]))
     drifts = {law: law_drift(law, d, g) for law, (d, g) in by_law.items() if len(d) >= 3}
+    shape = shape_comparison(rows)
+    if shape is not None and shape.best is not None and shape.best in drifts:
+        if drifts[shape.best].drifts:
+            return PopulationVerdict(drifts, shape, None, f"the contours favour {shape.best}, but its G_s drifts "
+                                     f"with Delta (p = {drifts[shape.best].p_value:.2g}): the tests disagree")
+        return PopulationVerdict(drifts, shape, shape.best, f"contours fit best (median H/a "
+                                 f"{shape.median[shape.best]:.4f}, n = {shape.n}) and G_s does not drift "
+                                 f"(p = {drifts[shape.best].p_value:.2g})")
     steady = [d for d in drifts.values() if not d.drifts]
-    best = max(steady, key=lambda d: d.p_value).law if steady else None
-    return drifts, best
+    if not steady:
+        return PopulationVerdict(drifts, shape, None, "every law's G_s drifts with the deformation (p < 0.05)")
+    best = max(steady, key=lambda d: d.p_value).law
+    why = "no contours to compare" if shape is None else "the contours do not tell the laws apart"
+    return PopulationVerdict(drifts, shape, best, f"{why}; G_s does not drift (p = {drifts[best].p_value:.2g})")
+
+
+def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], str | None]:
+    """Drift per law and the law the data support (None when none is): ``population_verdict``
+    without its details."""
+    verdict = population_verdict(rows)
+    return verdict.drifts, verdict.best
 
 
 #: Columns of the population table (``write_population``) and their units.
