@@ -15,10 +15,24 @@ from capsmech.runner import run_case, source_code_version
 from conftest import REPO
 
 SHIPPED = sorted((REPO / "data" / "databases").rglob("*.h5"))
+#: A database whose cheapest steady case took longer than this is checked by `make validate`.
+QUICK_CASE_S = 30.0
+
+
+def _cheapest_steady_case_s(path: Path) -> float:
+    database = load_database(path)
+    table = database.law(expand_cases(database.grid, database.flow)[0].law.key)
+    return float(np.min(np.where(table.steady, table.columns["wall_time_s"], np.inf)))
+
+
+def _shipped_params() -> list:
+    return [pytest.param(p, id=p.relative_to(REPO).as_posix(),
+                         marks=[pytest.mark.validate] if _cheapest_steady_case_s(p) > QUICK_CASE_S else [])
+            for p in SHIPPED]
 
 
 @pytest.mark.skipif(not SHIPPED, reason="no database file shipped yet")
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.relative_to(REPO).as_posix() for p in SHIPPED])
+@pytest.mark.parametrize("path", _shipped_params())
 def test_shipped_database_rows_are_reproduced(path: Path, tmp_path: Path) -> None:
     database = load_database(path)
     if database.provenance["code_version"] != source_code_version(REPO):
