@@ -10,13 +10,17 @@ E = (K_B/2) int (kappa_1 + kappa_2 - c0)**2 dA, c0 the reference sphere's curvat
 """
 from __future__ import annotations
 
+import copy
 import math
 import subprocess
 
+import h5py
 import numpy as np
 import pytest
 
-from conftest import _executable
+from capsmech.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
+from capsmech.io import read_case
+from conftest import REPO, _executable
 
 
 def bending_probe(*args: object) -> dict[str, float]:
@@ -90,3 +94,78 @@ def test_3d_and_axisymmetric_energies_agree_on_a_spheroid():
     assert eaxi[0] > eaxi[1] > eaxi[2] and eaxi[2] < 2e-3
     e3, ea = (bending_probe("spheroid", 4, b, c)["energy"], bending_probe("axi-spheroid", 128, b, c)["energy"])
     assert abs(e3 / ea - 1) < 2e-3
+
+
+def test_incremental_tube_jacobian_follows_the_wider_bending_stencil(probe):
+    # With bending a node's force depends on the nodes two away, so the incremental Jacobian
+    # re-integrates six elements per column: it must equal differences of full velocity
+    # evaluations (measured 3e-7, the bending-stiffened noise; with the elastic stencil of four
+    # elements the difference is 4e-2).
+    r = probe("tube-jacobian", 0.3, 0.01, 0.05)
+    assert r["max_rel_difference"] < 1e-5
+
+
+def _run(capsim, out, *args):
+    subprocess.run([str(capsim), *map(str, args), "--threads", "1", "--quiet", "--out", str(out)],
+                   check=True, timeout=600)
+    return out
+
+
+def _datasets(path):
+    found = {}
+    with h5py.File(path) as f:
+        f.visititems(lambda name, obj: found.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
+@pytest.mark.parametrize("flow_args", [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
+                                       ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)],
+                         ids=["shear", "tube"])
+def test_zero_kb_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
+    base = _datasets(_run(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
+    zero = _datasets(_run(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--kb", 0))
+    assert base.keys() == zero.keys()
+    for name in base:
+        assert np.array_equal(base[name], zero[name]), name
+    with h5py.File(tmp_path / "zero.h5") as f:
+        assert f.attrs["k_b"] == 0.0
+
+
+def test_bending_stiffness_flattens_the_parachute(capsim, tmp_path):
+    # NH, a/l = 0.9, Ca_s = 0.05, axisymmetric tube. Measured (n_meridian 64):
+    #   k_b 0:    L_z 1.8962, L_p 0.1761, v_c/V 1.2194
+    #   k_b 0.01: L_z 1.9249, L_p 0.0339, v_c/V 1.2301
+    #   k_b 0.05: L_z 1.9909, L_p 0,      v_c/V 1.2102
+    cases = [read_case(_run(capsim, tmp_path / f"kb{kb}.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9,
+                            "--ca", 0.05, "--kb", kb)) for kb in (0, 0.01, 0.05)]
+    assert all(c.status == "steady" for c in cases), [c.message for c in cases]
+    assert [c.effects["kb"] for c in cases] == [0, 0.01, 0.05]   # the case attribute k_b, read back
+    depth = [c.steady_value("L_p") for c in cases]
+    assert depth[0] > 0.1 and depth[0] > depth[1] > depth[2] and depth[2] < 0.01
+    # The bending-stiffened capsule resists the rear's inversion and is pulled longer.
+    length = [c.steady_value("L_z") for c in cases]
+    assert length[0] < length[1] < length[2]
+
+
+@pytest.mark.parametrize("value", ["-0.01", "1.5", "abc", "nan"])
+def test_bad_kb_is_refused(capsim, tmp_path, value):
+    result = subprocess.run([str(capsim), "--flow", "shear", "--law", "NH", "--ca", "0.05",
+                             "--kb", value, "--out", str(tmp_path / "x.h5")], capture_output=True, text=True)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("capsim: error: --kb"), result.stderr
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_grid_law_key_adds_kb_as_a_database_dimension():
+    law = parse_law("GH_nu0.5+kb0.01")
+    assert law == Law("GH_nu0.5+kb0.01", "GH", nu_s=0.5, effects=(("kb", 0.01),))
+    assert law.kernel_args() == ["--law", "GH", "--nu-s", "0.5", "--kb", "0.01"]
+    grid = copy.deepcopy(load_grid(REPO / "config" / "smoke.yaml"))
+    grid["tube"]["laws"] = ["NH", "NH+kb0.01"]
+    grid["shear"]["laws"] = ["NH+kb0.01"]
+    validate_grid(grid, "kb.yaml")
+    assert all("--kb" in case.kernel_args() for case in expand_cases(grid, "shear"))
+    grid["tube"]["laws"] = ["NH+kb2"]
+    with pytest.raises(GridError, match=r"tube.laws\[0\]: law key 'NH\+kb2': kb must lie in \[0, 1\]"):
+        validate_grid(grid, "kb.yaml")
