@@ -204,6 +204,8 @@ contains
          self%dt = implicit_dt
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
+         ! Bending limit of the explicit steps (see capsule_dynamics), K_B = k_b a**2.
+         if (opts%kb > 0.0_dp) self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / (opts%kb * self%a**2))
       end if
       ! Every solver ends with Newton iterations (time stepping polishes its steady shape).
       m = 2 * n - 2

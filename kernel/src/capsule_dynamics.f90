@@ -121,6 +121,11 @@ contains
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.02_dp)
       end if
+      ! Bending waves of length h relax at ~ K_B / (mu h**3): stable for dt < O(Ca h**3 / k_b).
+      ! Measured at Ca 0.1 (NH): the limit is 1.0 - 1.9 Ca h_min**3 / k_b (level 2 k_b 1,
+      ! level 3 k_b 0.1 and 1), so dt_factor keeps the elastic step's margin of about 2.
+      if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
+         self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / opts%kb)
       call self%allocate_history(shear_history_names, shear_history_units, opts%t_max, opts%record_every)
       self%col_length = h_l1
       self%col_stretch = h_stretch

@@ -180,6 +180,9 @@ contains
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
       end if
+      ! Bending limit as capsule_dynamics, with K_B = k_b a**2 in units G_s l**2.
+      if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
+         self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / (opts%kb * self%a**2))
       call self%allocate_history(tube_history_names, tube_history_units, opts%t_max, opts%record_every)
       ! The axisymmetric model's steady criteria (lengths and v_c settle to 1e-3 per time unit).
       self%col_length = h_lz

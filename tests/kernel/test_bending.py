@@ -147,6 +147,26 @@ def test_bending_stiffness_flattens_the_parachute(capsim, tmp_path):
     assert length[0] < length[1] < length[2]
 
 
+def test_bending_stiffness_reduces_shear_deformation(capsim, tmp_path):
+    # NH, Ca_s 0.1, level 2: D12 0.1960 (k_b 0) -> 0.1799 (k_b 0.01); level 3: 0.1986 -> 0.1831,
+    # and 0.1142 at k_b 0.1. A stiffer membrane deforms less at the same Ca_s.
+    cases = [read_case(_run(capsim, tmp_path / f"kb{kb}.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
+                            "--level", 2, "--kb", kb)) for kb in (0, 0.01)]
+    assert all(c.status == "steady" for c in cases), [c.message for c in cases]
+    d12 = [c.steady_value("D12") for c in cases]
+    assert 0.85 * d12[0] < d12[1] < 0.97 * d12[0]
+
+
+def test_automatic_step_follows_the_bending_stiffness(capsim, tmp_path):
+    # k_b = 1 at level 2: the elastic step (0.5 Ca h_min = 0.0138) breaks the mesh within
+    # t = 0.11; the bending bound 0.5 Ca h_min**3 / k_b (measured limit: 1.2 Ca h_min**3 / k_b)
+    # keeps it smooth (t_max 0.5, ~500 steps).
+    case = read_case(_run(capsim, tmp_path / "stiff.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
+                          "--level", 2, "--kb", 1, "--t-max", 0.5))
+    assert case.status == "max_time", case.message
+    assert np.all(np.isfinite(case.history["D12"])) and case.history["max_stretch"].max() < 1.1
+
+
 @pytest.mark.parametrize("value", ["-0.01", "1.5", "abc", "nan"])
 def test_bad_kb_is_refused(capsim, tmp_path, value):
     result = subprocess.run([str(capsim), "--flow", "shear", "--law", "NH", "--ca", "0.05",
