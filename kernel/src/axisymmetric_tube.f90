@@ -16,6 +16,7 @@ module axisymmetric_tube
    use capsim_kinds, only: dp, pi
    use hdf5_writer, only: h5_file_t
    use membrane_law, only: make_membrane_law
+   use axisymmetric_bending, only: meridian_bending_t
    use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_node_areas, &
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
@@ -94,6 +95,8 @@ module axisymmetric_tube
 
    type, extends(capsule_model_t) :: axisymmetric_tube_t
       type(meridian_reference_t) :: ref
+      !> Bending stiffness (--kb); set up only when k_b > 0.
+      type(meridian_bending_t) :: bending
       real(dp) :: ca = 0, a = 0, h_min = 0, energy = 0, v_c = 0, volume0 = 0, tube_length = 10
       logical :: volume_correction = .true.
       !> Steady solver (Newton with continuation in Ca), linearly implicit Euler steps, or
@@ -171,6 +174,8 @@ contains
       ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
       call self%ref%init(self%rz_ref / (1.0_dp + opts%prestress))
       self%h_min = minval(self%ref%length0) * (1.0_dp + opts%prestress)
+      ! Bending from the sphere at rest; K_B = k_b G_s a**2 is k_b (a/l)**2 in units G_s l**2.
+      if (opts%kb > 0.0_dp) call self%bending%init(self%rz_ref, opts%kb * self%a**2)
       allocate (self%rz_pred(2, n), self%u0(2, n), self%u1(2, n), self%force(2, n), self%density(2, n))
       allocate (self%node_area(n), self%grad(2, n))
 
@@ -199,6 +204,8 @@ contains
          self%dt = implicit_dt
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
+         ! Bending limit of the explicit steps (see capsule_dynamics), K_B = k_b a**2.
+         if (opts%kb > 0.0_dp) self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / (opts%kb * self%a**2))
       end if
       ! Every solver ends with Newton iterations (time stepping polishes its steady shape).
       m = 2 * n - 2
@@ -343,6 +350,7 @@ contains
       real(dp) :: force(2, size(rz, 2)), area(size(rz, 2))
       integer :: k
       call meridian_forces(self%ref, self%law, rz, force, energy)
+      if (self%bending%kb > 0.0_dp) call self%bending%add_forces(rz, force, energy)
       call meridian_node_areas(rz, area)
       do k = 1, size(rz, 2)
          density(:, k) = force(:, k) / area(k)
@@ -434,7 +442,7 @@ contains
 
    !> velocity_jacobian's work, on arrays the caller keeps. element_at_wall/node: the single
    !> layer of each membrane element e at every wall point and node (a column moves one node,
-   !> which changes four elements; their old contributions are looked up there).
+   !> which changes four elements, six with bending; their old contributions are looked up there).
    subroutine jacobian_with_work(self, rz, fd_step, jacobian, density0, raw0, b0, g0, influence, u0, packed0, &
                                  element_at_wall, element_at_node)
       type(axisymmetric_tube_t), intent(in) :: self
@@ -503,8 +511,9 @@ contains
          rz1 = rz
          rz1(c, node) = rz(c, node) + fd_step
          call membrane_density(self, rz1, density1, e1)
-         first = max(1, node - 2)
-         last = min(n - 1, node + 1)
+         ! Bending couples a node's force to the nodes two away: one more element each side.
+         first = max(1, node - 2 - merge(1, 0, self%bending%kb > 0.0_dp))
+         last = min(n - 1, node + 1 + merge(1, 0, self%bending%kb > 0.0_dp))
          do w = 1, nw
             rhs(2 * w - 1:2 * w, 1) = -(b0(2 * w - 1:2 * w) &
                                         + membrane_single_layer(rz1, density1, self%wall_mid(:, w), first, last, 0) &

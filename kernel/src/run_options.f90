@@ -36,6 +36,8 @@ module run_options
       !> Pre-stress alpha: the stress-free membrane is the sphere of radius a/(1 + alpha),
       !> inflated to radius a at rest (an isotropic pre-tension).
       real(dp) :: prestress = 0.0_dp
+      !> Bending stiffness k_b = K_B / (G_s a**2) (discrete Helfrich energy, membrane_bending).
+      real(dp) :: kb = 0.0_dp
       real(dp) :: c = 1.0_dp
       !> Viscosity ratio lambda = inner / outer viscosity (shear only for now; 1 = the base model).
       real(dp) :: lambda = 1.0_dp
@@ -65,7 +67,7 @@ module run_options
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
-      ' [--prestress ALPHA] [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
+      ' [--prestress ALPHA] [--kb X] [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -196,6 +198,8 @@ contains
             call read_int(key, value, opts%level)
          case ('--prestress')
             call read_real(key, value, opts%prestress)
+         case ('--kb')
+            call read_real(key, value, opts%kb)
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -244,10 +248,10 @@ contains
       character(len=:), allocatable, intent(out) :: errmsg
       character(len=16) :: flow, law, model
       character(len=path_len) :: out
-      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l, lambda
+      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l, lambda, kb
       integer :: level, threads, unit, ios, n_meridian
       character(len=256) :: iomsg
-      namelist /capsim/ flow, law, model, nu_s, c, ca, lambda, a_over_l, level, n_meridian, dt, t_max, threads, out
+      namelist /capsim/ flow, law, model, nu_s, c, ca, lambda, kb, a_over_l, level, n_meridian, dt, t_max, threads, out
 
       stat = 0
       errmsg = ''
@@ -260,6 +264,7 @@ contains
       c = opts%c
       ca = opts%ca
       lambda = opts%lambda
+      kb = opts%kb
       level = opts%level
       dt = opts%dt
       t_max = opts%t_max
@@ -287,6 +292,7 @@ contains
       opts%c = c
       opts%ca = ca
       opts%lambda = lambda
+      opts%kb = kb
       opts%level = level
       opts%dt = dt
       opts%t_max = t_max
@@ -360,6 +366,9 @@ contains
       else if (.not. (opts%prestress >= 0.0_dp .and. opts%prestress <= 0.5_dp)) then
          ! A compressed reference (alpha < 0) would buckle at rest: the model has no bending stiffness.
          errmsg = '--prestress: must lie in [0, 0.5] (inflation of the stress-free sphere), got '//real_text(opts%prestress)
+      else if (.not. (opts%kb >= 0.0_dp .and. opts%kb <= 1.0_dp)) then
+         ! Capsules have k_b ~ 1e-3 - 1e-1; beyond 1 the explicit steps would be bending-bound.
+         errmsg = '--kb: must lie in [0, 1] (bending stiffness K_B / (G_s a^2)), got '//real_text(opts%kb)
       else if (.not. (opts%c > -0.5_dp)) then
          errmsg = '--C: must be > -0.5 so that K_s = (1 + 2C) G_s > 0, got '//real_text(opts%c)
       else if (opts%ca == -huge(1.0_dp)) then
@@ -429,6 +438,10 @@ contains
       end if
       if (opts%lambda /= 1.0_dp) then
          write (buf, '(a,es23.16)') ' lambda ', opts%lambda
+         sig = sig//trim(buf)
+      end if
+      if (opts%kb /= 0.0_dp) then
+         write (buf, '(a,es23.16)') ' kb ', opts%kb
          sig = sig//trim(buf)
       end if
    end function option_signature

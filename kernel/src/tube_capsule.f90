@@ -24,6 +24,7 @@ module tube_capsule
    use sphere_mesh, only: surface_mesh_t, icosphere
    use membrane_law, only: make_membrane_law
    use membrane_forces, only: membrane_reference_t, membrane_nodal_forces, principal_stretches
+   use membrane_bending, only: bending_t
    use stokes_single_layer, only: single_layer_t, add_stokeslets, triangle_areas, node_areas
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use surface_diagnostics, only: area_and_volume, shear_plane_contour
@@ -51,6 +52,8 @@ module tube_capsule
    type, extends(capsule_model_t) :: tube_capsule_t
       type(surface_mesh_t) :: mesh
       type(membrane_reference_t) :: ref
+      !> Bending stiffness (--kb); set up only when k_b > 0.
+      type(bending_t) :: bending
       type(single_layer_t) :: single_layer
       type(tube_wall_t) :: wall
       type(wall_operator_t) :: wall_op
@@ -119,6 +122,8 @@ contains
       self%positions = self%start_positions
       ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
       call self%ref%init(self%mesh, self%x_ref / (1.0_dp + opts%prestress))
+      ! Bending from the sphere at rest; K_B = k_b G_s a**2 is k_b (a/l)**2 in units G_s l**2.
+      if (opts%kb > 0.0_dp) call self%bending%init(self%mesh, self%x_ref, opts%kb * self%a**2)
       ! As capsule_dynamics: Duffy 4x4 on touching triangles, 7-point rule on the next ring.
       call self%single_layer%init(self%mesh, 4, 0)
       self%near_rule = dunavant7_rule(0)
@@ -175,6 +180,9 @@ contains
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
       end if
+      ! Bending limit as capsule_dynamics, with K_B = k_b a**2 in units G_s l**2.
+      if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
+         self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / (opts%kb * self%a**2))
       call self%allocate_history(tube_history_names, tube_history_units, opts%t_max, opts%record_every)
       ! The axisymmetric model's steady criteria (lengths and v_c settle to 1e-3 per time unit).
       self%col_length = h_lz
@@ -218,6 +226,7 @@ contains
 
       n = self%mesh%n_nodes
       call membrane_nodal_forces(self%ref, self%mesh, self%law, x, self%force, self%energy)
+      if (self%bending%kb > 0.0_dp) call self%bending%add_forces(self%mesh, x, self%force, self%energy)
       ! single_layer%velocity leaves the triangle and node areas, and the node Stokeslets
       ! (positions, strengths f A), in its work arrays: capsule_single_layer_at uses them.
       call triangle_areas(self%mesh, x, self%single_layer%tri_area)

@@ -9,7 +9,7 @@
 !>   kernel_probe translate LEVEL DUFFY_ORDER NEAR_LEVELS
 !>   kernel_probe axi-fd LAW NU_S C N_ELEMENTS
 !>   kernel_probe axi-laplace LAW NU_S C LAMBDA N_ELEMENTS
-!>   kernel_probe tube-jacobian A_OVER_L CA   (incremental vs brute-force Jacobian)
+!>   kernel_probe tube-jacobian A_OVER_L CA [KB]   (incremental vs brute-force Jacobian)
 !>   kernel_probe bench LEVEL REPEATS      (seconds per velocity evaluation and per RK2 step)
 !>   kernel_probe rest LAW NU_S C ALPHA LEVEL STEPS   (pre-stressed capsule, no outer flow)
 program kernel_probe
@@ -464,6 +464,7 @@ contains
       opts%ca = ca
       opts%a_over_l = a_over_l
       opts%integrator = 'rk2'
+      if (command_argument_count() >= 4) opts%kb = real_arg(4)
       call tube%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
       do k = 1, 20

@@ -9,7 +9,8 @@ parameters in the kernel's ranges, no duplicate values). Every error names the k
 Law keys are the database's group names and map to kernel flags:
 ``NH`` -> ``--law NH``; ``SK_C1`` -> ``--law SK --C 1``; ``GH_nu0.5`` -> ``--law GH --nu-s 0.5``.
 A key may add effects beyond the base model (issue 6), each a further database dimension:
-``NH+prestress0.05`` -> ``--law NH --prestress 0.05`` (``EFFECTS`` lists those the kernel has).
+``NH+prestress0.05`` -> ``--law NH --prestress 0.05``, ``NH+kb0.01`` -> ``--law NH --kb 0.01``
+(``EFFECTS`` lists those the kernel has).
 """
 
 from __future__ import annotations
@@ -42,9 +43,10 @@ _EFFECT = re.compile(rf"\+(?P<name>[a-z_]+)(?P<value>{_NUMBER})")
 EFFECTS = {
     "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
     "lambda": ("--lambda", lambda v: 0.0 < v <= 1e6, "in (0, 1e6]"),
+    "kb": ("--kb", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
 }
 #: Flows where the kernel has each effect (others refuse it).
-EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",)}
+EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",), "kb": ("tube", "shear")}
 
 
 class GridError(ValueError):

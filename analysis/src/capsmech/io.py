@@ -63,7 +63,9 @@ _INT_ATTRS = ("schema_version", "mesh_level", "threads")
 _FLOAT_ATTRS = ("nu_s", "C", "Ca_s", "dt", "wall_time_s")
 #: Effects beyond the base model (issue 6): root attribute -> its neutral value, which a case
 #: file written before the effect existed implicitly has.
-EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0}
+EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0, "kb": 0.0}
+#: Root attribute of an effect whose name differs from the effect's (law key) name.
+EFFECT_ATTRS = {"kb": "k_b"}
 
 
 class CaseFileError(ValueError):
@@ -127,7 +129,8 @@ class CaseResult:
         File the case was read from.
     effects : dict[str, float]
         Effects beyond the base model (``EFFECT_DEFAULTS``: pre-stress alpha, viscosity ratio
-        lambda), their neutral values when the file does not record them.
+        lambda, bending stiffness kb from the attribute ``k_b``), their neutral values when the
+        file does not record them.
     """
 
     flow: str
@@ -515,8 +518,8 @@ def _read_open_case(f: h5py.File, where: str) -> CaseResult:
         mesh=_read_mesh(f, where, attrs["flow"]),
         units=units,
         path=where,
-        effects={name: float(to_scalar(f.attrs[name])) if name in f.attrs else default
-                 for name, default in EFFECT_DEFAULTS.items()},
+        effects={name: float(to_scalar(f.attrs[attr])) if attr in f.attrs else default
+                 for name, default in EFFECT_DEFAULTS.items() for attr in (EFFECT_ATTRS.get(name, name),)},
     )
 
 
