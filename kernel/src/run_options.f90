@@ -38,6 +38,9 @@ module run_options
       real(dp) :: prestress = 0.0_dp
       !> Bending stiffness k_b = K_B / (G_s a**2) (discrete Helfrich energy, membrane_bending).
       real(dp) :: kb = 0.0_dp
+      !> 3D tube: initial radial position of the capsule's centroid over l (along x); the
+      !> capsule is then re-centred axially only and drifts radially as the flow moves it.
+      real(dp) :: offset = 0.0_dp
       real(dp) :: c = 1.0_dp
       !> Viscosity ratio lambda = inner / outer viscosity (shear only for now; 1 = the base model).
       real(dp) :: lambda = 1.0_dp
@@ -67,7 +70,8 @@ module run_options
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
-      ' [--prestress ALPHA] [--kb X] [--level N] [--dt X] [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
+      ' [--prestress ALPHA] [--kb X] [--offset X] [--level N] [--dt X]'// &
+      ' [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -200,6 +204,8 @@ contains
             call read_real(key, value, opts%prestress)
          case ('--kb')
             call read_real(key, value, opts%kb)
+         case ('--offset')
+            call read_real(key, value, opts%offset)
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -311,6 +317,10 @@ contains
       errmsg = ''
       select case (trim(opts%flow))
       case ('shear')
+         if (opts%offset /= 0.0_dp) then
+            errmsg = '--offset: only for --flow tube --model 3d, got '//real_text(opts%offset)
+            return
+         end if
       case ('tube')
          if (opts%a_over_l == -huge(1.0_dp)) then
             errmsg = '--a-over-l: missing (size ratio a/l of the capsule to the tube radius)'
@@ -342,6 +352,17 @@ contains
                errmsg = '--wall-cache: cannot write in "'//trim(opts%wall_cache)//'": '//trim(iomsg)
             else
                close (unit, status='delete')
+            end if
+         end if
+         if (len(errmsg) == 0 .and. opts%offset /= 0.0_dp) then
+            if (trim(opts%model) /= '3d') then
+               errmsg = '--offset: an off-centre capsule needs --model 3d (the axisymmetric model is centred), got '// &
+                        real_text(opts%offset)
+            else if (.not. (opts%offset > 0.0_dp .and. opts%offset + opts%a_over_l <= 0.9_dp)) then
+               ! The undeformed capsule must clear the wall by 0.1 l: the wall quadrature is
+               ! checked to films of 0.05 l, and the capsule moves towards the wall as it deforms.
+               errmsg = '--offset: must be > 0 with offset + a/l <= 0.9 (the capsule clear of the wall), got '// &
+                        real_text(opts%offset)
             end if
          end if
          if (len(errmsg) > 0) return
@@ -442,6 +463,10 @@ contains
       end if
       if (opts%kb /= 0.0_dp) then
          write (buf, '(a,es23.16)') ' kb ', opts%kb
+         sig = sig//trim(buf)
+      end if
+      if (opts%offset /= 0.0_dp) then
+         write (buf, '(a,es23.16)') ' offset ', opts%offset
          sig = sig//trim(buf)
       end if
    end function option_signature

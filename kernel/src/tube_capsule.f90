@@ -15,6 +15,10 @@
 !> The capsule is kept centred: velocities are taken in the frame of its volume centroid
 !> (v_c, the centroid's axial velocity, is subtracted and recorded), and after each step
 !> the centroid is translated back to the origin, in the middle of the tube, on its axis.
+!> An off-centre capsule (--offset) starts with its centroid at x = offset and is put back
+!> to mid-tube axially only: it drifts radially as the flow moves it (history column r_c),
+!> and L_p and /profile are measured along its own axis (parallel to the tube's, through the
+!> centroid).
 module tube_capsule
    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
    use omp_lib, only: omp_get_wtime
@@ -33,7 +37,7 @@ module tube_capsule
    use run_options, only: run_options_t
    use case_output, only: write_surface_mesh
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
-                           tube_history_names, tube_history_units, tube_progress_text
+                           tube3d_history_names, tube3d_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t
    implicit none
    private
@@ -59,6 +63,8 @@ module tube_capsule
       type(wall_operator_t) :: wall_op
       type(quadrature_rule_t) :: near_rule
       real(dp) :: a = 0, ca = 0, h_min = 0, energy = 0, v_c = 0
+      !> Initial radial position of the centroid (l); 0: centred, re-centred in all directions.
+      real(dp) :: offset = 0
       logical :: volume_correction = .true.
       !> Wall setup time (assembly and LU, or the cache load) [s], and the time spent so far in
       !> the three parts of the velocity that involve the wall (bench/bench_tube_3d.py).
@@ -119,6 +125,8 @@ contains
          self%start_positions(1:2, :) = (predeform_radius / self%a) * self%x_ref(1:2, :)
          self%start_positions(3, :) = (c_axis / self%a) * self%x_ref(3, :)
       end if
+      self%offset = opts%offset
+      self%start_positions(1, :) = self%start_positions(1, :) + self%offset
       self%positions = self%start_positions
       ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
       call self%ref%init(self%mesh, self%x_ref / (1.0_dp + opts%prestress))
@@ -183,7 +191,7 @@ contains
       ! Bending limit as capsule_dynamics, with K_B = k_b a**2 in units G_s l**2.
       if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
          self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / (opts%kb * self%a**2))
-      call self%allocate_history(tube_history_names, tube_history_units, opts%t_max, opts%record_every)
+      call self%allocate_history(tube3d_history_names, tube3d_history_units, opts%t_max, opts%record_every)
       ! The axisymmetric model's steady criteria (lengths and v_c settle to 1e-3 per time unit).
       self%col_length = h_lz
       self%col_stretch = h_stretch
@@ -361,17 +369,32 @@ contains
       self%x_pred = self%positions + self%dt * self%u0
       call self%velocity(self%x_pred, self%u1)
       self%positions = self%positions + 0.5_dp * self%dt * (self%u0 + self%u1)
-      call recentre(self%mesh, self%positions)
+      call recentre(self%mesh, self%positions, axial_only=self%offset /= 0.0_dp)
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
 
-   !> Translate x so that its volume centroid is at the origin (on the axis, mid-tube).
-   pure subroutine recentre(mesh, x)
+   !> Translate x so that its volume centroid is at the origin (on the axis, mid-tube), or
+   !> only to mid-tube (z = 0) when `axial_only`.
+   pure subroutine recentre(mesh, x, axial_only)
       type(surface_mesh_t), intent(in) :: mesh
       real(dp), intent(inout) :: x(:, :)
+      logical, intent(in) :: axial_only
+      real(dp) :: c(3)
+      integer :: k
+      c = volume_centroid(mesh, x)
+      if (axial_only) c(1:2) = 0.0_dp
+      do k = 1, size(x, 2)
+         x(:, k) = x(:, k) - c
+      end do
+   end subroutine recentre
+
+   !> Volume centroid of the closed triangulated surface x (tetrahedra from the origin).
+   pure function volume_centroid(mesh, x) result(c)
+      type(surface_mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: x(:, :)
       real(dp) :: c(3), vol_t, volume
-      integer :: t, k
+      integer :: t
       c = 0.0_dp
       volume = 0.0_dp
       do t = 1, mesh%n_tri
@@ -380,22 +403,22 @@ contains
          c = c + vol_t * sum(x(:, mesh%tri(:, t)), dim=2) / 4.0_dp
       end do
       c = c / volume
-      do k = 1, size(x, 2)
-         x(:, k) = x(:, k) - c
-      end do
-   end subroutine recentre
+   end function volume_centroid
 
-   !> z where the tube axis (x = y = 0) crosses the membrane: the lowest crossing (rear)
-   !> when `rear`, the highest (front) otherwise.
-   pure real(dp) function axis_crossing(mesh, x, rear) result(z_cross)
+   !> z where the line parallel to the tube axis through (axis(1), axis(2), .) crosses the
+   !> membrane: the lowest crossing (rear) when `rear`, the highest (front) otherwise.
+   pure real(dp) function axis_crossing(mesh, x, rear, axis) result(z_cross)
       type(surface_mesh_t), intent(in) :: mesh
       real(dp), intent(in) :: x(:, :)
       logical, intent(in) :: rear
+      real(dp), intent(in) :: axis(2)
       integer :: t
       real(dp) :: p(3, 3), det, b1, b2, b3, z
       z_cross = merge(huge(1.0_dp), -huge(1.0_dp), rear)
       do t = 1, mesh%n_tri
          p = x(:, mesh%tri(:, t))
+         p(1, :) = p(1, :) - axis(1)
+         p(2, :) = p(2, :) - axis(2)
          ! Barycentric coordinates of (0, 0) in the triangle's projection on the xy plane.
          det = (p(1, 2) - p(1, 1)) * (p(2, 3) - p(2, 1)) - (p(1, 3) - p(1, 1)) * (p(2, 2) - p(2, 1))
          if (abs(det) < tiny(1.0_dp)) cycle
@@ -416,12 +439,15 @@ contains
    !> point: the parachute depth, 0 for a convex rear), v_c/V, the largest radius r_max.
    subroutine record(self)
       class(tube_capsule_t), intent(inout) :: self
-      real(dp) :: area, volume, l_z, l_p, stretch, l1, l2
+      real(dp) :: area, volume, l_z, l_p, stretch, l1, l2, centroid(3), axis(2)
       integer :: t
       call self%velocity(self%positions, self%u0)
       call area_and_volume(self%mesh, self%positions, area, volume)
+      centroid = volume_centroid(self%mesh, self%positions)
+      axis = 0.0_dp
+      if (self%offset /= 0.0_dp) axis = centroid(1:2)
       l_z = maxval(self%positions(3, :)) - minval(self%positions(3, :))
-      l_p = max(axis_crossing(self%mesh, self%positions, .true.) - minval(self%positions(3, :)), 0.0_dp)
+      l_p = max(axis_crossing(self%mesh, self%positions, .true., axis) - minval(self%positions(3, :)), 0.0_dp)
       stretch = 1.0_dp
       do t = 1, self%mesh%n_tri
          call principal_stretches(self%ref, self%mesh, self%positions, t, l1, l2)
@@ -429,7 +455,8 @@ contains
       end do
       self%n_rec = min(self%n_rec + 1, size(self%history, 2))
       self%history(:, self%n_rec) = [self%t, area, volume, l_z, l_p, self%v_c, &
-                                     sqrt(maxval(self%positions(1, :)**2 + self%positions(2, :)**2)), self%energy, stretch]
+                                     sqrt(maxval(self%positions(1, :)**2 + self%positions(2, :)**2)), self%energy, stretch, &
+                                     norm2(centroid(1:2))]
    end subroutine record
 
    function progress_text(self) result(text)
@@ -447,12 +474,19 @@ contains
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
       real(dp), allocatable :: r(:), z(:)
-      real(dp) :: swapped(3, self%mesh%n_nodes)
+      real(dp) :: swapped(3, self%mesh%n_nodes), axis(2), centroid(3)
       logical, allocatable :: keep(:)
+      axis = 0.0_dp
+      if (self%offset /= 0.0_dp) then
+         centroid = volume_centroid(self%mesh, self%positions)
+         axis = centroid(1:2)
+      end if
       ! shear_plane_contour cuts the plane x = x0 and orders the points by atan2(y, z): with
-      ! x and y swapped that is the plane y = 0, ordered from the front (+z) over x > 0.
+      ! x and y swapped that is the plane y = y_c, ordered from the front (+z) over x > x_c
+      ! (the capsule's own axis; the tube's for a centred capsule).
       swapped = self%positions([2, 1, 3], :)
-      call shear_plane_contour(self%mesh, swapped, [0.0_dp, 0.0_dp, 0.0_dp], r, z)
+      call shear_plane_contour(self%mesh, swapped, [axis(2), axis(1), 0.0_dp], r, z)
+      r = r - axis(1)
       keep = r >= 0.0_dp
       r = pack(r, keep)
       z = pack(z, keep)

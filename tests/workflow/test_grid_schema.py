@@ -35,6 +35,7 @@ BAD_GRIDS = [
     ("unknown effect", malformed(("tube", "laws"), ["NH+swelling0.1"]), "tube.laws[0]: law key 'NH+swelling0.1': unknown effect 'swelling'"),
     ("effect in the wrong flow", malformed(("tube", "laws"), ["NH+lambda0.1"]), "tube.laws[0]: law key 'NH+lambda0.1': the kernel has lambda only in shear flow"),
     ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
+    ("offset without the 3D model", malformed(("tube", "laws"), ["NH+offset0.2"]), "tube.laws[0]: law key 'NH+offset0.2': offset needs tube.settings.model: 3d"),
 ]
 
 
@@ -89,3 +90,12 @@ def test_paper_grid_is_valid() -> None:
 def test_law_keys_map_to_kernel_flags(key: str, law: Law, flags: list[str]) -> None:
     assert parse_law(key) == law
     assert parse_law(key).kernel_args() == flags
+
+
+def test_offset_grid_with_the_3d_model_expands_to_3d_cases() -> None:
+    grid = malformed(("tube", "laws"), ["NH+offset0.2"])
+    grid["tube"]["settings"] = {"model": "3d", "level": 2, "wall_h_far": 0.28, "wall_h_centre": 0.14}
+    validate_grid(grid)
+    args = expand_cases(grid, "tube")[0].kernel_args()
+    for flag, value in (("--offset", "0.2"), ("--model", "3d"), ("--level", "2"), ("--wall-h-centre", "0.14")):
+        assert args[args.index(flag) + 1] == value

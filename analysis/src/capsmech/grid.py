@@ -31,7 +31,8 @@ FLOWS = ("tube", "shear")
 #: Kernel flag of every per-flow setting a grid may carry (the schema lists the same keys).
 SETTING_FLAGS = {
     "tube": {"n_meridian": "--n-meridian", "tube_length": "--tube-length",
-             "integrator": "--integrator", "t_max": "--t-max"},
+             "integrator": "--integrator", "t_max": "--t-max", "model": "--model", "level": "--level",
+             "wall_h_far": "--wall-h-far", "wall_h_centre": "--wall-h-centre"},
     "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max"},
 }
 
@@ -44,9 +45,12 @@ EFFECTS = {
     "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
     "lambda": ("--lambda", lambda v: 0.0 < v <= 1e6, "in (0, 1e6]"),
     "kb": ("--kb", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+    "offset": ("--offset", lambda v: 0.0 < v < 0.9, "in (0, 0.9)"),
 }
 #: Flows where the kernel has each effect (others refuse it).
-EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",), "kb": ("tube", "shear")}
+EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",), "kb": ("tube", "shear"), "offset": ("tube",)}
+#: Effects that need a tube setting (the off-centre capsule exists in the 3D model only).
+EFFECT_TUBE_SETTINGS = {"offset": ("model", "3d")}
 
 
 class GridError(ValueError):
@@ -230,6 +234,11 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                     if flow not in EFFECT_FLOWS[name]:
                         problems.append(f"{flow}.laws[{i}]: law key {key!r}: the kernel has {name} only in "
                                         f"{', '.join(EFFECT_FLOWS[name])} flow")
+                    elif name in EFFECT_TUBE_SETTINGS:
+                        setting, needed = EFFECT_TUBE_SETTINGS[name]
+                        if grid[flow].get("settings", {}).get(setting) != needed:
+                            problems.append(f"{flow}.laws[{i}]: law key {key!r}: {name} needs "
+                                            f"tube.settings.{setting}: {needed}")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):

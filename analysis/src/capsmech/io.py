@@ -63,7 +63,7 @@ _INT_ATTRS = ("schema_version", "mesh_level", "threads")
 _FLOAT_ATTRS = ("nu_s", "C", "Ca_s", "dt", "wall_time_s")
 #: Effects beyond the base model (issue 6): root attribute -> its neutral value, which a case
 #: file written before the effect existed implicitly has.
-EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0, "kb": 0.0}
+EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0, "kb": 0.0, "offset": 0.0}
 #: Root attribute of an effect whose name differs from the effect's (law key) name.
 EFFECT_ATTRS = {"kb": "k_b"}
 
