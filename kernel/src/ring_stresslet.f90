@@ -45,7 +45,7 @@ module ring_stresslet
    use elliptic_integrals, only: elliptic_kebd_m1
    implicit none
    private
-   public :: ring_stresslet_kernel, stresslet_segment, double_layer_row
+   public :: ring_stresslet_kernel, stresslet_segment, double_layer_row, element_double_layer, nearest_node
 
    real(dp), parameter :: gl10_x(5) = [0.1488743389816312108848260_dp, 0.4333953941292471907992659_dp, &
                                        0.6794095682990244062343274_dp, 0.8650633666889845107320967_dp, &
@@ -280,7 +280,7 @@ contains
          ref = node
          constant = -0.5_dp
       else
-         ref = minloc((rz(1, :) - x(1))**2 + (rz(2, :) - x(2))**2, dim=1)
+         ref = nearest_node(rz, x)
          constant = 0.0_dp
          if (inside) constant = -1.0_dp
       end if
@@ -298,5 +298,29 @@ contains
          row(j, 2 * ref - 2 + j) = row(j, 2 * ref - 2 + j) + constant
       end do
    end subroutine double_layer_row
+
+   !> The meridian node nearest to x (the reference node of an off-surface target).
+   pure integer function nearest_node(rz, x) result(ref)
+      real(dp), intent(in) :: rz(:, :), x(2)
+      ref = minloc((rz(1, :) - x(1))**2 + (rz(2, :) - x(2))**2, dim=1)
+   end function nearest_node
+
+   !> Element e's part of the double layer at x of the density q(:, 1..n) (nodes rz), with the
+   !> Cartesian constant of node ref's density subtracted (see double_layer_row, whose row
+   !> applied to q is the sum of these over e plus -q_ref/2 on the surface (node = ref > 0),
+   !> 0 outside or -q_ref inside). node > 0: x is that node.
+   pure function element_double_layer(rz, q, x, e, node, ref) result(v)
+      real(dp), intent(in) :: rz(:, :), q(:, :), x(2)
+      integer, intent(in) :: e, node, ref
+      real(dp) :: v(2)
+      real(dp) :: w(2, 2, 3)
+      integer :: end_flag
+      end_flag = 0
+      if (node == e) end_flag = 1
+      if (node == e + 1) end_flag = 2
+      w = stresslet_segment(x(1), x(2), rz(1, e), rz(2, e), rz(1, e + 1), rz(2, e + 1), end_flag)
+      v = (matmul(w(:, :, 1), q(:, e)) + matmul(w(:, :, 2), q(:, e + 1)) - matmul(w(:, :, 3), q(:, ref))) &
+          / (8.0_dp * pi)
+   end function element_double_layer
 
 end module ring_stresslet

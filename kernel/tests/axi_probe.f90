@@ -12,8 +12,9 @@
 !>   axi_probe stresslet R0 Z0 R Z NR NZ    ring stresslet Q (q_rr q_rz q_zr q_zz), ring_stresslet
 !>   axi_probe dl-sphere N                  double layer on the unit sphere, N straight segments:
 !>                                          identities and the Green's identity error (see below)
-!>   axi_probe jacobian A_OVER_L CA N T     eigenvalues of the tube model's velocity Jacobian
-!>                                          (NH, N meridian elements) after RK2 to time T
+!>   axi_probe jacobian A_OVER_L CA N T [LAMBDA]  eigenvalues of the tube model's velocity Jacobian
+!>                                          (NH, N meridian elements) after RK2 to time T, and its
+!>                                          largest difference from brute-force differences of the velocity
 program axi_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
@@ -21,7 +22,7 @@ program axi_probe
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
    use ring_stresslet, only: ring_stresslet_kernel, stresslet_segment, double_layer_row
    use run_options, only: run_options_t
-   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate
+   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
    implicit none
 
    character(len=64) :: command
@@ -71,6 +72,7 @@ contains
       opts%ca = ca
       opts%n_meridian = n_meridian
       opts%integrator = 'rk2'
+      if (command_argument_count() >= 6) opts%lambda = real_arg(6)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop 'init failed'
       do while (model%t < t_end - 0.5_dp * model%dt)
@@ -82,6 +84,32 @@ contains
       write (*, '(a,es12.4)') 't ', model%t
       write (*, '(a,es12.4)') 'largest_real ', largest
       write (*, '(a,es12.4)') 'smallest_real ', minval(model%eig_re)
+      block
+         real(dp), allocatable :: rz1(:, :), u0(:, :), u1(:, :), q0(:), q1(:), col(:)
+         real(dp) :: worst, h
+         integer :: j, n
+         n = size(model%positions, 2)
+         h = 1.0e-5_dp * a_over_l
+         allocate (rz1, source=model%positions)
+         allocate (u0(2, n), u1(2, n), q0(2 * n - 2), q1(2 * n - 2), col(2 * n - 2))
+         call model%velocity(model%positions, u0)
+         call pack_dofs(u0, q0)
+         worst = 0.0_dp
+         do j = 1, 2 * n - 2
+            call pack_dofs(model%positions, col)
+            col(j) = col(j) + h
+            call unpack_dofs(col, rz1)
+            call model%velocity(rz1, u1)
+            call pack_dofs(u1, q1)
+            if (maxval(abs((q1 - q0) / h - jac(:, j))) > 0.1_dp * worst .and. command_argument_count() >= 7) &
+               write (*, '(a,i0,a,i0,2es12.4)') 'column_', j, '_row_', maxloc(abs((q1 - q0) / h - jac(:, j))), &
+               maxval(abs((q1 - q0) / h - jac(:, j))), maxval(abs(jac(:, j)))
+            worst = max(worst, maxval(abs((q1 - q0) / h - jac(:, j))))
+         end do
+         write (*, '(a,es12.4)') 'brute_force_difference ', worst
+         write (*, '(a,es12.4)') 'jacobian_max ', maxval(abs(jac))
+         write (*, '(a,es12.4)') 'velocity_max ', maxval(abs(u0))
+      end block
    end subroutine probe_jacobian
 
 
