@@ -12,6 +12,8 @@
 !>   axi_probe stresslet R0 Z0 R Z NR NZ    ring stresslet Q (q_rr q_rz q_zr q_zz), ring_stresslet
 !>   axi_probe dl-sphere N                  double layer on the unit sphere, N straight segments:
 !>                                          identities and the Green's identity error (see below)
+!>   axi_probe velocity A_OVER_L CA N LAMBDA  node velocities (u_r_K u_z_K) of the tube model (NH)
+!>                                          at its starting shape
 !>   axi_probe jacobian A_OVER_L CA N T [LAMBDA]  eigenvalues of the tube model's velocity Jacobian
 !>                                          (NH, N meridian elements) after RK2 to time T, and its
 !>                                          largest difference from brute-force differences of the velocity
@@ -47,6 +49,8 @@ program axi_probe
       call probe_stresslet()
    case ('dl-sphere')
       call probe_dl_sphere(int_arg(2))
+   case ('velocity')
+      call probe_velocity(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case ('jacobian')
       call probe_jacobian(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case default
@@ -55,6 +59,31 @@ program axi_probe
    end select
 
 contains
+
+   subroutine probe_velocity(a_over_l, ca, n_meridian, lambda)
+      real(dp), intent(in) :: a_over_l, ca, lambda
+      integer, intent(in) :: n_meridian
+      type(run_options_t) :: opts
+      type(axisymmetric_tube_t) :: model
+      real(dp), allocatable :: u(:, :)
+      integer :: stat, k
+      character(len=:), allocatable :: errmsg
+      opts%flow = 'tube'
+      opts%law = 'NH'
+      opts%a_over_l = a_over_l
+      opts%ca = ca
+      opts%n_meridian = n_meridian
+      opts%lambda = lambda
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop 'init failed'
+      allocate (u, mold=model%positions)
+      call model%velocity(model%positions, u)
+      do k = 1, size(u, 2)
+         write (*, '(a,i0,es25.16)') 'u_r_', k, u(1, k)
+         write (*, '(a,i0,es25.16)') 'u_z_', k, u(2, k)
+      end do
+      write (*, '(a,es25.16)') 'v_c ', model%v_c
+   end subroutine probe_velocity
 
    !> Largest and smallest real parts of the Jacobian's eigenvalues (the model's LAPACK dgeev).
    subroutine probe_jacobian(a_over_l, ca, n_meridian, t_end)
