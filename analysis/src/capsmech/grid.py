@@ -43,8 +43,9 @@ EFFECTS = {
     "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
     "lambda": ("--lambda", lambda v: 0.0 < v <= 1e6, "in (0, 1e6]"),
 }
-#: Flows where the kernel has each effect (others refuse it).
-EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",)}
+#: Flows where the kernel has each effect (others refuse it). The tube's lambda is that of the
+#: axisymmetric model, the one the workflow runs (capsim refuses lambda /= 1 with --model 3d).
+EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear", "tube")}
 
 
 class GridError(ValueError):
