@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
+from conftest import assert_usage_error
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -27,6 +28,21 @@ def axi(*args: object) -> dict[str, float]:
     result = subprocess.run([str(exe), *(repr(a) if isinstance(a, float) else str(a) for a in args)],
                             capture_output=True, text=True, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     return {key: float(value) for key, value in (line.split() for line in result.stdout.splitlines())}
+
+
+@pytest.mark.parametrize("override, fragment", [
+    (["--lambda", "0"], "must be > 0"),
+    (["--lambda", "-2"], "must be > 0"),
+    (["--lambda", "2e6"], "must be <= 1e6"),
+    (["--lambda", "fast"], ""),
+    (["--model", "3d", "--lambda", "2"], "not for the 3d tube model"),
+])
+def test_bad_lambda_in_the_tube_exits_2(capsim, tmp_path, override, fragment):
+    out = tmp_path / "x.h5"
+    base = {"--flow": "tube", "--law": "NH", "--ca": "0.05", "--a-over-l": "0.8", "--out": str(out)}
+    assert_usage_error(capsim, base, override, "--lambda", out)
+    argv = [str(capsim)] + [a for kv in {**base, **dict(zip(override[::2], override[1::2]))}.items() for a in kv]
+    assert fragment in subprocess.run(argv, capture_output=True, text=True, timeout=60).stderr
 
 
 def velocities(lam: float) -> np.ndarray:
