@@ -12,6 +12,24 @@
 !>     v = v_inf + 1/(8 pi Ca) [ membrane single layer + wall single layer ].
 !> The capsule's centroid is kept at z = 0 in the middle of the tube (frame moving with it);
 !> its velocity v_c is recorded.
+!>
+!> Viscosity ratio lambda /= 1 (inner/outer viscosity): the membrane velocity u then also
+!> carries the capsule's double layer D (ring_stresslet; D[c] = -c/2 on the membrane, 0 at the
+!> wall),
+!>     (1 + lambda)/2 u - (1 - lambda) D[u] = v_inf + 1/(8 pi Ca) [membrane + wall single layers],
+!>     W g = -(membrane single layer) - 8 pi Ca (1 - lambda) D[u]   at the wall collocation points
+!> (the disturbance, now including the double layer, vanishes on B; D is smooth there). Eliminating
+!> g = g_1 + g_lambda (g_1 the lambda = 1 traction) leaves, for the node velocities U (lab frame),
+!>     [(1 + lambda)/2 I - (1 - lambda) (D_nodes - S_wall W**-1 D_wall)] U = U_1,
+!> U_1 the lambda = 1 velocity (S_wall: the wall single layer at the nodes per unit traction).
+!> The matrix is 2 (n + 1) square (130 at 64 elements) and depends on the shape only: it is
+!> assembled and LU-factorised (LAPACK) at every velocity evaluation, which costs about what the
+!> single layers do, while a GMRES would need the same double-layer entries (or as many
+!> operator applications, each a full quadrature pass) for a system this small. Its spectrum lies
+!> between min(1, lambda) and max(1, lambda) (D's eigenvalues are in [-1/2, 1/2]). A rigid
+!> motion U = c e_z is its own image for every lambda (D[c] = -c/2 exactly, by the identity, and
+!> D_wall[c] = 0): the steady shape, at rest in the capsule frame, solves the lambda = 1 equations.
+!> lambda = 1 skips all of it (the same arithmetic as before, bit for bit).
 module axisymmetric_tube
    use capsim_kinds, only: dp, pi
    use hdf5_writer, only: h5_file_t
@@ -20,6 +38,7 @@ module axisymmetric_tube
    use axisymmetric_membrane, only: meridian_reference_t, meridian_forces, meridian_node_areas, &
                                     meridian_area_volume, meridian_volume_gradient
    use ring_stokeslet, only: segment_integral
+   use ring_stresslet, only: double_layer_row, element_double_layer, nearest_node
    use run_options, only: run_options_t
    use text_format, only: int_text
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
@@ -91,6 +110,11 @@ module axisymmetric_tube
    type :: jacobian_work_t
       real(dp), allocatable :: density0(:, :), raw0(:, :), b0(:), g0(:), influence(:, :), u0(:, :), packed0(:)
       real(dp), allocatable :: element_at_wall(:, :, :), element_at_node(:, :, :)
+      !> lambda /= 1: the node velocities U (lab frame) at the unperturbed shape, each element's
+      !> part of D[U] at every node and wall point, the wall points' reference nodes, and
+      !> W**-1 D_wall U (see lambda_column).
+      real(dp), allocatable :: u_lambda(:, :), dl_at_node(:, :, :), dl_at_wall(:, :, :), wall_dl_u(:)
+      integer, allocatable :: wall_ref(:)
    end type jacobian_work_t
 
    type, extends(capsule_model_t) :: axisymmetric_tube_t
@@ -128,6 +152,11 @@ module axisymmetric_tube
       real(dp), allocatable :: wall_a(:, :), wall_b(:, :), wall_mid(:, :)
       real(dp), allocatable :: wall_lu(:, :), wall_traction(:)
       integer, allocatable :: wall_pivot(:)
+      !> Viscosity ratio (inner/outer) and, for lambda /= 1, the LU of the boundary-integral
+      !> matrix of the node velocities and W**-1 D_wall, both at the shape last factorised.
+      real(dp) :: lambda = 1
+      real(dp), allocatable :: lambda_lu(:, :), wall_dl(:, :), wall_null(:)
+      integer, allocatable :: lambda_pivot(:)
       ! Work arrays (allocated once).
       real(dp), allocatable :: rz_pred(:, :), u0(:, :), u1(:, :), force(:, :), density(:, :), node_area(:), grad(:, :)
    contains
@@ -186,6 +215,12 @@ contains
       allocate (self%wall_traction(2 * self%n_wall))
       call factorise_wall(self, stat, errmsg)
       if (stat /= 0) return
+      self%lambda = opts%lambda
+      if (self%lambda /= 1.0_dp) then
+         allocate (self%lambda_lu(2 * n, 2 * n), self%lambda_pivot(2 * n), self%wall_dl(2 * self%n_wall, 2 * n))
+         allocate (self%wall_null(2 * self%n_wall))
+         call wall_left_null_vector(self)
+      end if
 
       select case (trim(opts%integrator))
       case ('newton')
@@ -339,8 +374,256 @@ contains
                      wall_single_layer_at(self, self%wall_traction, rz(:, k))
       end do
       !$omp end parallel do
+      if (self%lambda /= 1.0_dp) then
+         block
+            real(dp) :: u_lab(2 * n)
+            call factorise_viscosity_ratio(self, rz)
+            call apply_viscosity_ratio(self, rz, raw, u_lab)
+            self%wall_traction = self%wall_traction - 8.0_dp * pi * self%ca * (1.0_dp - self%lambda) * &
+                                 matmul(self%wall_dl, u_lab)
+         end block
+      end if
       call finish_velocity(self, rz, raw, u, self%v_c)
    end subroutine velocity
+
+   !> The boundary-integral matrix of lambda /= 1 at shape rz (see the module header), factorised.
+   subroutine factorise_viscosity_ratio(self, rz)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(in) :: rz(:, :)
+      real(dp) :: d_nodes(2 * size(rz, 2), 2 * size(rz, 2)), s_wall(2 * size(rz, 2), 2 * self%n_wall)
+      integer :: n, nw, i, k, info
+      n = size(rz, 2)
+      nw = self%n_wall
+      !$omp parallel do default(none) shared(self, rz, d_nodes, s_wall, n, nw) private(i, k) schedule(dynamic)
+      do k = 1, n
+         call double_layer_row(rz, rz(:, k), k, .false., d_nodes(2 * k - 1:2 * k, :))
+         do i = 1, nw
+            s_wall(2 * k - 1:2 * k, 2 * i - 1) = wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), &
+                                                                       [1.0_dp, 0.0_dp], rz(1, k), rz(2, k), .false.)
+            s_wall(2 * k - 1:2 * k, 2 * i) = wall_element_velocity(self%wall_a(:, i), self%wall_b(:, i), &
+                                                                   [0.0_dp, 1.0_dp], rz(1, k), rz(2, k), .false.)
+         end do
+      end do
+      !$omp end parallel do
+      !$omp parallel do default(none) shared(self, rz, nw) private(i) schedule(dynamic)
+      do i = 1, nw
+         call double_layer_row(rz, self%wall_mid(:, i), 0, .false., self%wall_dl(2 * i - 1:2 * i, :))
+      end do
+      !$omp end parallel do
+      call remove_wall_flux(self, self%wall_dl)
+      call dgetrs('N', 2 * nw, 2 * n, self%wall_lu, 2 * nw, self%wall_pivot, self%wall_dl, 2 * nw, info)
+      self%lambda_lu = -(1.0_dp - self%lambda) * (d_nodes - matmul(s_wall, self%wall_dl))
+      do k = 1, 2 * n
+         self%lambda_lu(k, k) = self%lambda_lu(k, k) + 0.5_dp * (1.0_dp + self%lambda)
+      end do
+      ! Nonsingular for every lambda > 0 (spectrum in [min(1, lambda), max(1, lambda)]).
+      call dgetrf(2 * n, 2 * n, self%lambda_lu, 2 * n, self%lambda_pivot, info)
+   end subroutine factorise_viscosity_ratio
+
+   !> W is singular along a uniform pressure on B (it moves no fluid inside: W's smallest
+   !> singular value is ~1e-11 of its largest), so W g = b needs b without a component along
+   !> W's left null vector (the flux of b through B). The single layers have none (to the
+   !> quadrature error), but the double layer of U carries the flux of U through the membrane,
+   !> dV/dt, which the physical U lacks and the discrete one has at the discretisation error:
+   !> W**-1 turned it, and the quadrature noise, into tractions of 1e7 whose velocity at the
+   !> nodes was noise. Removing that component from the right-hand sides b(:, j) solves for
+   !> the flux-free part of the double layer, which is the whole of it for the physical U.
+   subroutine remove_wall_flux(self, b)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(inout) :: b(:, :)
+      integer :: j
+      do j = 1, size(b, 2)
+         b(:, j) = b(:, j) - dot_product(self%wall_null, b(:, j)) * self%wall_null
+      end do
+   end subroutine remove_wall_flux
+
+   !> W's left null vector (unit norm) by inverse iteration on W**T with the LU of W.
+   subroutine wall_left_null_vector(self)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp) :: x(2 * self%n_wall, 1)
+      integer :: it, info
+      x = 1.0_dp
+      do it = 1, 4
+         call dgetrs('T', 2 * self%n_wall, 1, self%wall_lu, 2 * self%n_wall, self%wall_pivot, x, 2 * self%n_wall, info)
+         x = x / norm2(x)
+      end do
+      self%wall_null = x(:, 1)
+   end subroutine wall_left_null_vector
+
+   !> From the lambda = 1 single-layer sums raw (at shape rz) to those that give the lambda
+   !> velocity through finish_velocity, with the matrix last factorised; u_lab: the node
+   !> velocities (lab frame) solved for. The lambda = 1 velocity U_1 gets finish_velocity's
+   !> axis and volume corrections before the solve: a steady shape has U_1 = v_c e_z + (the
+   !> discretisation's flux error, which the correction removes), so that U_1 corrected is a
+   !> rigid translation, which A maps onto itself: the steady shapes of every lambda are then
+   !> those of lambda = 1 to the solver tolerance (applied after the solve only, they differed by
+   !> the flux error, 1e-4 of L_z at 64 elements).
+   subroutine apply_viscosity_ratio(self, rz, raw, u_lab)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :)
+      real(dp), intent(inout) :: raw(:, :)
+      real(dp), intent(out) :: u_lab(:)
+      real(dp) :: scale, rhs(size(u_lab), 1)
+      integer :: k, n, info
+      n = size(rz, 2)
+      scale = 8.0_dp * pi * self%ca
+      block
+         real(dp) :: u1(2, size(rz, 2))
+         do k = 1, n
+            u1(:, k) = raw(:, k) / scale + [0.0_dp, 2.0_dp * (1.0_dp - rz(1, k)**2)]
+         end do
+         call axis_and_volume_correction(self, rz, u1)
+         rhs(:, 1) = reshape(u1, [2 * n])
+      end block
+      call dgetrs('N', 2 * n, 1, self%lambda_lu, 2 * n, self%lambda_pivot, rhs, 2 * n, info)
+      u_lab = rhs(:, 1)
+      do k = 1, n
+         raw(:, k) = scale * (u_lab(2 * k - 1:2 * k) - [0.0_dp, 2.0_dp * (1.0_dp - rz(1, k)**2)])
+      end do
+   end subroutine apply_viscosity_ratio
+
+   !> finish_velocity for the lambda of the model, with the matrix last factorised at rz.
+   subroutine finish_lambda_velocity(self, rz, raw, u, v_c)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :), raw(:, :)
+      real(dp), intent(out) :: u(:, :), v_c
+      real(dp) :: raw_lambda(2, size(rz, 2)), u_lab(2 * size(rz, 2))
+      if (self%lambda == 1.0_dp) then
+         call finish_velocity(self, rz, raw, u, v_c)
+         return
+      end if
+      raw_lambda = raw
+      call apply_viscosity_ratio(self, rz, raw_lambda, u_lab)
+      call finish_velocity(self, rz, raw_lambda, u, v_c)
+   end subroutine finish_lambda_velocity
+
+   !> lambda /= 1, before the Jacobian's columns at shape rz: the matrix A there, the node
+   !> velocities U it gives (from the lambda = 1 velocity, as `velocity` does), and each
+   !> element's part of D[U] at every node and wall point (see lambda_column).
+   subroutine prepare_lambda_columns(self, rz)
+      type(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(in) :: rz(:, :)
+      real(dp) :: u(2, size(rz, 2)), raw(2, size(rz, 2)), u_lab(2 * size(rz, 2)), energy
+      integer :: n, nw, e, k, i
+      n = size(rz, 2)
+      nw = self%n_wall
+      associate (w => self%jacobian_work)
+         if (.not. allocated(w%u_lambda)) then
+            allocate (w%u_lambda(2, n), w%dl_at_node(2, n, n - 1), w%dl_at_wall(2, nw, n - 1), w%wall_dl_u(2 * nw))
+            allocate (w%wall_ref(nw))
+         end if
+      end associate
+      ! The lambda = 1 single-layer sums at rz (as in `velocity`).
+      call membrane_density(self, rz, self%density, energy)
+      block
+         real(dp) :: rhs(2 * nw, 1)
+         integer :: info
+         !$omp parallel do default(none) shared(self, rz, rhs, n, nw) private(i) schedule(static)
+         do i = 1, nw
+            rhs(2 * i - 1:2 * i, 1) = -membrane_single_layer(rz, self%density, self%wall_mid(:, i), 1, n - 1, 0)
+         end do
+         !$omp end parallel do
+         call dgetrs('N', 2 * nw, 1, self%wall_lu, 2 * nw, self%wall_pivot, rhs, 2 * nw, info)
+         !$omp parallel do default(none) shared(self, rz, raw, rhs, n) private(k) schedule(static)
+         do k = 1, n
+            raw(:, k) = membrane_single_layer(rz, self%density, rz(:, k), 1, n - 1, k) + &
+                        wall_single_layer_at(self, rhs(:, 1), rz(:, k))
+         end do
+         !$omp end parallel do
+      end block
+      call factorise_viscosity_ratio(self, rz)
+      call apply_viscosity_ratio(self, rz, raw, u_lab)
+      u = reshape(u_lab, [2, n])
+      associate (w => self%jacobian_work)
+         w%u_lambda = u
+         w%wall_dl_u = matmul(self%wall_dl, u_lab)
+         do i = 1, nw
+            w%wall_ref(i) = nearest_node(rz, self%wall_mid(:, i))
+         end do
+      end associate
+      !$omp parallel do default(none) shared(self, rz, u, n, nw) private(e, k, i) schedule(dynamic)
+      do e = 1, n - 1
+         do k = 1, n
+            self%jacobian_work%dl_at_node(:, k, e) = element_double_layer(rz, u, rz(:, k), e, k, k)
+         end do
+         do i = 1, nw
+            self%jacobian_work%dl_at_wall(:, i, e) = element_double_layer(rz, u, self%wall_mid(:, i), e, 0, &
+                                                                          self%jacobian_work%wall_ref(i))
+         end do
+      end do
+      !$omp end parallel do
+   end subroutine prepare_lambda_columns
+
+   !> A Jacobian column's lambda velocity: node `node` moved, rz -> rz1, raw the lambda = 1
+   !> single-layer sums at rz1, turned into lambda sums. To first order in the step,
+   !>    U(rz1) = A(rz1)**-1 U_1(rz1) = A**-1 [U_1(rz1) - (A(rz1) - A) U],
+   !> A and U at rz, and (A(rz1) - A) U needs the double layer of the fixed density U only where
+   !> the move changes it: the two elements at the node (at every node and wall point), the
+   !> moved node's own principal value, and the wall single layer at the moved node.
+   subroutine lambda_column(self, rz, rz1, node, raw)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :), rz1(:, :)
+      integer, intent(in) :: node
+      real(dp), intent(inout) :: raw(:, :)
+      real(dp) :: d_change(2, size(rz, 2)), wall_change(2 * self%n_wall, 1), du(2, size(rz, 2)), scale
+      real(dp) :: rhs(2 * size(rz, 2), 1)
+      integer :: n, nw, e, k, i, first, last, info
+      n = size(rz, 2)
+      nw = self%n_wall
+      associate (w => self%jacobian_work)
+         first = max(1, node - 1)
+         last = min(n - 1, node)
+         ! (D_nodes(rz1) - D_nodes) U; the constant term -U_k/2 does not move.
+         d_change = 0.0_dp
+         do k = 1, n
+            if (k == node) then
+               do e = 1, n - 1
+                  d_change(:, k) = d_change(:, k) + element_double_layer(rz1, w%u_lambda, rz1(:, k), e, k, k) &
+                                   - w%dl_at_node(:, k, e)
+               end do
+            else
+               do e = first, last
+                  d_change(:, k) = d_change(:, k) + element_double_layer(rz1, w%u_lambda, rz1(:, k), e, k, k) &
+                                   - w%dl_at_node(:, k, e)
+               end do
+            end if
+         end do
+         ! W**-1 (D_wall(rz1) - D_wall) U, with the reference nodes of rz.
+         do i = 1, nw
+            wall_change(2 * i - 1:2 * i, 1) = 0.0_dp
+            do e = first, last
+               wall_change(2 * i - 1:2 * i, 1) = wall_change(2 * i - 1:2 * i, 1) &
+                                                 + element_double_layer(rz1, w%u_lambda, self%wall_mid(:, i), e, 0, &
+                                                                        w%wall_ref(i)) - w%dl_at_wall(:, i, e)
+            end do
+         end do
+         call remove_wall_flux(self, wall_change)
+         call dgetrs('N', 2 * nw, 1, self%wall_lu, 2 * nw, self%wall_pivot, wall_change, 2 * nw, info)
+         ! S_wall(rz1) W**-1 D_wall(rz1) U - S_wall W**-1 D_wall U at every node: the wall single
+         ! layer of the traction change, plus, at the moved node, that of W**-1 D_wall U itself.
+         do k = 1, n
+            du(:, k) = wall_single_layer_at(self, wall_change(:, 1), rz1(:, k))
+         end do
+         du(:, node) = du(:, node) + wall_single_layer_at(self, w%wall_dl_u, rz1(:, node)) &
+                       - wall_single_layer_at(self, w%wall_dl_u, rz(:, node))
+         ! (A(rz1) - A) U = -(1 - lambda) [d_change - du].
+         scale = 8.0_dp * pi * self%ca
+         block
+            real(dp) :: u1(2, size(rz, 2))
+            do k = 1, n
+               u1(:, k) = raw(:, k) / scale + [0.0_dp, 2.0_dp * (1.0_dp - rz1(1, k)**2)]
+            end do
+            call axis_and_volume_correction(self, rz1, u1)
+            do k = 1, n
+               rhs(2 * k - 1:2 * k, 1) = u1(:, k) + (1.0_dp - self%lambda) * (d_change(:, k) - du(:, k))
+            end do
+         end block
+      end associate
+      call dgetrs('N', 2 * n, 1, self%lambda_lu, 2 * n, self%lambda_pivot, rhs, 2 * n, info)
+      do k = 1, n
+         raw(:, k) = scale * (rhs(2 * k - 1:2 * k, 1) - [0.0_dp, 2.0_dp * (1.0_dp - rz1(1, k)**2)])
+      end do
+   end subroutine lambda_column
 
    !> Force density f = F/A on the meridian (F = -dE/dx, A the dual-cell areas).
    pure subroutine membrane_density(self, rz, density, energy)
@@ -393,12 +676,24 @@ contains
       type(axisymmetric_tube_t), intent(in) :: self
       real(dp), intent(in) :: rz(:, :), raw(:, :)
       real(dp), intent(out) :: u(:, :), v_c
-      real(dp) :: grad(2, size(rz, 2)), flux, norm_sum
       integer :: n, k
       n = size(rz, 2)
       do k = 1, n
          u(:, k) = raw(:, k) / (8.0_dp * pi * self%ca) + [0.0_dp, 2.0_dp * (1.0_dp - rz(1, k)**2)]
       end do
+      call axis_and_volume_correction(self, rz, u)
+      v_c = centroid_velocity(rz, u)
+      u(2, :) = u(2, :) - v_c
+   end subroutine finish_velocity
+
+   !> Node velocities u (lab frame): poles kept on the axis, net flux removed (as in 3D).
+   pure subroutine axis_and_volume_correction(self, rz, u)
+      type(axisymmetric_tube_t), intent(in) :: self
+      real(dp), intent(in) :: rz(:, :)
+      real(dp), intent(inout) :: u(:, :)
+      real(dp) :: grad(2, size(rz, 2)), flux, norm_sum
+      integer :: n, k
+      n = size(rz, 2)
       u(1, [1, n]) = 0.0_dp
       if (self%volume_correction) then
          call meridian_volume_gradient(rz, grad)
@@ -409,9 +704,7 @@ contains
             u(:, k) = u(:, k) - (flux / norm_sum) * grad(:, k) / norm2(grad(:, k))
          end do
       end if
-      v_c = centroid_velocity(rz, u)
-      u(2, :) = u(2, :) - v_c
-   end subroutine finish_velocity
+   end subroutine axis_and_volume_correction
 
    !> Forward-difference Jacobian of the packed velocity at rz, column by column, but with
    !> each column costing ~1/15 of a velocity evaluation: moving node k changes the force
@@ -420,6 +713,7 @@ contains
    !> factorised wall matrix, and the wall's single layer at the unmoved nodes is a stored
    !> matrix (wall traction -> node velocity) applied to it. Only the moved node's own sums
    !> are recomputed in full. Agrees with brute-force differences to the quadrature noise.
+   !> lambda /= 1: see lambda_column (the same first-order differences, to the same noise).
    subroutine velocity_jacobian(self, rz, fd_step, jacobian)
       type(axisymmetric_tube_t), intent(inout) :: self
       real(dp), intent(in) :: rz(:, :), fd_step
@@ -434,6 +728,7 @@ contains
             allocate (w%u0(2, n), w%packed0(2 * n - 2), w%element_at_wall(2, nw, n - 1), w%element_at_node(2, n, n - 1))
          end if
       end associate
+      if (self%lambda /= 1.0_dp) call prepare_lambda_columns(self, rz)
       call jacobian_with_work(self, rz, fd_step, jacobian, self%jacobian_work%density0, self%jacobian_work%raw0, &
                               self%jacobian_work%b0, self%jacobian_work%g0, self%jacobian_work%influence, &
                               self%jacobian_work%u0, self%jacobian_work%packed0, self%jacobian_work%element_at_wall, &
@@ -490,7 +785,7 @@ contains
             raw0(:, k) = raw0(:, k) + matmul(influence(2 * k - 1:2 * k, :), g0)
          end do
       end block
-      call finish_velocity(self, rz, raw0, u0, v_c)
+      call finish_lambda_velocity(self, rz, raw0, u0, v_c)
       call pack_dofs(u0, packed0)
 
       !$omp parallel do default(none) shared(self, rz, density0, raw0, b0, g0, influence, packed0, jacobian, fd_step) &
@@ -530,6 +825,7 @@ contains
                             - sum(element_at_node(:, q, first:last), dim=2)
             end if
          end do
+         if (self%lambda /= 1.0_dp) call lambda_column(self, rz, rz1, node, raw1)
          call finish_velocity(self, rz1, raw1, u1, vc1)
          call pack_dofs(u1, packed1)
          jacobian(:, col) = (packed1 - packed0) / fd_step

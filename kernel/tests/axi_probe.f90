@@ -9,15 +9,22 @@
 !>   axi_probe segment R0 Z0 RA ZA RB ZB FAR FAZ FBR FBZ END    segment integral (u_r u_z)
 !>   axi_probe sphere N translate|pressure  unit sphere, N straight meridian segments: max error
 !>   axi_probe bench N REPEATS              seconds per sphere velocity and per segment integral
-!>   axi_probe jacobian A_OVER_L CA N T     eigenvalues of the tube model's velocity Jacobian
-!>                                          (NH, N meridian elements) after RK2 to time T
+!>   axi_probe stresslet R0 Z0 R Z NR NZ    ring stresslet Q (q_rr q_rz q_zr q_zz), ring_stresslet
+!>   axi_probe dl-sphere N                  double layer on the unit sphere, N straight segments:
+!>                                          identities and the Green's identity error (see below)
+!>   axi_probe velocity A_OVER_L CA N LAMBDA  node velocities (u_r_K u_z_K) of the tube model (NH)
+!>                                          at its starting shape
+!>   axi_probe jacobian A_OVER_L CA N T [LAMBDA]  eigenvalues of the tube model's velocity Jacobian
+!>                                          (NH, N meridian elements) after RK2 to time T, and its
+!>                                          largest difference from brute-force differences of the velocity
 program axi_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
    use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
+   use ring_stresslet, only: ring_stresslet_kernel, stresslet_segment, double_layer_row
    use run_options, only: run_options_t
-   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate
+   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
    implicit none
 
    character(len=64) :: command
@@ -38,6 +45,12 @@ program axi_probe
       call probe_sphere(int_arg(2), string_arg(3))
    case ('bench')
       call probe_bench(int_arg(2), int_arg(3))
+   case ('stresslet')
+      call probe_stresslet()
+   case ('dl-sphere')
+      call probe_dl_sphere(int_arg(2))
+   case ('velocity')
+      call probe_velocity(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case ('jacobian')
       call probe_jacobian(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case default
@@ -46,6 +59,31 @@ program axi_probe
    end select
 
 contains
+
+   subroutine probe_velocity(a_over_l, ca, n_meridian, lambda)
+      real(dp), intent(in) :: a_over_l, ca, lambda
+      integer, intent(in) :: n_meridian
+      type(run_options_t) :: opts
+      type(axisymmetric_tube_t) :: model
+      real(dp), allocatable :: u(:, :)
+      integer :: stat, k
+      character(len=:), allocatable :: errmsg
+      opts%flow = 'tube'
+      opts%law = 'NH'
+      opts%a_over_l = a_over_l
+      opts%ca = ca
+      opts%n_meridian = n_meridian
+      opts%lambda = lambda
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop 'init failed'
+      allocate (u, mold=model%positions)
+      call model%velocity(model%positions, u)
+      do k = 1, size(u, 2)
+         write (*, '(a,i0,es25.16)') 'u_r_', k, u(1, k)
+         write (*, '(a,i0,es25.16)') 'u_z_', k, u(2, k)
+      end do
+      write (*, '(a,es25.16)') 'v_c ', model%v_c
+   end subroutine probe_velocity
 
    !> Largest and smallest real parts of the Jacobian's eigenvalues (the model's LAPACK dgeev).
    subroutine probe_jacobian(a_over_l, ca, n_meridian, t_end)
@@ -63,6 +101,7 @@ contains
       opts%ca = ca
       opts%n_meridian = n_meridian
       opts%integrator = 'rk2'
+      if (command_argument_count() >= 6) opts%lambda = real_arg(6)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop 'init failed'
       do while (model%t < t_end - 0.5_dp * model%dt)
@@ -74,6 +113,32 @@ contains
       write (*, '(a,es12.4)') 't ', model%t
       write (*, '(a,es12.4)') 'largest_real ', largest
       write (*, '(a,es12.4)') 'smallest_real ', minval(model%eig_re)
+      block
+         real(dp), allocatable :: rz1(:, :), u0(:, :), u1(:, :), q0(:), q1(:), col(:)
+         real(dp) :: worst, h
+         integer :: j, n
+         n = size(model%positions, 2)
+         h = 1.0e-5_dp * a_over_l
+         allocate (rz1, source=model%positions)
+         allocate (u0(2, n), u1(2, n), q0(2 * n - 2), q1(2 * n - 2), col(2 * n - 2))
+         call model%velocity(model%positions, u0)
+         call pack_dofs(u0, q0)
+         worst = 0.0_dp
+         do j = 1, 2 * n - 2
+            call pack_dofs(model%positions, col)
+            col(j) = col(j) + h
+            call unpack_dofs(col, rz1)
+            call model%velocity(rz1, u1)
+            call pack_dofs(u1, q1)
+            if (maxval(abs((q1 - q0) / h - jac(:, j))) > 0.1_dp * worst .and. command_argument_count() >= 7) &
+               write (*, '(a,i0,a,i0,2es12.4)') 'column_', j, '_row_', maxloc(abs((q1 - q0) / h - jac(:, j))), &
+               maxval(abs((q1 - q0) / h - jac(:, j))), maxval(abs(jac(:, j)))
+            worst = max(worst, maxval(abs((q1 - q0) / h - jac(:, j))))
+         end do
+         write (*, '(a,es12.4)') 'brute_force_difference ', worst
+         write (*, '(a,es12.4)') 'jacobian_max ', maxval(abs(jac))
+         write (*, '(a,es12.4)') 'velocity_max ', maxval(abs(u0))
+      end block
    end subroutine probe_jacobian
 
 
@@ -192,5 +257,91 @@ contains
       write (*, '(a,es24.16)') 'segment_integral_s ', t_eval / (real(n + 1, dp) * n)
       write (*, '(a,es24.16)') 'checksum ', sum(abs(u))
    end subroutine probe_bench
+
+   subroutine probe_stresslet()
+      real(dp) :: q(2, 2)
+      call ring_stresslet_kernel(real_arg(2), real_arg(3), real_arg(4), real_arg(5), real_arg(6), real_arg(7), q)
+      write (*, '(a,es24.16)') 'q_rr ', q(1, 1)
+      write (*, '(a,es24.16)') 'q_rz ', q(1, 2)
+      write (*, '(a,es24.16)') 'q_zr ', q(2, 1)
+      write (*, '(a,es24.16)') 'q_zz ', q(2, 2)
+   end subroutine probe_stresslet
+
+   !> Double layer on the unit sphere (n straight meridian segments), printed as largest errors:
+   !>  midpoint_identity: D[c] = -c/2 at element mid-points (smooth points of the closed
+   !>    polygonal surface, where it holds exactly), as the mean of the two one-sided values
+   !>    integrated directly (no subtraction) 1e-4 element lengths inside and outside;
+   !>  inside_identity / outside_identity: D[c] = -c inside (a rigid translation reproduced by its
+   !>    own double layer, v = -D[v]) and 0 outside, integrated directly at a few points;
+   !>  green_error: the Green's identity D[v](x_k) + v/2 = 1/(8 pi) SL[sigma.n](x_k) at the nodes
+   !>    for the straining flow v = (-r/2, z), sigma.n = (-n_r, 2 n_z) (mu = 1), with the operator
+   !>    of double_layer_row and the single layer of ring_stokeslet: the discretisation error of
+   !>    a P1 density on the polygon, O(h**2).
+   subroutine probe_dl_sphere(n)
+      integer, intent(in) :: n
+      real(dp) :: rz(2, n + 1), acc(2, 2), x(2), row(2, 2 * (n + 1)), v(2 * (n + 1))
+      real(dp) :: f(2, 0:n), rr(0:n), zz(0:n), u(2, 0:n), dv(2), err
+      real(dp), parameter :: inner(2, 3) = reshape([0.0_dp, 0.0_dp, 0.5_dp, 0.3_dp, 0.2_dp, -0.9_dp], [2, 3])
+      real(dp), parameter :: outer(2, 3) = reshape([1.5_dp, 0.2_dp, 0.3_dp, 1.2_dp, 0.0_dp, -1.05_dp], [2, 3])
+      integer :: e, k, j
+      do k = 1, n + 1
+         rz(:, k) = [sin(pi * (k - 1) / n), cos(pi * (k - 1) / n)]
+      end do
+      rz(1, [1, n + 1]) = 0.0_dp
+      err = 0.0_dp
+      do e = 1, n
+         x = 0.5_dp * (rz(:, e) + rz(:, e + 1))
+         dv = 1.0e-4_dp * [rz(2, e + 1) - rz(2, e), rz(1, e) - rz(1, e + 1)]
+         acc = 0.5_dp * (raw_constant(rz, x + dv) + raw_constant(rz, x - dv))
+         err = max(err, maxval(abs(acc + 0.5_dp * identity2())))
+      end do
+      write (*, '(a,es24.16)') 'midpoint_identity ', err
+      err = 0.0_dp
+      do j = 1, 3
+         err = max(err, maxval(abs(raw_constant(rz, inner(:, j)) + identity2())))
+      end do
+      write (*, '(a,es24.16)') 'inside_identity ', err
+      err = 0.0_dp
+      do j = 1, 3
+         err = max(err, maxval(abs(raw_constant(rz, outer(:, j)))))
+      end do
+      write (*, '(a,es24.16)') 'outside_identity ', err
+      ! Green's identity for the straining flow.
+      do k = 1, n + 1
+         v(2 * k - 1:2 * k) = [-0.5_dp * rz(1, k), rz(2, k)]
+      end do
+      rr = rz(1, :)
+      zz = rz(2, :)
+      f(1, :) = -rr
+      f(2, :) = 2.0_dp * zz
+      call sphere_velocity(n, rr, zz, f, u)
+      err = 0.0_dp
+      do k = 1, n + 1
+         call double_layer_row(rz, rz(:, k), k, .false., row)
+         dv = matmul(row, v) + 0.5_dp * v(2 * k - 1:2 * k)
+         err = max(err, maxval(abs(dv - u(:, k - 1))))
+      end do
+      write (*, '(a,i0)') 'n_segments ', n
+      write (*, '(a,es24.16)') 'green_error ', err
+   end subroutine probe_dl_sphere
+
+   pure function identity2() result(i2)
+      real(dp) :: i2(2, 2)
+      i2 = reshape([1.0_dp, 0.0_dp, 0.0_dp, 1.0_dp], [2, 2])
+   end function identity2
+
+   !> D[c] / c at xt for the Cartesian constants c = e_x (column 1, x at phi = 0) and e_z (column 2),
+   !> summed directly over all elements of rz (no subtraction).
+   function raw_constant(rz, xt) result(d)
+      real(dp), intent(in) :: rz(:, :), xt(2)
+      real(dp) :: d(2, 2), w(2, 2, 3)
+      integer :: e
+      d = 0.0_dp
+      do e = 1, size(rz, 2) - 1
+         w = stresslet_segment(xt(1), xt(2), rz(1, e), rz(2, e), rz(1, e + 1), rz(2, e + 1), 0)
+         d = d + w(:, :, 3)
+      end do
+      d = d / (8.0_dp * pi)
+   end function raw_constant
 
 end program axi_probe

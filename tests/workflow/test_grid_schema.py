@@ -33,9 +33,9 @@ BAD_GRIDS = [
     ("nu_s out of range", malformed(("tube", "laws"), ["GH_nu1.5"]), "tube.laws[0]: law key 'GH_nu1.5': nu_s must lie in (-1, 1)"),
     ("duplicate Ca", malformed(("shear", "Ca_s"), [0.05, 0.05]), "shear.Ca_s: duplicate values"),
     ("unknown effect", malformed(("tube", "laws"), ["NH+swelling0.1"]), "tube.laws[0]: law key 'NH+swelling0.1': unknown effect 'swelling'"),
-    ("effect in the wrong flow", malformed(("tube", "laws"), ["NH+lambda0.1"]), "tube.laws[0]: law key 'NH+lambda0.1': the kernel has lambda only in shear flow"),
     ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
     ("offset without the 3D model", malformed(("tube", "laws"), ["NH+offset0.2"]), "tube.laws[0]: law key 'NH+offset0.2': offset needs tube.settings.model: 3d"),
+    ("offset in shear", malformed(("shear", "laws"), ["NH+offset0.2"]), "shear.laws[0]: law key 'NH+offset0.2': the kernel has offset only in tube flow"),
 ]
 
 
@@ -61,6 +61,23 @@ def test_workflow_refuses_malformed_grid(what: str, grid: dict, key: str, tmp_pa
         "".join(f"[{index}" for index in key.split("[")[1:])
     assert f"On instance{instance}" in result.stdout
     assert not (tmp_path / "work" / "results").exists()
+
+
+def test_lambda_in_the_3d_tube_is_refused() -> None:
+    # capsim has lambda /= 1 in the axisymmetric tube model only.
+    grid = malformed(("tube", "laws"), ["NH+lambda0.1"])
+    grid["tube"]["settings"] = {"model": "3d"}
+    with pytest.raises(GridError) as error:
+        validate_grid(grid, "bad.yaml")
+    assert "tube.laws[0]: law key 'NH+lambda0.1': lambda needs tube.settings.model: axi" in str(error.value)
+
+
+def test_tube_laws_take_lambda() -> None:
+    grid = malformed(("tube", "laws"), ["NH", "NH+lambda0.2"])
+    validate_grid(grid, "grid.yaml")
+    args = [case.kernel_args() for case in expand_cases(grid, "tube")]
+    assert any(a[a.index("--lambda") + 1] == "0.2" for a in args if "--lambda" in a)
+    assert sum("--lambda" in a for a in args) == len(args) // 2
 
 
 def test_smoke_grid_is_valid_and_expands() -> None:

@@ -48,9 +48,11 @@ EFFECTS = {
     "offset": ("--offset", lambda v: 0.0 < v < 0.9, "in (0, 0.9)"),
 }
 #: Flows where the kernel has each effect (others refuse it).
-EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear",), "kb": ("tube", "shear"), "offset": ("tube",)}
-#: Effects that need a tube setting (the off-centre capsule exists in the 3D model only).
-EFFECT_TUBE_SETTINGS = {"offset": ("model", "3d")}
+EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear", "tube"), "kb": ("tube", "shear"),
+                "offset": ("tube",)}
+#: Tube models that have each effect (tube.settings.model, default axi): the off-centre capsule
+#: exists in the 3D model only, lambda /= 1 in the axisymmetric one only.
+EFFECT_TUBE_MODELS = {"offset": ("3d",), "lambda": ("axi",)}
 
 
 class GridError(ValueError):
@@ -234,11 +236,11 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                     if flow not in EFFECT_FLOWS[name]:
                         problems.append(f"{flow}.laws[{i}]: law key {key!r}: the kernel has {name} only in "
                                         f"{', '.join(EFFECT_FLOWS[name])} flow")
-                    elif name in EFFECT_TUBE_SETTINGS:
-                        setting, needed = EFFECT_TUBE_SETTINGS[name]
-                        if grid[flow].get("settings", {}).get(setting) != needed:
+                    elif flow == "tube" and name in EFFECT_TUBE_MODELS:
+                        model = grid[flow].get("settings", {}).get("model", "axi")
+                        if model not in EFFECT_TUBE_MODELS[name]:
                             problems.append(f"{flow}.laws[{i}]: law key {key!r}: {name} needs "
-                                            f"tube.settings.{setting}: {needed}")
+                                            f"tube.settings.model: {' or '.join(EFFECT_TUBE_MODELS[name])}")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
