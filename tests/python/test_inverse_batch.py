@@ -16,7 +16,7 @@ import pytest
 from scipy.interpolate import LinearNDInterpolator
 
 from capsmech.database import load_database
-from capsmech.fitting import tube_inverter
+from capsmech.fitting import fit_tube, tube_inverter
 from capsmech.inverse import FIVE_FITS, TubeInverter, TubeTable
 from capsmech.measurements import read_measurements
 
@@ -118,3 +118,20 @@ def test_fit_many_equals_fit_on_the_paper_database_nodes(tube_db):
     # nodes): the batch must reproduce the reference there too, flags included.
     inverter = tube_inverter(tube_db, "NH")
     assert_same_as_fit(inverter, inverter.table.L_z, inverter.table.L_p)
+
+
+@pytest.mark.parametrize("batch", ["NH", "GH_nu0.5"])
+def test_fit_tube_rows_are_the_capsules_five_fits(tube_db, batch):
+    # fit_tube fits all capsules at once; each row's statistics are those of the capsule's
+    # own five fits by the reference fit.
+    capsules = read_measurements(EXAMPLES / f"tube_batch_{batch}.csv", "tube")
+    rows = fit_tube(capsules, tube_db, ["NH", "GH_nu0.5"])
+    inverters = {law: tube_inverter(tube_db, law) for law in ("NH", "GH_nu0.5")}
+    for k, capsule in enumerate(capsules):
+        l = capsule["tube_radius"]
+        for row in rows[2 * k:2 * k + 2]:
+            fits = inverters[row["law"]].five_fits(capsule["L_z"] / l, capsule["L_p"] / l, capsule["v_c"], capsule["mu"])
+            assert row["id"] == capsule.id and row["valid_fits"] == fits.n_valid
+            for name in FIELDS[:3]:
+                for value, expected in ((row[name], fits.mean(name)), (row[f"{name}_spread"], fits.spread(name))):
+                    assert value == pytest.approx(expected, rel=1e-9, nan_ok=True), (row["id"], row["law"], name)
