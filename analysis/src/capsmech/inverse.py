@@ -195,7 +195,8 @@ class TubeInverter:
         self._p_scale = self._p.std(axis=0)
         self._p_scale[self._p_scale == 0] = 1.0
         self._tree = cKDTree(self._q / self._q_scale)
-        self._p_tree = cKDTree(self._p / self._p_scale)
+        self._p_scaled = self._p / self._p_scale
+        self._p_tree = cKDTree(self._p_scaled)
         self._hull = Delaunay(self._p / self._p_scale)
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
 
@@ -303,7 +304,7 @@ class TubeInverter:
         x_points = (self._p[index] - centre[:, None, :]) / self._p_scale
         d_max = 1.01 * distance.max(axis=1) + 1e-300
         weight = (1 - (distance / d_max[:, None]) ** 2) ** 2
-        coefficients = _weighted_lstsq_many(_quadratic_basis_many(x_points), self._q[index], weight)
+        coefficients = _weighted_lstsq_many(x_points, self._q[index], weight)
 
         # Damped Newton to the root, each capsule until its own step is below 1e-12.
         x = np.zeros((len(rows), 2))
@@ -333,13 +334,15 @@ class TubeInverter:
                 break
             s_live = scaled[live]
             _, index = self._p_tree.query(s_live, k=self.n_neighbours)
-            centre_p = self._p[index[:, 0]]
-            x_points = (self._p[index] - centre_p[:, None, :]) / self._p_scale
-            centre_scaled = centre_p / self._p_scale
+            # In scaled parameters throughout (fit divides differences by the scale: the same
+            # to round-off).
+            centre_scaled = self._p_scaled[index[:, 0]]
+            x_points = self._p_scaled[index] - centre_scaled[:, None, :]
             x_here = s_live - centre_scaled
-            distance = np.linalg.norm(x_points - x_here[:, None, :], axis=2)
+            offset = x_points - x_here[:, None, :]
+            distance = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
             weight = (1 - (distance / (1.01 * distance.max(axis=1) + 1e-300)[:, None]) ** 2) ** 2
-            coefficients_r = _weighted_lstsq_many(_quadratic_basis_many(x_points), self._q[index], weight)
+            coefficients_r = _weighted_lstsq_many(x_points, self._q[index], weight)
             x_new, norm, bad = _damped_newton_step_many(coefficients_r, x_here, q_star[live], 0.25)
             scaled[live] = s_live + (x_new - x_here)
             refine_coefficients[live] = coefficients_r
@@ -466,37 +469,47 @@ def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndar
 _MIN_CHOLESKY_PIVOT = 1e-6
 
 
-def _quadratic_basis_many(x: np.ndarray) -> np.ndarray:
-    """``_quadratic_basis`` on a stack (m, n, 2) -> (m, n, 6)."""
-    u, v = x[..., 0], x[..., 1]
-    return np.stack([np.ones_like(u), u, v, u**2, u * v, v**2], axis=-1)
+#: Exponents (of x, y) of the columns of ``_quadratic_basis``.
+_EXPONENTS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
 
-def _weighted_lstsq_many(basis: np.ndarray, values: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """Weighted least squares on a stack: basis (m, n, 6), values (m, n, 2), weight (m, n) ->
-    coefficients (m, 6, 2), equal to ``np.linalg.lstsq(sqrt_w * basis, sqrt_w * values)``
-    row by row to round-off.
+def _weighted_lstsq_many(x: np.ndarray, values: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The weighted quadratic fit on a stack: points x (m, n, 2), values (m, n, 2), weights
+    (m, n) -> coefficients (m, 6, 2), equal row by row to round-off to
+    ``np.linalg.lstsq(sqrt_w * _quadratic_basis(x), sqrt_w * values)``.
 
     Well-conditioned rows (the usual case) are solved by the normal equations with the
-    columns scaled to unit norm, by a Cholesky factorisation written out over the stack
-    (6 x 6 systems: numpy operations on (m,) vectors are much cheaper than one LAPACK call
-    per system). Rows with a Cholesky pivot below _MIN_CHOLESKY_PIVOT (neighbours on one or
-    two grid lines make the basis rank-deficient, common near the edge of a database's
-    steady region) get lstsq's own answer: the minimum-norm SVD solution with lstsq's cutoff
-    on the singular values (eps * max(n, 6) times the largest)."""
-    sqrt_w = np.sqrt(weight)[..., None]
-    a = sqrt_w * basis
-    b = sqrt_w * values
-    column_norm = np.sqrt((a * a).sum(axis=1))
+    columns scaled to unit norm. Their entries are weighted moments sum w x^i y^j (i + j <= 4)
+    and sum w q x^i y^j (i + j <= 2), reductions over (m, n) arrays, and the 6 x 6 Cholesky
+    factorisation and solves are written out over the stack: numpy operations on (m,) vectors
+    cost much less than one LAPACK call per small system. The error ~ cond**2 * eps stays
+    ~1e-10 while every Cholesky pivot exceeds _MIN_CHOLESKY_PIVOT. Rows below it (neighbours
+    on one or two grid lines make the basis rank-deficient, common near the edge of a
+    database's steady region) get lstsq's own answer: the minimum-norm SVD solution with
+    lstsq's cutoff on the singular values (eps * max(n, 6) times the largest)."""
+    u, v = x[..., 0], x[..., 1]
+    u_powers = [np.ones_like(u), u, u * u, u * u * u, (u * u) * (u * u)]
+    v_powers = [np.ones_like(v), v, v * v, v * v * v, (v * v) * (v * v)]
+    moment = {}
+    for i in range(5):
+        wu = weight * u_powers[i]
+        for j in range(5 - i):
+            moment[i, j] = (wu * v_powers[j]).sum(axis=1)
+    k = len(_EXPONENTS)
+    gram = np.empty((k, k, len(x)))
+    for r, (i1, j1) in enumerate(_EXPONENTS):
+        for c, (i2, j2) in enumerate(_EXPONENTS[: r + 1]):
+            gram[r, c] = gram[c, r] = moment[i1 + i2, j1 + j2]
+    rhs = np.empty((k, values.shape[2], len(x)))
+    for r, (i, j) in enumerate(_EXPONENTS):
+        wm = weight * u_powers[i] * v_powers[j]
+        rhs[r] = np.einsum("mn,mnq->qm", wm, values)
+    column_norm = np.sqrt(np.array([gram[r, r] for r in range(k)]))
+    bad = np.any(column_norm == 0, axis=0)
     safe_norm = np.where(column_norm > 0, column_norm, 1.0)
-    scaled = a / safe_norm[:, None, :]
-    # Indices first so that each entry is a contiguous (m,) vector.
-    scaled_t = scaled.transpose(0, 2, 1)
-    gram = np.ascontiguousarray(np.matmul(scaled_t, scaled).transpose(1, 2, 0))
-    rhs = np.ascontiguousarray(np.matmul(scaled_t, b).transpose(1, 2, 0))
-    k = gram.shape[0]
+    gram /= safe_norm[:, None, :] * safe_norm[None, :, :]
+    rhs /= safe_norm[:, None, :]
     lower = np.zeros_like(gram)
-    bad = np.any(column_norm == 0, axis=1)
     for j in range(k):
         pivot = gram[j, j] - np.einsum("im,im->m", lower[j, :j], lower[j, :j])
         bad |= ~(pivot > _MIN_CHOLESKY_PIVOT)
@@ -509,13 +522,16 @@ def _weighted_lstsq_many(basis: np.ndarray, values: np.ndarray, weight: np.ndarr
     solution = np.empty_like(rhs)
     for i in reversed(range(k)):
         solution[i] = (y[i] - np.einsum("jm,jkm->km", lower[i + 1:, i], solution[i + 1:])) / lower[i, i]
-    coefficients = solution.transpose(2, 0, 1) / safe_norm[:, :, None]
+    coefficients = solution.transpose(2, 0, 1) / safe_norm.T[:, :, None]
     if bad.any():
-        u, s, vt = np.linalg.svd(a[bad], full_matrices=False)
+        sqrt_w = np.sqrt(weight[bad])[..., None]
+        a = sqrt_w * np.stack([u_powers[i][bad] * v_powers[j][bad] for i, j in _EXPONENTS], axis=-1)
+        b = sqrt_w * values[bad]
+        u_svd, s, vt = np.linalg.svd(a, full_matrices=False)
         cutoff = np.finfo(float).eps * max(a.shape[1:]) * s[:, :1]
         s_inverse = np.where(s > cutoff, 1 / np.where(s > cutoff, s, 1.0), 0.0)
         coefficients[bad] = np.matmul(vt.transpose(0, 2, 1),
-                                      s_inverse[:, :, None] * np.matmul(u.transpose(0, 2, 1), b[bad]))
+                                      s_inverse[:, :, None] * np.matmul(u_svd.transpose(0, 2, 1), b))
     return coefficients
 
 
