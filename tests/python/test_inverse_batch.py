@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import LinearNDInterpolator
 
+from capsmech import inverse
 from capsmech.database import load_database
 from capsmech.fitting import fit_tube, tube_inverter
 from capsmech.inverse import FIVE_FITS, TubeInverter, TubeTable
@@ -64,8 +65,10 @@ def noisy_steady_capsules(inverter, n, seed):
     return l_z * (1 + 0.02 * rng.standard_normal(n)), l_p * (1 + 0.02 * rng.standard_normal(n))
 
 
-@pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
-def test_fit_many_equals_fit_on_noisy_capsules_in_the_steady_region(tube_db, law):
+@pytest.mark.parametrize("law,batch", [("NH", 64), ("GH_nu0.5", None)])
+def test_fit_many_equals_fit_on_noisy_capsules_in_the_steady_region(tube_db, law, batch, monkeypatch):
+    if batch is not None:   # large inputs are fitted in chunks: the same results
+        monkeypatch.setattr(inverse, "_BATCH", batch)
     inverter = tube_inverter(tube_db, law)
     l_z, l_p = noisy_steady_capsules(inverter, 300, seed=5)
     many = assert_same_as_fit(inverter, l_z, l_p, v_c=2.5e-3, mu=1.2e-3)

