@@ -133,7 +133,8 @@ def test_fit_tube_rows_are_the_capsules_five_fits(tube_db, batch):
     for k, capsule in enumerate(capsules):
         l = capsule["tube_radius"]
         for row in rows[2 * k:2 * k + 2]:
-            fits = inverters[row["law"]].five_fits(capsule["L_z"] / l, capsule["L_p"] / l, capsule["v_c"], capsule["mu"])
+            fits = inverters[row["law"]].five_fits(capsule["L_z"] / l, capsule["L_p"] / l,
+                                                   capsule["v_c"], capsule["mu"])
             assert row["id"] == capsule.id and row["valid_fits"] == fits.n_valid
             for name in FIELDS[:3]:
                 for value, expected in ((row[name], fits.mean(name)), (row[f"{name}_spread"], fits.spread(name))):

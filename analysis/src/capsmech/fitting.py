@@ -102,7 +102,8 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
             if math.isfinite(capsule["pixel_size"]):
                 asymmetry_limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * capsule["pixel_size"] / radius)
         for law in laws:
-            fits = FiveFits({name: five[law].row(j * len(capsules) + k) for j, (name, _, _) in enumerate(FIVE_FITS)})
+            fits = FiveFits({name: five[law].row(j * len(capsules) + k)
+                             for j, (name, _, _) in enumerate(FIVE_FITS)})
             row: dict[str, Any] = {"id": capsule.id, "law": law, "L_z_over_l": l_z, "L_p_over_l": l_p,
                                    "a_over_l": fits.mean("a_over_l"), "a_over_l_spread": fits.spread("a_over_l"),
                                    "Ca_s": fits.mean("Ca_s"), "Ca_s_spread": fits.spread("Ca_s"),
