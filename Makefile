@@ -85,6 +85,7 @@ bench: system-deps venv
 	$(PY) bench/bench_single_layer.py
 	$(PY) bench/bench_tube_axi.py
 	$(PY) bench/bench_tube_3d.py
+	$(PY) bench/bench_inverse.py
 	$(MAKE) clean-kernel
 
 validate: setup

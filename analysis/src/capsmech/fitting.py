@@ -24,7 +24,8 @@ import numpy as np
 from capsmech.contours import (ASYMMETRY_PIXELS, MAX_ASYMMETRY, MAX_H_OVER_A, profile_misfit, symmetry_axis,
                                volume_radius)
 from capsmech.database import Database, ShearDatabase, TubeDatabase
-from capsmech.inverse import ShearInverter, TubeInverter, TubeTable, profile_elongation
+from capsmech.inverse import (FIVE_FITS, FiveFits, ShearInverter, TubeFits, TubeInverter, TubeTable,
+                              profile_elongation)
 from capsmech.measurements import Capsule
 from capsmech.residuals import size_residual, velocity_residual
 
@@ -83,9 +84,10 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
     """
     laws = list(laws) if laws is not None else list(database.laws)
     inverters = {law: tube_inverter(database, law) for law in laws}
+    five = _five_fits_many(capsules, inverters)
     rows = []
     total = len(capsules) * len(laws)
-    for capsule in capsules:
+    for k, capsule in enumerate(capsules):
         l = capsule["tube_radius"]
         l_z, l_p = capsule["L_z"] / l, capsule["L_p"] / l
         v_c, mu = capsule["v_c"], capsule["mu"]
@@ -100,7 +102,8 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
             if math.isfinite(capsule["pixel_size"]):
                 asymmetry_limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * capsule["pixel_size"] / radius)
         for law in laws:
-            fits = inverters[law].five_fits(l_z, l_p, v_c if has_velocity else None, mu if has_velocity else None)
+            fits = FiveFits({name: five[law].row(j * len(capsules) + k)
+                             for j, (name, _, _) in enumerate(FIVE_FITS)})
             row: dict[str, Any] = {"id": capsule.id, "law": law, "L_z_over_l": l_z, "L_p_over_l": l_p,
                                    "a_over_l": fits.mean("a_over_l"), "a_over_l_spread": fits.spread("a_over_l"),
                                    "Ca_s": fits.mean("Ca_s"), "Ca_s_spread": fits.spread("Ca_s"),
@@ -139,6 +142,25 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
             rows.append(row)
             _progress(len(rows), total)
     return rows
+
+
+def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]) -> dict[str, TubeFits]:
+    """The five fits of every capsule with every law, in one ``fit_many`` call per law:
+    ``result[law].row(j * len(capsules) + k)`` is fit j of ``FIVE_FITS`` for capsule k, what
+    ``inverters[law].five_fits`` gives (v_c and mu only where both are finite)."""
+    l = np.array([c["tube_radius"] for c in capsules], dtype=float)
+    l_z = np.array([c["L_z"] for c in capsules], dtype=float) / l
+    l_p = np.array([c["L_p"] for c in capsules], dtype=float) / l
+    v_c = np.array([c["v_c"] for c in capsules], dtype=float)
+    mu = np.array([c["mu"] for c in capsules], dtype=float)
+    # NaN gives G_s = NaN, as fit does without v_c and mu.
+    has_velocity = np.isfinite(v_c) & np.isfinite(mu)
+    v_c, mu = np.where(has_velocity, v_c, np.nan), np.where(has_velocity, mu, np.nan)
+    five_z = np.concatenate([l_z * fz for _, fz, _ in FIVE_FITS])
+    five_p = np.concatenate([l_p * fp for _, _, fp in FIVE_FITS])
+    n_fits = len(FIVE_FITS)
+    return {law: inverter.fit_many(five_z, five_p, np.tile(v_c, n_fits), np.tile(mu, n_fits))
+            for law, inverter in inverters.items()}
 
 
 def fit_shear(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterable[str] | None = None
