@@ -410,23 +410,48 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 def cmd_population(args: argparse.Namespace) -> int:
     """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
     from capsmech.fitting import write_results
-    from capsmech.population import POPULATION_UNITS, plot_population, population, population_rows, read_results
+    from capsmech.population import (POPULATION_UNITS, plot_population, population_rows, population_verdict,
+                                     read_results)
 
     rows = [row for path in args.results for row in read_results(path)]
-    drifts, best = population(rows)
+    verdict = population_verdict(rows)
+    drifts, best = verdict.drifts, verdict.best
     print(f"{'law':>10} {'n':>4} {'G_s [N/m]':>20} {'drift /unit Delta':>18} {'95 % interval':>20} {'p':>8}")
     for law, d in drifts.items():
         print(f"{law:>10} {d.n:>4} {d.mean:>10.4g} +- {d.std:<7.2g} {d.slope:>+18.3f} "
               f"[{d.ci_low:+.3f}, {d.ci_high:+.3f}] {d.p_value:>8.2g}")
+    if verdict.shape is not None:
+        shape = verdict.shape
+        print(f"contour misfit H/a over the {shape.n} capsules every law fits: "
+              + ", ".join(f"{law} median {m:.4f}" for law, m in shape.median.items())
+              + "; paired signed-rank p: " + ", ".join(f"{a}/{b} {p:.2g}" for (a, b), p in shape.p_values.items()))
     if best is None:
-        print("verdict: every law's G_s drifts with the deformation (p < 0.05): none fits the batch")
+        print(f"verdict: no law fits the batch ({verdict.reason})")
     else:
-        print(f"verdict: {best} (G_s = {drifts[best].mean:.4g} +- {drifts[best].std:.2g} N/m does not drift "
-              f"with Delta, p = {drifts[best].p_value:.2g})")
+        print(f"verdict: {best}, G_s = {drifts[best].mean:.4g} +- {drifts[best].std:.2g} N/m ({verdict.reason})")
     if args.plot:
         print(f"wrote {plot_population(rows, drifts, args.plot)}")
     for out in args.out or []:
         print(f"wrote {write_results(population_rows(drifts, best), POPULATION_UNITS, out)}")
+    return 0
+
+
+def cmd_compare_methods(args: argparse.Namespace) -> int:
+    """``compare-methods``: the paper's shear and tube moduli, before and after the viscosity
+    ratio of its shear experiment (capsmech.microrheometry)."""
+    from capsmech.database import ShearDatabase, load_database
+    from capsmech.microrheometry import comparison_table, compare_methods
+
+    base, with_lambda = load_database(args.database), load_database(args.lambda_database)
+    for path, db in ((args.database, base), (args.lambda_database, with_lambda)):
+        if not isinstance(db, ShearDatabase):
+            raise DatabaseError(f"{path}: not a shear database")
+    suffix = f"+lambda{args.lambda_value}"
+    missing = [law + suffix for law in args.law if law + suffix not in with_lambda.laws]
+    if missing:
+        raise DatabaseError(f"{args.lambda_database}: no law group {', '.join(missing)} "
+                            f"(it has {', '.join(with_lambda.laws)}); refill it with `make database GRID=microrheometry`")
+    print(comparison_table(compare_methods(base, with_lambda, suffix, tuple(args.law))))
     return 0
 
 
@@ -567,6 +592,13 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--other-law", action="append", metavar="KEY",
                       help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report")
+    comp = sub.add_parser("compare-methods", help="the paper's microrheometry against its microfluidics, "
+                          "before and after the viscosity ratio of its shear experiment")
+    comp.add_argument("--database", default="data/databases/shear.h5", help="shear database made with lambda = 1")
+    comp.add_argument("--lambda-database", default="data/databases/microrheometry/shear.h5",
+                      help="shear database with the experiment's viscosity ratio (config/microrheometry.yaml)")
+    comp.add_argument("--lambda-value", default="0.001", help="its viscosity ratio, as in the law keys (default 0.001)")
+    comp.add_argument("--law", nargs="+", default=["NH", "GH_nu0.5", "GH_nu0.2"], help="base law keys")
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
     ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
     ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the TIFF's metadata)")
@@ -606,7 +638,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
                 "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract,
-                "diagnose": cmd_diagnose}
+                "diagnose": cmd_diagnose, "compare-methods": cmd_compare_methods}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)
