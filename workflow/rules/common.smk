@@ -35,7 +35,7 @@ CASES = {
 
 wildcard_constraints:
     flow="tube|shear",
-    law="[A-Za-z0-9_.-]+",
+    law="[A-Za-z0-9_.+-]+",
     case="[A-Za-z0-9_.-]+",
 
 

@@ -31,10 +31,18 @@ Measurement effects need no new simulation:
 Model effects come from the database: every other law group (another law or nu_s, or a
 law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
 one discrete parameter.
+- ``prestress`` (alpha, continuous): the groups ``<base>+prestress<alpha>`` of an effect
+  database (``capsmech.effect_grid``) at a few levels, the base law being alpha = 0. Each
+  capsule's chi2 is computed at every level and interpolated between them (a parabola
+  through the three lowest levels for the batch), so alpha is fitted between the levels;
+  G_s after is interpolated linearly between the two levels around alpha.
+A candidate whose law groups the databases lack is not guessed: it is reported as "not
+assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -86,6 +94,11 @@ class Candidate:
     values: tuple[float, ...]
     neutral: float
     apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
+    #: Law groups the candidate needs from the databases (beyond the base law).
+    laws: tuple[str, ...] = ()
+    #: True: values are the only ones that can be simulated (database levels); theta between
+    #: them comes from interpolating chi2 and G_s, not from a refit.
+    interpolate: bool = False
 
 
 def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
@@ -129,7 +142,69 @@ def law_candidate(base_law: str, other_law: str) -> Candidate:
     def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str]:
         return list(capsules), other_law if which >= 0.5 else base_law
 
-    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply)
+    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply, laws=(other_law,))
+
+
+def prestress_key(base_law: str, alpha: float) -> str:
+    """The database law key of the base law with pre-stress alpha (``NH+prestress0.05``)."""
+    return base_law if alpha == 0 else f"{base_law}+prestress{alpha:g}"
+
+
+def prestress_candidate(base_law: str, levels: Sequence[float] = (0.04, 0.08)) -> Candidate:
+    """Membrane pre-stress alpha (``--prestress``), fitted between the database's levels."""
+    values = (0.0, *sorted(float(v) for v in levels))
+
+    def apply(capsules: Sequence[Capsule], alpha: float) -> tuple[list[Capsule], str]:
+        return list(capsules), prestress_key(base_law, alpha)
+
+    return Candidate("prestress", "alpha", "", values, 0.0, apply,
+                     laws=tuple(prestress_key(base_law, v) for v in values[1:]), interpolate=True)
+
+
+def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] = (0.04, 0.08),
+                      other_laws: Sequence[str] | None = None) -> list[Candidate]:
+    """The effect library (issue 7): contour offset, tube radius, pre-stress, and every other
+    law group of the databases without an effect (another law, nu_s or C) unless
+    ``other_laws`` names them."""
+    candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
+    if prestress_levels:
+        candidates.append(prestress_candidate(base_law, prestress_levels))
+    if other_laws is None:
+        other_laws = [key for key in database_laws if key != base_law and "+" not in key]
+    return candidates + [law_candidate(base_law, key) for key in other_laws]
+
+
+class DatabaseSet:
+    """Several tube databases seen as one: a law key is taken from the first that has it
+    (the base database, then effect databases such as data/databases/effects/*/tube.h5)."""
+
+    flow = "tube"
+
+    def __init__(self, databases: Sequence[TubeDatabase]) -> None:
+        self.databases = list(databases)
+
+    @property
+    def laws(self) -> list[str]:
+        return list(dict.fromkeys(key for d in self.databases for key in d.laws))
+
+    def law(self, key: str):
+        for database in self.databases:
+            if key in database.laws:
+                return database.law(key)
+        raise KeyError(f"no database has law {key!r}")
+
+
+@dataclass
+class BatchScore:
+    """Per-capsule chi2, G_s, Delta, fitted (a/l, Ca_s) and residual profile [px] (on
+    ``PROFILE_POINTS`` points of normalised arclength) of one contour fit of the batch (NaN: no fit)."""
+
+    chi2: np.ndarray
+    g_s: np.ndarray
+    delta: np.ndarray
+    a_over_l: np.ndarray = field(default_factory=lambda: np.empty(0))
+    Ca_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    residual: np.ndarray = field(default_factory=lambda: np.empty((0, PROFILE_POINTS)))
 
 
 @dataclass
@@ -140,6 +215,7 @@ class CandidateResult:
     parameter: str
     unit: str
     theta: float = math.nan
+    law: str = ""
     interval: tuple[float, float] = (math.nan, math.nan)
     chi2_base: float = math.nan
     chi2: float = math.nan
@@ -154,16 +230,11 @@ class CandidateResult:
     drift_p_after: float = math.nan
     capsules: int = 0
     note: str = ""
-    profile_chi2: dict[float, np.ndarray] = field(default_factory=dict, repr=False)
+    #: The grid the workflow must run before the candidate can be assessed (see effect_grid).
+    needs: dict | None = None
+    after: BatchScore | None = field(default=None, repr=False)
 
 
-@dataclass
-class BatchScore:
-    """Per-capsule chi2, G_s and Delta of one contour fit of the batch (NaN: no fit)."""
-
-    chi2: np.ndarray
-    g_s: np.ndarray
-    delta: np.ndarray
 
 
 def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float, start: tuple[float, float],
@@ -203,6 +274,8 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, s
     rows = _central_fits(capsules, inverter)
     n = len(capsules)
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    fitted_a, fitted_ca = np.full(n, np.nan), np.full(n, np.nan)
+    residual = np.full((n, PROFILE_POINTS), np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
         if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
             continue
@@ -218,7 +291,10 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, s
         meridian = inverter.profile(a_over_l, ca)
         if meridian is not None:
             delta[i] = profile_elongation(meridian, a_over_l)
-    return BatchScore(chi2, g_s, delta)
+            pixel = capsule["pixel_size"] if math.isfinite(capsule["pixel_size"]) else 1.0
+            residual[i] = contour.residual(meridian * l, points=PROFILE_POINTS)[1] / pixel
+        fitted_a[i], fitted_ca[i] = a_over_l, ca
+    return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual)
 
 
 def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) -> np.ndarray:
@@ -263,6 +339,17 @@ def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, floa
     return summary, p
 
 
+def _interpolated_score(values: np.ndarray, scores: Sequence[BatchScore], theta: float) -> BatchScore:
+    """The batch score at theta between two levels: per capsule, linear in theta (the residual
+    profile is the nearer level's)."""
+    k = int(np.clip(np.searchsorted(values, theta) - 1, 0, len(values) - 2))
+    w = float((theta - values[k]) / (values[k + 1] - values[k]))
+    lo, hi = scores[k], scores[k + 1]
+    mix = {name: (1 - w) * getattr(lo, name) + w * getattr(hi, name)
+           for name in ("chi2", "g_s", "delta", "a_over_l", "Ca_s")}
+    return BatchScore(**mix, residual=(lo if w < 0.5 else hi).residual)
+
+
 def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
                        sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour]) -> CandidateResult:
     """Refit the batch over the candidate's grid; fit theta, its interval, the criteria."""
@@ -284,21 +371,26 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         return result
     table = table[:, usable]
     # Refine on the fly: evaluate at the parabola's minimum and add it to the grid (twice), so
-    # that the minimum chi2 the criteria compare is computed, not extrapolated.
-    if len(values) > 2:
+    # that the minimum chi2 the criteria compare is computed, not extrapolated. Levels that
+    # cannot be simulated in between (database groups) keep the parabola's value.
+    if len(values) > 2 and not candidate.interpolate:
         for _ in range(2):
             theta, _ = _parabola_minimum(values, table.sum(axis=1))
             if np.any(np.isclose(values, theta, rtol=0, atol=1e-9)):
                 break
-            extra = refit(theta).chi2[usable]
-            if not np.all(np.isfinite(extra)):
+            extra = refit(theta)
+            if not np.all(np.isfinite(extra.chi2[usable])):
                 break
             order = np.argsort(np.append(values, theta))
             values = np.append(values, theta)[order]
-            table = np.vstack([table, extra])[order]
+            table = np.vstack([table, extra.chi2[usable]])[order]
+            scores = [(scores + [extra])[j] for j in order]
     total = table.sum(axis=1)
-    k = int(np.argmin(total))
-    theta, chi2_min = float(values[k]), float(total[k])
+    if candidate.interpolate and len(values) > 2:
+        theta, chi2_min = _parabola_minimum(values, total)
+    else:
+        k = int(np.argmin(total))
+        theta, chi2_min = float(values[k]), float(total[k])
     result.theta, result.chi2 = theta, chi2_min
     result.chi2_base = float(base.chi2[usable].sum())
     n_points = result.capsules * PROFILE_POINTS
@@ -323,7 +415,15 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
     result.cv_p_value = p_value
     result.supported = bool(p_value < CV_ALPHA and result.bic_drop > MIN_BIC_DROP)
-    after = refit(theta)
+    on_level = np.isclose(values, theta, rtol=0, atol=1e-12)
+    if np.any(on_level):
+        after = scores[int(np.argmax(on_level))]
+    elif candidate.interpolate:
+        after = _interpolated_score(values, scores, theta)
+    else:
+        after = refit(theta)
+    result.law = candidate.apply(capsules, theta)[1] if not candidate.interpolate else ""
+    result.after = after
     result.g_s_before, result.drift_p_before = _g_s_summary(base, usable)
     result.g_s_after, result.drift_p_after = _g_s_summary(after, usable)
     return result
@@ -336,6 +436,7 @@ class Diagnosis:
     base_law: str
     results: list[CandidateResult]
     chosen: CandidateResult | None
+    base: BatchScore | None = field(default=None, repr=False)
 
     @property
     def rivals(self) -> list[CandidateResult]:
@@ -361,9 +462,15 @@ class Diagnosis:
                 f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
 
 
-def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
+def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
              candidates: Sequence[Candidate] | None = None) -> Diagnosis:
-    """Test the candidate effects on a batch fitted with ``base_law`` (see the module)."""
+    """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
+
+    ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
+    effect databases). A candidate whose law groups none has is not assessed; its result
+    carries the grid to run (``needs``, see ``capsmech.effect_grid``)."""
+    from capsmech.effect_grid import needed_grid
+
     if candidates is None:
         candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
     with_contours = [c for c in capsules if c.contour is not None]
@@ -372,35 +479,25 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
     sigma = noise_levels(with_contours, database, base_law)
     prepared = [PreparedContour(c.contour) for c in with_contours]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
-    results = [evaluate_candidate(c, with_contours, database, base_law, sigma, base, prepared) for c in candidates]
+    base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
+    results = []
+    for candidate in candidates:
+        missing = [key for key in candidate.laws if key not in database.laws]
+        if not missing:
+            results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared))
+            continue
+        result = CandidateResult(candidate.name, candidate.parameter, candidate.unit,
+                                 note="not assessed: needs simulations")
+        name = re.sub(r"[^A-Za-z0-9_-]", "_", candidate.name.replace(".", "p"))
+        result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
+        results.append(result)
     supported = [r for r in results if r.supported]
     chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
-    return Diagnosis(base_law, results, chosen)
+    return Diagnosis(base_law, results, chosen, base)
 
 
 def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "") -> Path:
-    """A Markdown report: the verdict, and per candidate its parameter with the interval, the
-    criteria and G_s before and after (written whole: temporary name, then renamed)."""
-    out = Path(out)
-    lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
-             f"Base law: `{diagnosis.base_law}`.", "", f"**Verdict:** {diagnosis.verdict}.", "",
-             "| candidate | parameter | interval | chi2 base -> fitted | BIC drop | CV gain per capsule (p) "
-             "| G_s before [N/m] | G_s after [N/m] | supported |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for r in diagnosis.results:
-        if r.note:
-            lines.append(f"| {r.name} | | | | | | | | {r.note} |")
-            continue
-        lines.append(
-            f"| {r.name} | {r.parameter} = {r.theta:.3g} {r.unit} | [{r.interval[0]:.3g}, {r.interval[1]:.3g}] "
-            f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
-            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
-            f"| {'yes' if r.supported else 'no'} |")
-    lines += ["", "Supported: leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < "
-              f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
-              "standard errors. chi2: contour residuals over each capsule's tracing noise, "
-              f"{PROFILE_POINTS} points a capsule.", ""]
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text("\n".join(lines), encoding="utf-8")
-    tmp.replace(out)
-    return out
+    """The Markdown report with its figures (``capsmech.diagnose_report``)."""
+    from capsmech.diagnose_report import write_report as write
+
+    return write(diagnosis, out, batch)

@@ -140,3 +140,19 @@ def read_truth(path: str | Path) -> dict[str, float | str]:
     out: dict[str, float | str] = {"law": first["law"], "G_s": float(first["G_s"])}
     out.update({k[len("effect_"):]: float(v) for k, v in first.items() if k.startswith("effect_")})
     return out
+
+
+def expected_candidates(truth: Mapping[str, float | str], base_law: str = "NH") -> dict[str, float]:
+    """The diagnose candidates (``capsmech.diagnose`` names) that undo a batch's true effects,
+    with the parameter value each should find: {candidate name: theta}."""
+    out: dict[str, float] = {}
+    if truth.get("contour_offset", 0.0):
+        out["contour_offset"] = float(truth["contour_offset"])
+    if truth.get("tube_radius", 0.0):
+        out["tube_radius"] = float(truth["tube_radius"])
+    if truth.get("prestress", 0.0):
+        out["prestress"] = float(truth["prestress"])
+    law = str(truth["law"]).split("+")[0]
+    if law != base_law:
+        out[f"law {law}"] = 1.0
+    return out
