@@ -370,6 +370,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         result.note = f"only {result.capsules} capsules fitted at every {candidate.parameter}: not assessed"
         return result
     table = table[:, usable]
+    grid_values = values.copy()
     # Refine on the fly: evaluate at the parabola's minimum and add it to the grid (twice), so
     # that the minimum chi2 the criteria compare is computed, not extrapolated. Levels that
     # cannot be simulated in between (database groups) keep the parabola's value.
@@ -395,11 +396,14 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     result.chi2_base = float(base.chi2[usable].sum())
     n_points = result.capsules * PROFILE_POINTS
     result.bic_drop = float(result.chi2_base - chi2_min - math.log(n_points))
-    # Leave one capsule out: theta from the others, scored on the one left out.
+    # Leave one capsule out: theta from the others, scored on the one left out. Theta comes
+    # from the parabola on the candidate's own grid: the refinement's points lie so close to
+    # the batch's minimum that a parabola through them would pin every theta_i there.
+    on_grid = np.isin(values, grid_values)
     gains, thetas = [], []
     for i in range(result.capsules):
         others = total - table[:, i]
-        theta_i, _ = _parabola_minimum(values, others)
+        theta_i, _ = _parabola_minimum(values[on_grid], others[on_grid])
         thetas.append(theta_i)
         held_out = float(np.interp(theta_i, values, table[:, i]))
         gains.append(float(base.chi2[usable][i]) - held_out)
