@@ -257,13 +257,37 @@ def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: 
     return float(best.x[0]), float(np.exp(best.x[1])), float(best.fun)
 
 
+def _on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = 2e-3) -> bool:
+    """Whether a contour fit ended on the edge of the database (a step of 2e-3 in a/l or
+    ln Ca_s leaves it): its minimum may lie outside, so it is no fit."""
+    return any(inverter.profile(a_over_l + da, Ca_s * math.exp(dc)) is None
+               for da, dc in ((step, 0), (-step, 0), (0, step), (0, -step)))
+
+
+def _nearest_row(inverter: TubeInverter, L_z: float, L_p: float) -> dict[str, float]:
+    """The database row nearest to the lengths (L_z, L_z - L_p), each scaled by its spread."""
+    t = inverter.table
+    q = np.column_stack([t.L_z, t.L_z - t.L_p])
+    k = int(np.argmin(np.sum(((q - [L_z, L_z - L_p]) / q.std(axis=0)) ** 2, axis=1)))
+    return {"a_over_l": float(t.a_over_l[k]), "Ca_s": float(t.Ca_s[k])}
+
+
 def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float]]:
-    """The length-based central fit of each capsule (the start of its contour fit)."""
+    """The length-based central fit of each capsule (the start of its contour fit). Where the
+    law reproduces no such lengths (an effect the law lacks can do that: pre-stressed capsules
+    fitted with NH), the nearest database row in lengths: the contour fit needs a start, not a
+    root, and dropping those capsules would hide the very effect sought."""
     rows = []
     for capsule in capsules:
         l = capsule["tube_radius"]
-        fit = inverter.fit(capsule["L_z"] / l, capsule["L_p"] / l)
-        rows.append({"a_over_l": fit.a_over_l if fit.ok else float("nan"), "Ca_s": fit.Ca_s})
+        L_z, L_p = capsule["L_z"] / l, capsule["L_p"] / l
+        fit = inverter.fit(L_z, L_p)
+        if fit.ok:
+            rows.append({"a_over_l": fit.a_over_l, "Ca_s": fit.Ca_s})
+        elif math.isfinite(L_z) and math.isfinite(L_p):
+            rows.append(_nearest_row(inverter, L_z, L_p))
+        else:
+            rows.append({"a_over_l": float("nan"), "Ca_s": float("nan")})
     return rows
 
 
@@ -282,7 +306,7 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, s
         contour = prepared[i] if prepared is not None else PreparedContour(capsule.contour)
         l = capsule["tube_radius"]
         a_over_l, ca, chi2[i] = contour_fit(contour, inverter, l, (row["a_over_l"], row["Ca_s"]), sigma[i])
-        if chi2[i] >= 1e12:
+        if chi2[i] >= 1e12 or _on_database_edge(inverter, a_over_l, ca):
             chi2[i] = np.nan
             continue
         velocity = inverter.velocity_ratio(a_over_l, ca)
