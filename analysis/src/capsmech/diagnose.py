@@ -32,10 +32,10 @@ Model effects come from the database: every other law group (another law or nu_s
 law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
 one discrete parameter.
 - ``prestress`` (alpha, continuous): the groups ``<base>+prestress<alpha>`` of an effect
-  database (``capsmech.effect_grid``) at a few levels, the base law being alpha = 0. Each
-  capsule's chi2 is computed at every level and interpolated between them (a parabola
-  through the three lowest levels for the batch), so alpha is fitted between the levels;
-  G_s after is interpolated linearly between the two levels around alpha.
+  database (``capsmech.effect_grid``) at a few levels, the base law being alpha = 0. Between
+  two levels the law is their blend (profiles and velocity ratio linear in alpha at the same
+  a/l and Ca_s, ``BlendedLaw``), so the batch is refitted at any alpha like the other
+  continuous candidates.
 A candidate whose law groups the databases lack is not guessed: it is reported as "not
 assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
@@ -96,9 +96,6 @@ class Candidate:
     apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
     #: Law groups the candidate needs from the databases (beyond the base law).
     laws: tuple[str, ...] = ()
-    #: True: values are the only ones that can be simulated (database levels); theta between
-    #: them comes from interpolating chi2 and G_s, not from a refit.
-    interpolate: bool = False
 
 
 def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
@@ -150,15 +147,58 @@ def prestress_key(base_law: str, alpha: float) -> str:
     return base_law if alpha == 0 else f"{base_law}+prestress{alpha:g}"
 
 
+class BlendedLaw:
+    """A law between two database groups (pre-stress between two levels): its profiles and
+    velocity ratio are (1 - w) times the first group's plus w times the second's, at the same
+    (a/l, Ca_s); its length fit is the nearer group's (a contour fit's start only)."""
+
+    def __init__(self, low: str, high: str, w: float) -> None:
+        self.low, self.high, self.w = low, high, float(w)
+
+    def __str__(self) -> str:
+        return f"{self.low}..{self.high} at w = {self.w:.3g}"
+
+    def inverter(self, database) -> _BlendedInverter:
+        return _BlendedInverter(tube_inverter(database, self.low), tube_inverter(database, self.high), self.w)
+
+
+class _BlendedInverter:
+    """The TubeInverter interface diagnose uses, for a BlendedLaw."""
+
+    def __init__(self, low: TubeInverter, high: TubeInverter, w: float) -> None:
+        self.low, self.high, self.w = low, high, w
+        self.nearer = low if w < 0.5 else high
+        self.table = self.nearer.table
+
+    def fit(self, L_z: float, L_p: float):
+        return self.nearer.fit(L_z, L_p)
+
+    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
+        low, high = self.low.profile(a_over_l, Ca_s), self.high.profile(a_over_l, Ca_s)
+        if low is None or high is None:
+            return None
+        return (1 - self.w) * low + self.w * high
+
+    def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
+        return (1 - self.w) * self.low.velocity_ratio(a_over_l, Ca_s) + self.w * self.high.velocity_ratio(a_over_l, Ca_s)
+
+
 def prestress_candidate(base_law: str, levels: Sequence[float] = (0.04, 0.08)) -> Candidate:
-    """Membrane pre-stress alpha (``--prestress``), fitted between the database's levels."""
+    """Membrane pre-stress alpha (``--prestress``), fitted between the database's levels:
+    between two levels the law is their blend (``BlendedLaw``), so that the batch is refitted
+    at any alpha, not only at the levels."""
     values = (0.0, *sorted(float(v) for v in levels))
 
-    def apply(capsules: Sequence[Capsule], alpha: float) -> tuple[list[Capsule], str]:
-        return list(capsules), prestress_key(base_law, alpha)
+    def apply(capsules: Sequence[Capsule], alpha: float) -> tuple[list[Capsule], str | BlendedLaw]:
+        at = [v for v in values if math.isclose(v, alpha, rel_tol=0, abs_tol=1e-12)]
+        if at:
+            return list(capsules), prestress_key(base_law, at[0])
+        k = int(np.clip(np.searchsorted(values, alpha) - 1, 0, len(values) - 2))
+        w = (alpha - values[k]) / (values[k + 1] - values[k])
+        return list(capsules), BlendedLaw(prestress_key(base_law, values[k]), prestress_key(base_law, values[k + 1]), w)
 
     return Candidate("prestress", "alpha", "", values, 0.0, apply,
-                     laws=tuple(prestress_key(base_law, v) for v in values[1:]), interpolate=True)
+                     laws=tuple(prestress_key(base_law, v) for v in values[1:]))
 
 
 def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] = (0.04, 0.08),
@@ -272,7 +312,7 @@ def _nearest_row(inverter: TubeInverter, L_z: float, L_p: float) -> dict[str, fl
     return {"a_over_l": float(t.a_over_l[k]), "Ca_s": float(t.Ca_s[k])}
 
 
-def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float]]:
+def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float | bool]]:
     """The length-based central fit of each capsule (the start of its contour fit). Where the
     law reproduces no such lengths (an effect the law lacks can do that: pre-stressed capsules
     fitted with NH), the nearest database row in lengths: the contour fit needs a start, not a
@@ -285,17 +325,23 @@ def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[d
         if fit.ok:
             rows.append({"a_over_l": fit.a_over_l, "Ca_s": fit.Ca_s})
         elif math.isfinite(L_z) and math.isfinite(L_p):
-            rows.append(_nearest_row(inverter, L_z, L_p))
+            rows.append({**_nearest_row(inverter, L_z, L_p), "fallback": True})
         else:
             rows.append({"a_over_l": float("nan"), "Ca_s": float("nan")})
     return rows
 
 
-def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, sigma: np.ndarray,
-                prepared: Sequence[PreparedContour] | None = None) -> BatchScore:
-    """Fit every capsule's contour with one law; chi2, G_s and Delta per capsule."""
-    inverter = tube_inverter(database, law)
+def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw, sigma: np.ndarray,
+                prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
+    """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
+    capsule. A capsule whose lengths the law cannot reproduce starts from its fit in ``starts``
+    (the base fit), else from the database row nearest in lengths."""
+    inverter = law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
     rows = _central_fits(capsules, inverter)
+    if starts is not None:
+        for i, row in enumerate(rows):
+            if row.get("fallback") and math.isfinite(starts.a_over_l[i]):
+                row.update(a_over_l=float(starts.a_over_l[i]), Ca_s=float(starts.Ca_s[i]))
     n = len(capsules)
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     fitted_a, fitted_ca = np.full(n, np.nan), np.full(n, np.nan)
@@ -352,6 +398,22 @@ def _parabola_minimum(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return x_min, float(np.polyval([a, b, c], x_min))
 
 
+def _window_minimum(x: np.ndarray, y: np.ndarray, on_grid: np.ndarray) -> float:
+    """Minimum of the least-squares parabola through every point of y(x) between the grid
+    neighbours of the lowest grid point (refined points included; the grid's own spacing keeps
+    the fit well posed); the lowest grid point itself at the grid's ends."""
+    xg, yg = x[on_grid], y[on_grid]
+    k = int(np.nanargmin(yg))
+    if k == 0 or k == len(xg) - 1:
+        return float(xg[k])
+    low, high = xg[k - 1], xg[k + 1]
+    window = (x >= low) & (x <= high) & np.isfinite(y)
+    a, b, _ = np.polyfit(x[window], y[window], 2)
+    if a <= 0:
+        return float(x[window][np.argmin(y[window])])
+    return float(np.clip(-b / (2 * a), low, high))
+
+
 def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, float], float]:
     g = score.g_s[keep]
     g = g[np.isfinite(g)]
@@ -361,17 +423,6 @@ def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, floa
     if finite.sum() >= 3 and np.ptp(score.delta[finite]) > 0:
         p = law_drift("batch", score.delta[finite], score.g_s[finite]).p_value
     return summary, p
-
-
-def _interpolated_score(values: np.ndarray, scores: Sequence[BatchScore], theta: float) -> BatchScore:
-    """The batch score at theta between two levels: per capsule, linear in theta (the residual
-    profile is the nearer level's)."""
-    k = int(np.clip(np.searchsorted(values, theta) - 1, 0, len(values) - 2))
-    w = float((theta - values[k]) / (values[k + 1] - values[k]))
-    lo, hi = scores[k], scores[k + 1]
-    mix = {name: (1 - w) * getattr(lo, name) + w * getattr(hi, name)
-           for name in ("chi2", "g_s", "delta", "a_over_l", "Ca_s")}
-    return BatchScore(**mix, residual=(lo if w < 0.5 else hi).residual)
 
 
 def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
@@ -384,7 +435,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         changed, law = candidate.apply(capsules, value)
         # Contours the candidate leaves alone keep their prepared halves.
         same = all(c.contour is o.contour for c, o in zip(changed, capsules))
-        return score_batch(changed, database, law, sigma, prepared if same else None)
+        return score_batch(changed, database, law, sigma, prepared if same else None, starts=base)
 
     scores = [base if value == candidate.neutral else refit(float(value)) for value in values]
     table = np.array([s.chi2 for s in scores])                  # (values, capsules)
@@ -396,9 +447,8 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     table = table[:, usable]
     grid_values = values.copy()
     # Refine on the fly: evaluate at the parabola's minimum and add it to the grid (twice), so
-    # that the minimum chi2 the criteria compare is computed, not extrapolated. Levels that
-    # cannot be simulated in between (database groups) keep the parabola's value.
-    if len(values) > 2 and not candidate.interpolate:
+    # that the minimum chi2 the criteria compare is computed, not extrapolated.
+    if len(values) > 2:
         for _ in range(2):
             theta, _ = _parabola_minimum(values, table.sum(axis=1))
             if np.any(np.isclose(values, theta, rtol=0, atol=1e-9)):
@@ -411,23 +461,21 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
             table = np.vstack([table, extra.chi2[usable]])[order]
             scores = [(scores + [extra])[j] for j in order]
     total = table.sum(axis=1)
-    if candidate.interpolate and len(values) > 2:
-        theta, chi2_min = _parabola_minimum(values, total)
-    else:
-        k = int(np.argmin(total))
-        theta, chi2_min = float(values[k]), float(total[k])
+    k = int(np.argmin(total))
+    theta, chi2_min = float(values[k]), float(total[k])
     result.theta, result.chi2 = theta, chi2_min
     result.chi2_base = float(base.chi2[usable].sum())
     n_points = result.capsules * PROFILE_POINTS
     result.bic_drop = float(result.chi2_base - chi2_min - math.log(n_points))
     # Leave one capsule out: theta from the others, scored on the one left out. Theta comes
-    # from the parabola on the candidate's own grid: the refinement's points lie so close to
-    # the batch's minimum that a parabola through them would pin every theta_i there.
+    # from a least-squares parabola over the grid window around the minimum: a parabola
+    # through the three lowest points only would pass through the refinement's points, so
+    # close to the batch's minimum that every theta_i would be pinned there.
     on_grid = np.isin(values, grid_values)
     gains, thetas = [], []
     for i in range(result.capsules):
         others = total - table[:, i]
-        theta_i, _ = _parabola_minimum(values[on_grid], others[on_grid])
+        theta_i = _window_minimum(values, others, on_grid)
         thetas.append(theta_i)
         held_out = float(np.interp(theta_i, values, table[:, i]))
         gains.append(float(base.chi2[usable][i]) - held_out)
@@ -443,14 +491,9 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
     result.cv_p_value = p_value
     result.supported = bool(p_value < CV_ALPHA and result.bic_drop > MIN_BIC_DROP)
-    on_level = np.isclose(values, theta, rtol=0, atol=1e-12)
-    if np.any(on_level):
-        after = scores[int(np.argmax(on_level))]
-    elif candidate.interpolate:
-        after = _interpolated_score(values, scores, theta)
-    else:
-        after = refit(theta)
-    result.law = candidate.apply(capsules, theta)[1] if not candidate.interpolate else ""
+    # theta is a point of the table: its score is there already.
+    after = scores[k]
+    result.law = str(candidate.apply(capsules, theta)[1])
     result.after = after
     result.g_s_before, result.drift_p_before = _g_s_summary(base, usable)
     result.g_s_after, result.drift_p_after = _g_s_summary(after, usable)
