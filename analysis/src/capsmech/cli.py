@@ -381,29 +381,76 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _effect_databases(paths: Sequence[str] | None) -> list[str]:
+    """The effect databases diagnose reads: those named, else every data/databases/effects/*/tube.h5."""
+    if paths is not None:
+        return list(paths)
+    return sorted(str(p) for p in Path("data/databases/effects").glob("*/tube.h5"))
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
     from capsmech.database import load_database
-    from capsmech.diagnose import (contour_offset_candidate, diagnose, law_candidate, tube_radius_candidate,
-                                   write_report)
+    from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, write_report
+    from capsmech.effect_grid import case_count, estimated_core_minutes, write_grid
     from capsmech.measurements import read_measurements
 
     capsules = read_measurements(args.measurements, "tube")
     database = load_database(args.database)
     if database.flow != "tube":
         raise DatabaseError(f"{args.database}: a {database.flow} database, diagnose needs a tube one")
-    for key in [args.law, *(args.other_law or [])]:
-        if key not in database.laws:
-            raise DatabaseError(f"{args.database}: no law {key!r} (it has {', '.join(database.laws)})")
-    candidates = [contour_offset_candidate(args.law), tube_radius_candidate(args.law)]
-    candidates += [law_candidate(args.law, key) for key in args.other_law or []]
+    effects = [load_database(path) for path in _effect_databases(args.effects_database)]
+    for path, effect in zip(_effect_databases(args.effects_database), effects):
+        if effect.flow != "tube":
+            raise DatabaseError(f"{path}: a {effect.flow} database, diagnose needs a tube one")
+    databases = DatabaseSet([database, *effects])
+    if args.law not in database.laws:
+        raise DatabaseError(f"{args.database}: no law {args.law!r} (it has {', '.join(database.laws)})")
+    for key in args.other_law or []:
+        if key not in databases.laws:
+            raise DatabaseError(f"{args.database}: no law {key!r} (it has {', '.join(databases.laws)})")
     try:
-        result = diagnose(capsules, database, args.law, candidates)
+        levels = [float(v) for v in args.prestress_levels.split(",") if v.strip()]
+    except ValueError:
+        raise MeasurementError(f"--prestress-levels: not a comma-separated list of numbers: {args.prestress_levels!r}") from None
+    candidates = candidate_library(args.law, list(database.laws), levels, args.other_law)
+    if args.candidate:
+        candidates = [c for c in candidates if c.name in args.candidate
+                      or ("laws" in args.candidate and c.name.startswith("law "))]
+    try:
+        result = diagnose(capsules, databases, args.law, candidates)
     except ValueError as err:
         raise MeasurementError(f"{args.measurements}: {err}") from None
+    for r in result.results:
+        if r.needs is None:
+            continue
+        path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
+                          header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
+                                 "candidate needs.\nRun: make database GRID=" + r.needs["name"])
+        print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
+              f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
+              f"make database GRID={r.needs['name']} (grid written to {path})")
     print(f"verdict: {result.verdict}")
     if args.out:
         print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+    return 0
+
+
+def cmd_make_batch(args: argparse.Namespace) -> int:
+    """``make-batch``: a synthetic tube batch with undeclared effects (capsmech.undeclared)."""
+    from capsmech.undeclared import make_batch, write_batch
+
+    effects = args.effect or []
+    strengths = args.strength or []
+    if len(strengths) != len(effects):
+        raise MeasurementError(f"--strength: give one per --effect ({len(effects)} effects, {len(strengths)} strengths)")
+    try:
+        batch = make_batch(dict(zip(effects, strengths)), n_capsules=args.n, law=args.law, g_s=args.g_s,
+                           seed=args.seed, workers=args.workers)
+    except ValueError as err:
+        raise MeasurementError(str(err)) from None
+    csv_path, truth = write_batch(batch, Path(args.out) / f"{args.name}.csv")
+    print(f"wrote {csv_path} ({len(batch.rows)} capsules) and {truth}")
     return 0
 
 
@@ -590,8 +637,28 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--database", default="data/databases/tube.h5", help="tube database file")
     diag.add_argument("--law", default="NH", help="base law key (default NH)")
     diag.add_argument("--other-law", action="append", metavar="KEY",
-                      help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05")
-    diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report")
+                      help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05 "
+                           "(default: every other law of the database)")
+    diag.add_argument("--effects-database", action="append", metavar="H5",
+                      help="tube database of effect law groups (repeatable; default: data/databases/effects/*/tube.h5)")
+    diag.add_argument("--prestress-levels", default="0.04,0.08", metavar="A1,A2,..",
+                      help="pre-stress levels of the prestress candidate (default 0.04,0.08; empty: no candidate)")
+    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "laws"),
+                      help="test only these candidates (repeatable; default all: the effect library)")
+    diag.add_argument("--grid-dir", default="config", metavar="DIR",
+                      help="where grids of candidates that need simulations are written (default config)")
+    diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
+    mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")
+    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "GH_nu"),
+                    help="effect to switch on (repeatable; none: no effect)")
+    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, nu_s)")
+    mb.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    mb.add_argument("--name", default="batch", help="file stem (default batch)")
+    mb.add_argument("-n", type=int, default=24, help="capsules (default 24)")
+    mb.add_argument("--law", default="NH", help="base law (default NH)")
+    mb.add_argument("--g-s", type=float, default=0.04, help="G_s of the material [N/m] (default 0.04)")
+    mb.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    mb.add_argument("--workers", type=int, default=1, help="kernel runs at a time (default 1)")
     comp = sub.add_parser("compare-methods", help="the paper's microrheometry against its microfluidics, "
                           "before and after the viscosity ratio of its shear experiment")
     comp.add_argument("--database", default="data/databases/shear.h5", help="shear database made with lambda = 1")
@@ -638,7 +705,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
                 "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract,
-                "diagnose": cmd_diagnose, "compare-methods": cmd_compare_methods}
+                "diagnose": cmd_diagnose, "make-batch": cmd_make_batch, "compare-methods": cmd_compare_methods}
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

@@ -31,10 +31,18 @@ Measurement effects need no new simulation:
 Model effects come from the database: every other law group (another law or nu_s, or a
 law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
 one discrete parameter.
+- ``prestress`` (alpha, continuous): the groups ``<base>+prestress<alpha>`` of an effect
+  database (``capsmech.effect_grid``) at a few levels, the base law being alpha = 0. Between
+  two levels the law is their blend (profiles and velocity ratio linear in alpha at the same
+  a/l and Ca_s, ``BlendedLaw``), so the batch is refitted at any alpha like the other
+  continuous candidates.
+A candidate whose law groups the databases lack is not guessed: it is reported as "not
+assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -86,6 +94,8 @@ class Candidate:
     values: tuple[float, ...]
     neutral: float
     apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
+    #: Law groups the candidate needs from the databases (beyond the base law).
+    laws: tuple[str, ...] = ()
 
 
 def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
@@ -129,7 +139,112 @@ def law_candidate(base_law: str, other_law: str) -> Candidate:
     def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str]:
         return list(capsules), other_law if which >= 0.5 else base_law
 
-    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply)
+    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply, laws=(other_law,))
+
+
+def prestress_key(base_law: str, alpha: float) -> str:
+    """The database law key of the base law with pre-stress alpha (``NH+prestress0.05``)."""
+    return base_law if alpha == 0 else f"{base_law}+prestress{alpha:g}"
+
+
+class BlendedLaw:
+    """A law between two database groups (pre-stress between two levels): its profiles and
+    velocity ratio are (1 - w) times the first group's plus w times the second's, at the same
+    (a/l, Ca_s); its length fit is the nearer group's (a contour fit's start only)."""
+
+    def __init__(self, low: str, high: str, w: float) -> None:
+        self.low, self.high, self.w = low, high, float(w)
+
+    def __str__(self) -> str:
+        return f"{self.low}..{self.high} at w = {self.w:.3g}"
+
+    def inverter(self, database) -> _BlendedInverter:
+        return _BlendedInverter(tube_inverter(database, self.low), tube_inverter(database, self.high), self.w)
+
+
+class _BlendedInverter:
+    """The TubeInverter interface diagnose uses, for a BlendedLaw."""
+
+    def __init__(self, low: TubeInverter, high: TubeInverter, w: float) -> None:
+        self.low, self.high, self.w = low, high, w
+        self.nearer = low if w < 0.5 else high
+        self.table = self.nearer.table
+
+    def fit(self, L_z: float, L_p: float):
+        return self.nearer.fit(L_z, L_p)
+
+    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
+        low, high = self.low.profile(a_over_l, Ca_s), self.high.profile(a_over_l, Ca_s)
+        if low is None or high is None:
+            return None
+        return (1 - self.w) * low + self.w * high
+
+    def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
+        return (1 - self.w) * self.low.velocity_ratio(a_over_l, Ca_s) + self.w * self.high.velocity_ratio(a_over_l, Ca_s)
+
+
+def prestress_candidate(base_law: str, levels: Sequence[float] = (0.04, 0.08)) -> Candidate:
+    """Membrane pre-stress alpha (``--prestress``), fitted between the database's levels:
+    between two levels the law is their blend (``BlendedLaw``), so that the batch is refitted
+    at any alpha, not only at the levels."""
+    values = (0.0, *sorted(float(v) for v in levels))
+
+    def apply(capsules: Sequence[Capsule], alpha: float) -> tuple[list[Capsule], str | BlendedLaw]:
+        at = [v for v in values if math.isclose(v, alpha, rel_tol=0, abs_tol=1e-12)]
+        if at:
+            return list(capsules), prestress_key(base_law, at[0])
+        k = int(np.clip(np.searchsorted(values, alpha) - 1, 0, len(values) - 2))
+        w = (alpha - values[k]) / (values[k + 1] - values[k])
+        return list(capsules), BlendedLaw(prestress_key(base_law, values[k]), prestress_key(base_law, values[k + 1]), w)
+
+    return Candidate("prestress", "alpha", "", values, 0.0, apply,
+                     laws=tuple(prestress_key(base_law, v) for v in values[1:]))
+
+
+def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] = (0.04, 0.08),
+                      other_laws: Sequence[str] | None = None) -> list[Candidate]:
+    """The effect library (issue 7): contour offset, tube radius, pre-stress, and every other
+    law group of the databases without an effect (another law, nu_s or C) unless
+    ``other_laws`` names them."""
+    candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
+    if prestress_levels:
+        candidates.append(prestress_candidate(base_law, prestress_levels))
+    if other_laws is None:
+        other_laws = [key for key in database_laws if key != base_law and "+" not in key]
+    return candidates + [law_candidate(base_law, key) for key in other_laws]
+
+
+class DatabaseSet:
+    """Several tube databases seen as one: a law key is taken from the first that has it
+    (the base database, then effect databases such as data/databases/effects/*/tube.h5)."""
+
+    flow = "tube"
+
+    def __init__(self, databases: Sequence[TubeDatabase]) -> None:
+        self.databases = list(databases)
+
+    @property
+    def laws(self) -> list[str]:
+        return list(dict.fromkeys(key for d in self.databases for key in d.laws))
+
+    def law(self, key: str):
+        for database in self.databases:
+            if key in database.laws:
+                return database.law(key)
+        raise KeyError(f"no database has law {key!r}")
+
+
+@dataclass
+class BatchScore:
+    """Per-capsule chi2, G_s, Delta, fitted (a/l, Ca_s) and residual profile [px] (on
+    ``PROFILE_POINTS`` points of normalised arclength) of one contour fit of the batch (NaN: no fit)."""
+
+    chi2: np.ndarray
+    g_s: np.ndarray
+    delta: np.ndarray
+    a_over_l: np.ndarray = field(default_factory=lambda: np.empty(0))
+    Ca_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    residual: np.ndarray = field(default_factory=lambda: np.empty((0, PROFILE_POINTS)))
 
 
 @dataclass
@@ -140,6 +255,7 @@ class CandidateResult:
     parameter: str
     unit: str
     theta: float = math.nan
+    law: str = ""
     interval: tuple[float, float] = (math.nan, math.nan)
     chi2_base: float = math.nan
     chi2: float = math.nan
@@ -154,16 +270,11 @@ class CandidateResult:
     drift_p_after: float = math.nan
     capsules: int = 0
     note: str = ""
-    profile_chi2: dict[float, np.ndarray] = field(default_factory=dict, repr=False)
+    #: The grid the workflow must run before the candidate can be assessed (see effect_grid).
+    needs: dict | None = None
+    after: BatchScore | None = field(default=None, repr=False)
 
 
-@dataclass
-class BatchScore:
-    """Per-capsule chi2, G_s and Delta of one contour fit of the batch (NaN: no fit)."""
-
-    chi2: np.ndarray
-    g_s: np.ndarray
-    delta: np.ndarray
 
 
 def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float, start: tuple[float, float],
@@ -186,30 +297,62 @@ def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: 
     return float(best.x[0]), float(np.exp(best.x[1])), float(best.fun)
 
 
-def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float]]:
-    """The length-based central fit of each capsule (the start of its contour fit)."""
+def _on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = 2e-3) -> bool:
+    """Whether a contour fit ended on the edge of the database (a step of 2e-3 in a/l or
+    ln Ca_s leaves it): its minimum may lie outside, so it is no fit."""
+    return any(inverter.profile(a_over_l + da, Ca_s * math.exp(dc)) is None
+               for da, dc in ((step, 0), (-step, 0), (0, step), (0, -step)))
+
+
+def _nearest_row(inverter: TubeInverter, L_z: float, L_p: float) -> dict[str, float]:
+    """The database row nearest to the lengths (L_z, L_z - L_p), each scaled by its spread."""
+    t = inverter.table
+    q = np.column_stack([t.L_z, t.L_z - t.L_p])
+    k = int(np.argmin(np.sum(((q - [L_z, L_z - L_p]) / q.std(axis=0)) ** 2, axis=1)))
+    return {"a_over_l": float(t.a_over_l[k]), "Ca_s": float(t.Ca_s[k])}
+
+
+def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[dict[str, float | bool]]:
+    """The length-based central fit of each capsule (the start of its contour fit). Where the
+    law reproduces no such lengths (an effect the law lacks can do that: pre-stressed capsules
+    fitted with NH), the nearest database row in lengths: the contour fit needs a start, not a
+    root, and dropping those capsules would hide the very effect sought."""
     rows = []
     for capsule in capsules:
         l = capsule["tube_radius"]
-        fit = inverter.fit(capsule["L_z"] / l, capsule["L_p"] / l)
-        rows.append({"a_over_l": fit.a_over_l if fit.ok else float("nan"), "Ca_s": fit.Ca_s})
+        L_z, L_p = capsule["L_z"] / l, capsule["L_p"] / l
+        fit = inverter.fit(L_z, L_p)
+        if fit.ok:
+            rows.append({"a_over_l": fit.a_over_l, "Ca_s": fit.Ca_s})
+        elif math.isfinite(L_z) and math.isfinite(L_p):
+            rows.append({**_nearest_row(inverter, L_z, L_p), "fallback": True})
+        else:
+            rows.append({"a_over_l": float("nan"), "Ca_s": float("nan")})
     return rows
 
 
-def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, sigma: np.ndarray,
-                prepared: Sequence[PreparedContour] | None = None) -> BatchScore:
-    """Fit every capsule's contour with one law; chi2, G_s and Delta per capsule."""
-    inverter = tube_inverter(database, law)
+def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw, sigma: np.ndarray,
+                prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
+    """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
+    capsule. A capsule whose lengths the law cannot reproduce starts from its fit in ``starts``
+    (the base fit), else from the database row nearest in lengths."""
+    inverter = law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
     rows = _central_fits(capsules, inverter)
+    if starts is not None:
+        for i, row in enumerate(rows):
+            if row.get("fallback") and math.isfinite(starts.a_over_l[i]):
+                row.update(a_over_l=float(starts.a_over_l[i]), Ca_s=float(starts.Ca_s[i]))
     n = len(capsules)
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    fitted_a, fitted_ca = np.full(n, np.nan), np.full(n, np.nan)
+    residual = np.full((n, PROFILE_POINTS), np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
         if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
             continue
         contour = prepared[i] if prepared is not None else PreparedContour(capsule.contour)
         l = capsule["tube_radius"]
         a_over_l, ca, chi2[i] = contour_fit(contour, inverter, l, (row["a_over_l"], row["Ca_s"]), sigma[i])
-        if chi2[i] >= 1e12:
+        if chi2[i] >= 1e12 or _on_database_edge(inverter, a_over_l, ca):
             chi2[i] = np.nan
             continue
         velocity = inverter.velocity_ratio(a_over_l, ca)
@@ -218,7 +361,10 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str, s
         meridian = inverter.profile(a_over_l, ca)
         if meridian is not None:
             delta[i] = profile_elongation(meridian, a_over_l)
-    return BatchScore(chi2, g_s, delta)
+            pixel = capsule["pixel_size"] if math.isfinite(capsule["pixel_size"]) else 1.0
+            residual[i] = contour.residual(meridian * l, points=PROFILE_POINTS)[1] / pixel
+        fitted_a[i], fitted_ca[i] = a_over_l, ca
+    return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual)
 
 
 def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) -> np.ndarray:
@@ -252,6 +398,22 @@ def _parabola_minimum(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return x_min, float(np.polyval([a, b, c], x_min))
 
 
+def _window_minimum(x: np.ndarray, y: np.ndarray, on_grid: np.ndarray) -> float:
+    """Minimum of the least-squares parabola through every point of y(x) between the grid
+    neighbours of the lowest grid point (refined points included; the grid's own spacing keeps
+    the fit well posed); the lowest grid point itself at the grid's ends."""
+    xg, yg = x[on_grid], y[on_grid]
+    k = int(np.nanargmin(yg))
+    if k == 0 or k == len(xg) - 1:
+        return float(xg[k])
+    low, high = xg[k - 1], xg[k + 1]
+    window = (x >= low) & (x <= high) & np.isfinite(y)
+    a, b, _ = np.polyfit(x[window], y[window], 2)
+    if a <= 0:
+        return float(x[window][np.argmin(y[window])])
+    return float(np.clip(-b / (2 * a), low, high))
+
+
 def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, float], float]:
     g = score.g_s[keep]
     g = g[np.isfinite(g)]
@@ -273,7 +435,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         changed, law = candidate.apply(capsules, value)
         # Contours the candidate leaves alone keep their prepared halves.
         same = all(c.contour is o.contour for c, o in zip(changed, capsules))
-        return score_batch(changed, database, law, sigma, prepared if same else None)
+        return score_batch(changed, database, law, sigma, prepared if same else None, starts=base)
 
     scores = [base if value == candidate.neutral else refit(float(value)) for value in values]
     table = np.array([s.chi2 for s in scores])                  # (values, capsules)
@@ -283,6 +445,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         result.note = f"only {result.capsules} capsules fitted at every {candidate.parameter}: not assessed"
         return result
     table = table[:, usable]
+    grid_values = values.copy()
     # Refine on the fly: evaluate at the parabola's minimum and add it to the grid (twice), so
     # that the minimum chi2 the criteria compare is computed, not extrapolated.
     if len(values) > 2:
@@ -290,12 +453,13 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
             theta, _ = _parabola_minimum(values, table.sum(axis=1))
             if np.any(np.isclose(values, theta, rtol=0, atol=1e-9)):
                 break
-            extra = refit(theta).chi2[usable]
-            if not np.all(np.isfinite(extra)):
+            extra = refit(theta)
+            if not np.all(np.isfinite(extra.chi2[usable])):
                 break
             order = np.argsort(np.append(values, theta))
             values = np.append(values, theta)[order]
-            table = np.vstack([table, extra])[order]
+            table = np.vstack([table, extra.chi2[usable]])[order]
+            scores = [(scores + [extra])[j] for j in order]
     total = table.sum(axis=1)
     k = int(np.argmin(total))
     theta, chi2_min = float(values[k]), float(total[k])
@@ -303,11 +467,15 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     result.chi2_base = float(base.chi2[usable].sum())
     n_points = result.capsules * PROFILE_POINTS
     result.bic_drop = float(result.chi2_base - chi2_min - math.log(n_points))
-    # Leave one capsule out: theta from the others, scored on the one left out.
+    # Leave one capsule out: theta from the others, scored on the one left out. Theta comes
+    # from a least-squares parabola over the grid window around the minimum: a parabola
+    # through the three lowest points only would pass through the refinement's points, so
+    # close to the batch's minimum that every theta_i would be pinned there.
+    on_grid = np.isin(values, grid_values)
     gains, thetas = [], []
     for i in range(result.capsules):
         others = total - table[:, i]
-        theta_i, _ = _parabola_minimum(values, others)
+        theta_i = _window_minimum(values, others, on_grid)
         thetas.append(theta_i)
         held_out = float(np.interp(theta_i, values, table[:, i]))
         gains.append(float(base.chi2[usable][i]) - held_out)
@@ -323,7 +491,10 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
     result.cv_p_value = p_value
     result.supported = bool(p_value < CV_ALPHA and result.bic_drop > MIN_BIC_DROP)
-    after = refit(theta)
+    # theta is a point of the table: its score is there already.
+    after = scores[k]
+    result.law = str(candidate.apply(capsules, theta)[1])
+    result.after = after
     result.g_s_before, result.drift_p_before = _g_s_summary(base, usable)
     result.g_s_after, result.drift_p_after = _g_s_summary(after, usable)
     return result
@@ -336,6 +507,7 @@ class Diagnosis:
     base_law: str
     results: list[CandidateResult]
     chosen: CandidateResult | None
+    base: BatchScore | None = field(default=None, repr=False)
 
     @property
     def rivals(self) -> list[CandidateResult]:
@@ -361,9 +533,15 @@ class Diagnosis:
                 f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
 
 
-def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
+def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
              candidates: Sequence[Candidate] | None = None) -> Diagnosis:
-    """Test the candidate effects on a batch fitted with ``base_law`` (see the module)."""
+    """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
+
+    ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
+    effect databases). A candidate whose law groups none has is not assessed; its result
+    carries the grid to run (``needs``, see ``capsmech.effect_grid``)."""
+    from capsmech.effect_grid import needed_grid
+
     if candidates is None:
         candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
     with_contours = [c for c in capsules if c.contour is not None]
@@ -372,35 +550,25 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
     sigma = noise_levels(with_contours, database, base_law)
     prepared = [PreparedContour(c.contour) for c in with_contours]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
-    results = [evaluate_candidate(c, with_contours, database, base_law, sigma, base, prepared) for c in candidates]
+    base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
+    results = []
+    for candidate in candidates:
+        missing = [key for key in candidate.laws if key not in database.laws]
+        if not missing:
+            results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared))
+            continue
+        result = CandidateResult(candidate.name, candidate.parameter, candidate.unit,
+                                 note="not assessed: needs simulations")
+        name = re.sub(r"[^A-Za-z0-9_-]", "_", candidate.name.replace(".", "p"))
+        result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
+        results.append(result)
     supported = [r for r in results if r.supported]
     chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
-    return Diagnosis(base_law, results, chosen)
+    return Diagnosis(base_law, results, chosen, base)
 
 
 def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "") -> Path:
-    """A Markdown report: the verdict, and per candidate its parameter with the interval, the
-    criteria and G_s before and after (written whole: temporary name, then renamed)."""
-    out = Path(out)
-    lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
-             f"Base law: `{diagnosis.base_law}`.", "", f"**Verdict:** {diagnosis.verdict}.", "",
-             "| candidate | parameter | interval | chi2 base -> fitted | BIC drop | CV gain per capsule (p) "
-             "| G_s before [N/m] | G_s after [N/m] | supported |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for r in diagnosis.results:
-        if r.note:
-            lines.append(f"| {r.name} | | | | | | | | {r.note} |")
-            continue
-        lines.append(
-            f"| {r.name} | {r.parameter} = {r.theta:.3g} {r.unit} | [{r.interval[0]:.3g}, {r.interval[1]:.3g}] "
-            f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
-            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
-            f"| {'yes' if r.supported else 'no'} |")
-    lines += ["", "Supported: leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < "
-              f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
-              "standard errors. chi2: contour residuals over each capsule's tracing noise, "
-              f"{PROFILE_POINTS} points a capsule.", ""]
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text("\n".join(lines), encoding="utf-8")
-    tmp.replace(out)
-    return out
+    """The Markdown report with its figures (``capsmech.diagnose_report``)."""
+    from capsmech.diagnose_report import write_report as write
+
+    return write(diagnosis, out, batch)

@@ -1,0 +1,93 @@
+"""The extra simulations a diagnose candidate needs, as a grid the workflow runs.
+
+When a candidate effect (e.g. pre-stress) needs law groups no database has, diagnose does not
+guess: it asks for exactly the cases that would let the batch be refitted with the effect on,
+i.e. the effect's law keys on only the tube nodes around the batch's fitted points (each
+capsule's bracketing a/l and Ca_s nodes of the base database, and one node more on each
+side), with the base database's
+mesh and time settings. The grid is a config file of the workflow's schema
+(``make database GRID=<name>``); its cost is estimated from the wall times the base
+database recorded for its own cases at those nodes.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from capsmech.database import TubeDatabase
+from capsmech.grid import validate_grid
+
+#: Nodes added beyond the batch's fitted points on each side: the effect moves the points the
+#: refit lands on (pre-stress stiffens the membrane: the same lengths mean a larger Ca_s), and
+#: the local fit of the inversion needs neighbours around each point.
+MARGIN = 1
+
+
+def bracketing_nodes(nodes: Sequence[float], values: np.ndarray, margin: int = MARGIN) -> list[float]:
+    """The nodes on either side of every finite value (the end node for values beyond), and
+    ``margin`` more nodes beyond the outermost on each side."""
+    nodes = np.sort(np.asarray(nodes, dtype=float))
+    chosen: set[int] = set()
+    for value in np.asarray(values, dtype=float):
+        if not math.isfinite(value):
+            continue
+        k = int(np.clip(np.searchsorted(nodes, value) - 1, 0, len(nodes) - 2)) if len(nodes) > 1 else 0
+        chosen.update((k, min(k + 1, len(nodes) - 1)))
+    if not chosen:
+        return []
+    low, high = max(min(chosen) - margin, 0), min(max(chosen) + margin, len(nodes) - 1)
+    return [float(v) for v in nodes[low:high + 1]]
+
+
+def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over_l: np.ndarray,
+                Ca_s: np.ndarray) -> dict[str, Any]:
+    """The grid of the effect's law keys on the nodes around the fitted (a/l, Ca_s)."""
+    base = database.grid
+    tube = base["tube"]
+    name = f"effects_{effect}"
+    grid = {
+        "name": name,
+        "description": f"{effect} candidate of capsmech diagnose: {', '.join(laws)} around a batch's fitted points",
+        "databases_dir": f"data/databases/effects/{effect}",
+        "results_dir": f"results/{name}",
+        "profile_points": int(base.get("profile_points", 64)),
+        "tube": {"laws": list(laws), "a_over_l": bracketing_nodes(tube["a_over_l"], a_over_l),
+                 "Ca_s": bracketing_nodes(tube["Ca_s"], Ca_s)},
+    }
+    if tube.get("settings"):
+        grid["tube"]["settings"] = dict(tube["settings"])
+    validate_grid(grid, name)
+    return grid
+
+
+def case_count(grid: dict[str, Any]) -> int:
+    """Cases of the grid's tube section."""
+    tube = grid["tube"]
+    return len(tube["laws"]) * len(tube["a_over_l"]) * len(tube["Ca_s"])
+
+
+def estimated_core_minutes(grid: dict[str, Any], database: TubeDatabase, base_law: str) -> float:
+    """Core-minutes of the grid: its case count times the mean wall time the base database
+    recorded for the base law at the same nodes (every node's if none match)."""
+    table = database.law(base_law)
+    wall = table.column("wall_time_s", steady_only=False)
+    a, ca = table.column("a_over_l", steady_only=False), table.column("Ca_s", steady_only=False)
+    here = np.isin(np.round(a, 9), np.round(grid["tube"]["a_over_l"], 9)) & np.isin(
+        np.round(ca, 9), np.round(grid["tube"]["Ca_s"], 9)) & np.isfinite(wall)
+    seconds = float(np.mean(wall[here])) if here.any() else float(np.nanmean(wall))
+    return case_count(grid) * seconds / 60
+
+
+def write_grid(grid: dict[str, Any], path: str | Path, header: str = "") -> Path:
+    """Write the grid as a workflow config (YAML) with a comment header."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = "".join(f"# {line}\n" for line in header.splitlines())
+    text += yaml.safe_dump(grid, sort_keys=False, default_flow_style=None)
+    path.write_text(text, encoding="utf-8")
+    return path
