@@ -194,6 +194,9 @@ contains
       call put_int('applications', model%interface%last_applications)
       call put('relative_change', maxval(norm2(ul - u1, dim=1)) / maxval(norm2(u1, dim=1)))
       call put('wall_dl_share', maxval(norm2(vw, dim=1)) / opts%ca / maxval(norm2(u1, dim=1)))
+      ! Departure of the lab-frame velocity from its mean translation (a rigid interior at
+      ! large lambda; no rotation on the axis by symmetry).
+      call put('rigid_deviation', maxval(norm2(ul - spread(sum(ul, dim=2) / n, 2, n), dim=1)) / norm2(sum(ul, dim=2) / n))
       call put('v_c_base', base%v_c)
       call put('v_c_lambda', model%v_c)
       call put('velocity_s_base', t_base)

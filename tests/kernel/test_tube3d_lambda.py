@@ -20,6 +20,7 @@ import pytest
 
 from capsmech.io import read_case
 from conftest import REPO
+from test_tube import haberman_sayre_velocity
 
 COARSE_WALL = ["--wall-h-far", "0.28", "--wall-h-centre", "0.14", "--tube-length", "6"]
 SIZE, CA = 0.4, 0.05
@@ -39,10 +40,10 @@ def wall_cache(tmp_path_factory) -> Path:
 
 
 def run_case(capsim: Path, cache: Path, out: Path, lambda_: float, t_max: float, size: float = SIZE,
-             ca: float = CA, extra: tuple[str, ...] = ()):
+             ca: float = CA, level: int = 2):
     args = [str(capsim), "--flow", "tube", "--model", "3d", "--law", "NH", "--a-over-l", str(size), "--ca", str(ca),
-            "--level", "2", *COARSE_WALL, "--wall-cache", str(cache), "--lambda", repr(lambda_),
-            "--t-max", str(t_max), "--threads", "1", "--quiet", *extra, "--out", str(out)]
+            "--level", str(level), *COARSE_WALL, "--wall-cache", str(cache), "--lambda", repr(lambda_),
+            "--t-max", str(t_max), "--threads", "1", "--quiet", "--out", str(out)]
     result = subprocess.run(args, capture_output=True, text=True, timeout=3600)
     assert result.returncode == 0, result.stdout + result.stderr
     return read_case(out)
@@ -91,18 +92,31 @@ def test_velocity_solves_the_integral_equation(wall_cache, lambda_):
     assert r["applications"] <= 20
 
 
+def test_force_free_sphere_at_large_lambda_moves_rigidly_at_haberman_sayre(wall_cache):
+    # The unstressed sphere at t = 0 carries no membrane load (f = 0): at lambda = 1 it moves
+    # with the fluid (v_c/V 1.869, the mean of the Poiseuille profile over the sphere), while
+    # a (nearly) rigid interior makes it a force-free rigid sphere, which translates at the
+    # Haberman-Sayre velocity (1.7965 at a/l = 0.4). Measured: rigid to 4e-7, v_c/V 1.7906
+    # (-0.33 %; the lambda = 1 capsule at Ca_s 0.05 is -0.47 %, tests/kernel/test_tube_3d.py).
+    r = tube3d_probe("lambda-residual", 2, SIZE, CA, 6, 0.28, 0.14, wall_cache, 1e6, 0)
+    assert r["rigid_deviation"] < 1e-5
+    assert r["v_c_lambda"] == pytest.approx(haberman_sayre_velocity(SIZE), rel=0.01)
+    assert r["v_c_base"] > 1.02 * haberman_sayre_velocity(SIZE)
+    assert r["residual_deflated"] < 1e-7
+
+
 @pytest.mark.validate
 def test_steady_shape_is_independent_of_lambda_and_transient_ordered(capsim, wall_cache, tmp_path):
     # At steady translation the membrane is at rest in the capsule frame and the inner fluid
     # moves rigidly, so lambda drops out of the steady equations (exactly here: a rigid
-    # translation is an eigenvector of the discrete operator); the approach does not.
-    size, ca = 0.6, 0.05
-    cases = {lam: run_case(capsim, wall_cache, tmp_path / f"l{lam}.h5", lam, 6.0, size, ca) for lam in (0.2, 1.0, 5.0)}
-    final = {lam: {c: float(np.asarray(case.history[c])[-1]) for c in ("L_z", "L_p", "v_c")}
+    # translation is an eigenvector of the discrete operator); the approach does not. Level 1
+    # (42 nodes) and Ca_s 0.1 keep the three runs to steady state at ~15 min of CPU: the
+    # independence is exact at any resolution, the order of the transients is physical.
+    size, ca = 0.6, 0.1
+    cases = {lam: run_case(capsim, wall_cache, tmp_path / f"l{lam}.h5", lam, 15.0, size, ca, level=1)
+             for lam in (1.0, 0.2, 5.0)}
+    final = {lam: {c: float(np.asarray(case.history[c])[-1]) for c in ("t", "L_z", "L_p", "v_c")}
              for lam, case in cases.items()}
-    for lam in (0.2, 5.0):
-        for column in ("L_z", "v_c"):
-            assert abs(final[lam][column] - final[1.0][column]) < 2e-3, (lam, column, final)
     times = {}
     for lam, case in cases.items():
         t = np.asarray(case.history["t"])
@@ -110,4 +124,7 @@ def test_steady_shape_is_independent_of_lambda_and_transient_ordered(capsim, wal
         change = lz - lz[0]
         times[lam] = float(t[np.argmax(np.abs(change) >= 0.9 * abs(change[-1]))])
     print("final", final, "t90(L_z)", times)
+    for lam in (0.2, 5.0):
+        for column in ("L_z", "v_c"):
+            assert abs(final[lam][column] - final[1.0][column]) < 3e-3, (lam, column, final)
     assert times[0.2] < times[1.0] < times[5.0]
