@@ -25,6 +25,10 @@
 !> Gram-Schmidt over at most `restart` vectors), or when the true residual |b - A u|, computed
 !> at the start and after a restart, falls below tol |b|.
 !> Work arrays are allocated by init: a solve allocates nothing.
+!>
+!> Bounded flows (the 3D tube): the double layer's reflection by the walls enters as an
+!> operator_term_t that the caller passes to solve, added to D[u] before the rest of the
+!> operator (L = 2 (D + term)); without it (shear) the operations are those of before.
 module interface_equation
    use capsim_kinds, only: dp
    use text_format, only: real_text, int_text
@@ -32,7 +36,23 @@ module interface_equation
    use stokes_double_layer, only: double_layer_t
    implicit none
    private
-   public :: interface_equation_t
+   public :: interface_equation_t, operator_term_t
+
+   !> A linear addition to the double layer at the nodes, w <- w + T[u] (the walls' response
+   !> to the capsule's double layer in the 3D tube).
+   type, abstract :: operator_term_t
+   contains
+      procedure(term_add_iface), deferred :: add
+   end type operator_term_t
+
+   abstract interface
+      subroutine term_add_iface(self, u, w)
+         import :: operator_term_t, dp
+         class(operator_term_t), intent(inout) :: self
+         real(dp), intent(in) :: u(:, :)
+         real(dp), intent(inout) :: w(:, :)
+      end subroutine term_add_iface
+   end interface
 
    type :: interface_equation_t
       real(dp) :: lambda = 1, kappa = 0
@@ -68,15 +88,18 @@ contains
       allocate (self%r(3, n_nodes), self%w(3, n_nodes))
    end subroutine init
 
-   !> A[u] = u - kappa L'[u] for the geometry last given to dl%set_geometry.
-   subroutine apply_operator(self, dl, mesh, u, au)
+   !> A[u] = u - kappa L'[u] for the geometry last given to dl%set_geometry (L = 2 (D + term)
+   !> with a term).
+   subroutine apply_operator(self, dl, mesh, u, au, term)
       class(interface_equation_t), intent(in) :: self
       type(double_layer_t), intent(inout) :: dl
       type(surface_mesh_t), intent(in) :: mesh
       real(dp), intent(in) :: u(:, :)
       real(dp), intent(out) :: au(:, :)
+      class(operator_term_t), intent(inout), optional :: term
       real(dp) :: mean_flux
       call dl%apply(mesh, u, au)
+      if (present(term)) call term%add(u, au)
       mean_flux = 0
       if (self%deflate) mean_flux = dl%normal_flux(u) / dl%area_sum
       au = u - self%kappa * (2.0_dp * au - mean_flux * dl%node_normal)
@@ -84,7 +107,7 @@ contains
 
    !> Solve A[u] = b; u holds the initial guess on entry. stat /= 0 if the residual did not
    !> fall below tol |b| within max_iter applications (u is then the last iterate).
-   subroutine solve(self, dl, mesh, b, u, stat, errmsg)
+   subroutine solve(self, dl, mesh, b, u, stat, errmsg, term)
       class(interface_equation_t), intent(inout) :: self
       type(double_layer_t), intent(inout) :: dl
       type(surface_mesh_t), intent(in) :: mesh
@@ -92,6 +115,7 @@ contains
       real(dp), intent(inout) :: u(:, :)
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
+      class(operator_term_t), intent(inout), optional :: term
       integer :: k, kk, j, applications
       real(dp) :: bnorm, beta, temp, denom
 
@@ -108,7 +132,7 @@ contains
       end if
       do
          ! The true residual, at the start and after a cycle that did not converge.
-         call self%apply_operator(dl, mesh, u, self%w)
+         call self%apply_operator(dl, mesh, u, self%w, term)
          applications = applications + 1
          self%r = b - self%w
          beta = norm2(self%r)
@@ -125,7 +149,7 @@ contains
          self%g(1) = beta
          kk = 0
          do k = 1, self%restart
-            call self%apply_operator(dl, mesh, self%basis(:, :, k), self%w)
+            call self%apply_operator(dl, mesh, self%basis(:, :, k), self%w, term)
             applications = applications + 1
             ! Modified Gram-Schmidt.
             do j = 1, k

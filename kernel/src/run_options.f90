@@ -42,7 +42,7 @@ module run_options
       !> capsule is then re-centred axially only and drifts radially as the flow moves it.
       real(dp) :: offset = 0.0_dp
       real(dp) :: c = 1.0_dp
-      !> Viscosity ratio lambda = inner / outer viscosity (shear and the axisymmetric tube; 1 = the base model).
+      !> Viscosity ratio lambda = inner / outer viscosity (shear and both tube models; 1 = the base model).
       real(dp) :: lambda = 1.0_dp
       real(dp) :: ca = -huge(1.0_dp)
       integer :: level = 3
@@ -400,9 +400,6 @@ contains
          errmsg = '--lambda: must be > 0 (viscosity ratio inner/outer), got '//real_text(opts%lambda)
       else if (opts%lambda > 1.0e6_dp) then
          errmsg = '--lambda: must be <= 1e6 (beyond, the capsule is rigid), got '//real_text(opts%lambda)
-      else if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d' .and. opts%lambda /= 1.0_dp) then
-         errmsg = '--lambda: a viscosity ratio other than 1 is implemented for --flow shear and for --flow tube '// &
-                  '--model axi, not for the 3d tube model, got '//real_text(opts%lambda)
       else if (opts%ca > 100.0_dp) then
          errmsg = '--ca: must be <= 100 (no membrane law supports a larger value), got '//real_text(opts%ca)
       else if (opts%level < 1 .or. opts%level > 5) then

@@ -54,7 +54,13 @@ module stokes_double_layer
       procedure :: principal_value_tensor
       procedure :: tensor_off_surface
       procedure :: normal_flux
+      procedure :: apply_outside
    end type double_layer_t
+
+   !> Off-surface near field (apply_outside): as the wall's rules (wall_single_layer), a
+   !> (sub-)triangle is a 7-point leaf beyond leaf_ratio of its diameters, or at max_depth.
+   real(dp), parameter :: leaf_ratio = 3.0_dp
+   integer, parameter :: max_depth = 10
 
 contains
 
@@ -166,6 +172,122 @@ contains
       real(dp), intent(in) :: u(:, :)
       normal_flux = sum(u(1, :) * self%ax) + sum(u(2, :) * self%ay) + sum(u(3, :) * self%az)
    end function normal_flux
+
+   !> w(:, k) = 1/(8 pi) integral u(y) . T(y - p_k) . n(y) dS_y at points p_k OUTSIDE the
+   !> closed surface (the wall nodes of the 3D tube), for the geometry of set_geometry.
+   !> Near-surface treatment, as the capsule's single layer at the wall nodes: (1) the density
+   !> at the node nearest p_k is subtracted, u -> u - u_c, since the double layer of a constant
+   !> vanishes outside any closed surface (the polyhedron included): the integrand then
+   !> vanishes where it peaks and a constant density gives exactly 0; (2) the vertex rule (one
+   !> doublet per node) is replaced on the triangles whose centroid is nearer than near_radius,
+   !> or than leaf_ratio of their diameters, by the 7-point rule subdivided until each piece
+   !> lies leaf_ratio of its diameters from p_k. Per-step routine: no allocation.
+   subroutine apply_outside(self, mesh, u, points, near_radius, w)
+      class(double_layer_t), intent(inout) :: self
+      type(surface_mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: u(:, :), points(:, :), near_radius
+      real(dp), intent(out) :: w(:, :)
+      integer :: k, n, t, j, nearest
+      real(dp) :: p(3), acc(3), corr(3), uc(3), xv(3, 3), gv(3, 3), c(3), diam, dist, d2, d2_min
+      real(dp) :: lo(3), hi(3), reach
+      n = self%n_nodes
+      call set_density(self, u)
+      lo = minval(self%x, dim=2)
+      hi = maxval(self%x, dim=2)
+      reach = 0.0_dp
+      do t = 1, mesh%n_tri
+         xv = self%x(:, mesh%tri(:, t))
+         reach = max(reach, norm2(xv(:, 2) - xv(:, 1)), norm2(xv(:, 3) - xv(:, 2)), norm2(xv(:, 1) - xv(:, 3)))
+      end do
+      ! Points farther than `reach` from the surface's bounding box need no correction.
+      reach = max(near_radius, leaf_ratio * reach) + reach
+      lo = lo - reach
+      hi = hi + reach
+      !$omp parallel do default(none) shared(self, mesh, u, points, w, n, lo, hi, near_radius) &
+      !$omp private(k, t, j, nearest, p, acc, corr, uc, xv, gv, c, diam, dist, d2, d2_min) schedule(dynamic, 16)
+      do k = 1, size(points, 2)
+         p = points(:, k)
+         nearest = 1
+         d2_min = huge(1.0_dp)
+         do j = 1, n
+            d2 = (self%xs(j) - p(1))**2 + (self%ys(j) - p(2))**2 + (self%zs(j) - p(3))**2
+            if (d2 < d2_min) then
+               d2_min = d2
+               nearest = j
+            end if
+         end do
+         uc = u(:, nearest)
+         acc = 0.0_dp
+         call add_doublets(n, self%xs, self%ys, self%zs, self%us, self%vs, self%ws, self%ax, self%ay, self%az, p, uc, &
+                           1, n, acc)
+         corr = 0.0_dp
+         if (all(p > lo) .and. all(p < hi)) then
+            do t = 1, mesh%n_tri
+               xv = self%x(:, mesh%tri(:, t))
+               c = (xv(:, 1) + xv(:, 2) + xv(:, 3)) / 3.0_dp
+               diam = max(norm2(xv(:, 2) - xv(:, 1)), norm2(xv(:, 3) - xv(:, 2)), norm2(xv(:, 1) - xv(:, 3)))
+               dist = norm2(p - c)
+               if (dist >= near_radius .and. dist >= leaf_ratio * diam) cycle
+               do j = 1, 3
+                  gv(:, j) = u(:, mesh%tri(j, t)) - uc
+               end do
+               corr = corr + near_doublet_correction(self%near_rule, p, xv, gv, self%tri_normal(:, t), self%tri_area(t))
+            end do
+         end if
+         w(:, k) = (acc + corr) / (8.0_dp * pi)
+      end do
+      !$omp end parallel do
+   end subroutine apply_outside
+
+   !> Double layer of one flat P1 triangle (corners xv, densities gv, unit normal nt, area) at
+   !> an off-surface point p, the adaptive 7-point rule minus the triangle's share of the
+   !> one-doublet-per-node sum (its vertex rule), without 1/(8 pi). Iterative subdivision on
+   !> an explicit stack, as the wall's near_triangle_correction for the single layer.
+   pure function near_doublet_correction(rule, p, xv, gv, nt, area) result(corr)
+      type(quadrature_rule_t), intent(in) :: rule
+      real(dp), intent(in) :: p(3), xv(3, 3), gv(3, 3), nt(3), area
+      real(dp) :: corr(3)
+      integer, parameter :: stack_size = 3 * max_depth + 1
+      real(dp) :: sx(3, 3, stack_size), sg(3, 3, stack_size), c(3, 3), g(3, 3), mx(3, 3), mg(3, 3)
+      real(dp) :: diam, wt
+      integer :: depth(stack_size), top, d, q, m
+      corr = 0.0_dp
+      top = 1
+      sx(:, :, 1) = xv
+      sg(:, :, 1) = gv
+      depth(1) = 0
+      do while (top > 0)
+         c = sx(:, :, top)
+         g = sg(:, :, top)
+         d = depth(top)
+         top = top - 1
+         diam = max(norm2(c(:, 2) - c(:, 1)), norm2(c(:, 3) - c(:, 2)), norm2(c(:, 1) - c(:, 3)))
+         if (d >= max_depth .or. norm2(p - (c(:, 1) + c(:, 2) + c(:, 3)) / 3.0_dp) > leaf_ratio * diam) then
+            wt = area / 4.0_dp**d
+            do q = 1, size(rule%weight)
+               corr = corr + (wt * rule%weight(q)) * doublet(matmul(c, rule%bary(:, q)) - p, matmul(g, rule%bary(:, q)), nt)
+            end do
+         else
+            do m = 1, 3
+               mx(:, m) = 0.5_dp * (c(:, m) + c(:, mod(m, 3) + 1))
+               mg(:, m) = 0.5_dp * (g(:, m) + g(:, mod(m, 3) + 1))
+            end do
+            sx(:, :, top + 1) = reshape([c(:, 1), mx(:, 1), mx(:, 3)], [3, 3])
+            sg(:, :, top + 1) = reshape([g(:, 1), mg(:, 1), mg(:, 3)], [3, 3])
+            sx(:, :, top + 2) = reshape([mx(:, 1), c(:, 2), mx(:, 2)], [3, 3])
+            sg(:, :, top + 2) = reshape([mg(:, 1), g(:, 2), mg(:, 2)], [3, 3])
+            sx(:, :, top + 3) = reshape([mx(:, 3), mx(:, 2), c(:, 3)], [3, 3])
+            sg(:, :, top + 3) = reshape([mg(:, 3), mg(:, 2), g(:, 3)], [3, 3])
+            sx(:, :, top + 4) = mx
+            sg(:, :, top + 4) = mg
+            depth(top + 1:top + 4) = d + 1
+            top = top + 4
+         end if
+      end do
+      do m = 1, 3
+         corr = corr - (area / 3.0_dp) * doublet(xv(:, m) - p, gv(:, m), nt)
+      end do
+   end function near_doublet_correction
 
    subroutine set_density(self, u)
       class(double_layer_t), intent(inout) :: self

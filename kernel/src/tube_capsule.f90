@@ -19,6 +19,23 @@
 !> to mid-tube axially only: it drifts radially as the flow moves it (history column r_c),
 !> and L_p and /profile are measured along its own axis (parallel to the tube's, through the
 !> centroid).
+!>
+!> Viscosity ratio lambda /= 1 (inner/outer): the membrane velocity u solves
+!>     (1+lambda)/2 u - (1-lambda) D[u] = v_inf + (S_capsule f + S_wall g)/Ca
+!> (D the capsule's principal-value double layer of stokes_double_layer), and the disturbance
+!> at the wall nodes now includes the capsule's double layer (off the membrane, apply_outside):
+!>     S_wall g = -S_capsule f - Ca (1-lambda) D_out[u].
+!> g is linear in u: g = g_1 - Ca (1-lambda) W^-1 D_out[u] (g_1 that of lambda = 1, W the
+!> factorised wall matrix), so with u_1 the lambda = 1 velocity
+!>     (1+lambda)/2 u - (1-lambda) (D[u] - V_wall W^-1 D_out[u]) = u_1,
+!> V_wall the wall single layer at the membrane nodes: interface_equation's equation with the
+!> wall reflection as its operator term (GMRES, Wielandt deflation of the normal mode: the
+!> wall single layer carries no flux through the membrane, so n stays a left eigenvector).
+!> D[c] = -c/2 and D_out[c] = 0 hold exactly for a constant c (singularity and nearest-node
+!> subtraction), and the flux of c through the polyhedron is exactly 0, so a rigid
+!> translation u_1 = c is mapped onto itself: at steady translation the shape equations are
+!> those of lambda = 1 (the inner fluid moves rigidly). As in axisymmetric_tube, u_1 gets the
+!> volume correction before the solve as well as after it. At lambda = 1 none of this runs.
 module tube_capsule
    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_null_char
    use omp_lib, only: omp_get_wtime
@@ -39,6 +56,8 @@ module tube_capsule
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
                            tube3d_history_names, tube3d_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t
+   use stokes_double_layer, only: double_layer_t
+   use interface_equation, only: interface_equation_t, operator_term_t
    implicit none
    private
    public :: tube_capsule_t, default_cache_dir
@@ -79,15 +98,33 @@ module tube_capsule
       !> positions and densities, 7-point points and strengths, vertex-rule strengths.
       real(dp), allocatable :: tri_centroid(:, :), tri_diameter(:), tri_x(:, :, :), tri_f(:, :, :)
       real(dp), allocatable :: quad_point(:, :, :), quad_strength(:, :, :), vertex_strength(:, :, :)
+      !> Viscosity ratio; the double layer, its equation and their work arrays are set up only
+      !> when lambda /= 1.
+      real(dp) :: lambda = 1
+      type(double_layer_t) :: double_layer
+      type(interface_equation_t) :: interface
+      !> Last solution (lab frame), the initial guess of the next solve; time spent in solves.
+      real(dp), allocatable :: u_guess(:, :), rhs(:, :), wall_dl(:, :), wall_dl_traction(:, :), u_wall_dl(:, :)
+      logical :: have_guess = .false.
+      real(dp) :: seconds_lambda = 0
    contains
       procedure :: init
       procedure :: velocity
       procedure :: capsule_single_layer_at
+      procedure :: interface_velocity
       procedure :: advance => rk2_step
       procedure :: record
       procedure :: progress_text
       procedure :: write_geometry
    end type tube_capsule_t
+
+   !> The walls' reflection of the capsule's double layer, -V_wall W^-1 D_out[u], as
+   !> interface_equation's operator term; `capsule` is associated during a velocity call only.
+   type, extends(operator_term_t) :: wall_reflection_t
+      type(tube_capsule_t), pointer :: capsule => null()
+   contains
+      procedure :: add => add_wall_reflection
+   end type wall_reflection_t
 
    interface
       integer(c_int) function c_mkdir(path, mode) bind(c, name='mkdir')
@@ -182,11 +219,22 @@ contains
       allocate (self%quad_point(3, size(self%near_rule%weight), nt), self%quad_strength(3, size(self%near_rule%weight), nt))
       allocate (self%vertex_strength(3, 3, nt))
       self%wall_traction = 0.0_dp
+      self%lambda = opts%lambda
+      if (self%lambda /= 1.0_dp) then
+         call self%double_layer%init(self%mesh, self%single_layer)
+         call self%interface%init(n, self%lambda)
+         allocate (self%u_guess(3, n), self%rhs(3, n), self%u_wall_dl(3, n))
+         allocate (self%wall_dl(3, self%wall%mesh%n_nodes), self%wall_dl_traction(3, self%wall%mesh%n_nodes))
+      end if
       ! Explicit membrane stiffness: stable for dt < O(Ca h); 0.01 l/V bounds the advection error.
       if (opts%dt > 0) then
          self%dt = opts%dt
       else
          self%dt = min(opts%dt_factor * opts%ca * self%h_min, 0.01_dp)
+         ! A less viscous interior lets short membrane waves relax up to 2/(1+lambda) times
+         ! faster: the shear solver's margin (capsule_dynamics).
+         if (self%lambda < 1.0_dp) self%dt = min(opts%dt_factor * opts%ca * self%h_min * (0.5_dp * (1.0_dp + self%lambda)), &
+                                                 0.01_dp)
       end if
       ! Bending limit as capsule_dynamics, with K_B = k_b a**2 in units G_s l**2.
       if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
@@ -225,7 +273,7 @@ contains
 
    !> Membrane velocity at positions x in the frame of the capsule's centroid; sets v_c.
    subroutine velocity(self, x, u)
-      class(tube_capsule_t), intent(inout) :: self
+      class(tube_capsule_t), intent(inout), target :: self
       real(dp), intent(in) :: x(:, :)
       real(dp), intent(out) :: u(:, :)
       integer :: i, n, stat
@@ -258,6 +306,7 @@ contains
       do i = 1, n
          u(:, i) = poiseuille_velocity(x(:, i)) + (u(:, i) + self%u_wall(:, i)) / self%ca
       end do
+      if (self%lambda /= 1.0_dp) call self%interface_velocity(x, u)
       call volume_gradients(self%mesh, x, self%grad, self%moment_grad, volume, moment)
       if (self%volume_correction) call remove_volume_flux(u, self%grad)
       ! d(V z_c)/dt = sum_i u_i . d(V z_c)/dx_i, dV/dt = sum_i u_i . dV/dx_i: exact for the
@@ -265,6 +314,55 @@ contains
       self%v_c = (sum(u * self%moment_grad) - (moment / volume) * sum(u * self%grad)) / volume
       u(3, :) = u(3, :) - self%v_c
    end subroutine velocity
+
+   !> lambda /= 1: on entry u = u_1, the lambda = 1 velocity (lab frame); on exit the solution
+   !> of (1+lambda)/2 u - (1-lambda) (D[u] - V_wall W^-1 D_out[u]) = u_1 (module header).
+   subroutine interface_velocity(self, x, u)
+      class(tube_capsule_t), intent(inout), target :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(inout) :: u(:, :)
+      type(wall_reflection_t) :: term
+      real(dp) :: volume, moment, t0
+      integer :: stat
+      character(len=:), allocatable :: errmsg
+      t0 = omp_get_wtime()
+      if (self%volume_correction) then
+         call volume_gradients(self%mesh, x, self%grad, self%moment_grad, volume, moment)
+         call remove_volume_flux(u, self%grad)
+      end if
+      self%rhs = (2.0_dp / (1.0_dp + self%lambda)) * u
+      call self%double_layer%set_geometry(self%mesh, x)
+      ! From the last solution (the previous stage or step), else from the right-hand side.
+      if (self%have_guess) then
+         u = self%u_guess
+      else
+         u = self%rhs
+      end if
+      term%capsule => self
+      call self%interface%solve(self%double_layer, self%mesh, self%rhs, u, stat, errmsg, term)
+      if (stat /= 0 .and. .not. allocated(self%fault)) self%fault = errmsg
+      self%u_guess = u
+      self%have_guess = .true.
+      self%seconds_lambda = self%seconds_lambda + (omp_get_wtime() - t0)
+   end subroutine interface_velocity
+
+   !> w <- w - V_wall W^-1 D_out[u]: the wall traction that cancels the capsule's double layer
+   !> of u at the wall nodes, and its single layer at the membrane nodes (positions of the
+   !> double layer's last set_geometry).
+   subroutine add_wall_reflection(self, u, w)
+      class(wall_reflection_t), intent(inout) :: self
+      real(dp), intent(in) :: u(:, :)
+      real(dp), intent(inout) :: w(:, :)
+      integer :: stat
+      character(len=:), allocatable :: errmsg
+      associate (c => self%capsule)
+         call c%double_layer%apply_outside(c%mesh, u, c%wall%x, near_radius, c%wall_dl)
+         call c%wall_op%solve(c%wall_dl, c%wall_dl_traction, stat, errmsg)
+         if (stat /= 0) error stop 'tube_capsule: wall solve failed (the operator was initialised)'
+         call c%wall_op%velocity_at(c%wall, c%wall_dl_traction, c%double_layer%x, c%u_wall_dl)
+         w = w - c%u_wall_dl
+      end associate
+   end subroutine add_wall_reflection
 
    !> Capsule single layer (1/(8 pi) included) at points off the membrane (the wall nodes):
    !> one Stokeslet per capsule node (the vertex rule, from the node Stokeslets that

@@ -4,12 +4,24 @@
 !>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS
 !>     wall setup (assembly + LU, or the cache load), then STEPS RK2 steps from the start shape
 !>     and one velocity evaluation after them, each part timed.
+!>   tube3d_probe dl-outside LEVEL A FILM NEAR_RADIUS
+!>     capsule double layer off the membrane (stokes_double_layer apply_outside) of a rigid-body
+!>     density U + Omega x y on the level-LEVEL sphere of radius A, at the points FILM outside
+!>     it over every node and every triangle centroid: exactly 0 for the polyhedron, so the
+!>     result (max |w| / max |u|) is the quadrature error at that film thickness.
+!>   tube3d_probe lambda-residual LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR LAMBDA STEPS
+!>     STEPS lambda = 1 RK2 steps from the start shape, then at that shape the lambda velocity
+!>     and the residual of its boundary integral equation, evaluated afresh from the pieces.
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
    use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use run_options, only: run_options_t
    use tube_capsule, only: tube_capsule_t
+   use sphere_mesh, only: surface_mesh_t, icosphere
+   use stokes_single_layer, only: single_layer_t
+   use stokes_double_layer, only: double_layer_t
+   use vector_algebra, only: cross
    implicit none
 
    character(len=64) :: command
@@ -17,6 +29,10 @@ program tube3d_probe
    select case (command)
    case ('timing')
       call probe_timing()
+   case ('dl-outside')
+      call probe_dl_outside()
+   case ('lambda-residual')
+      call probe_lambda_residual()
    case default
       write (*, '(a)') 'usage: tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS'
       error stop 2
@@ -75,5 +91,116 @@ contains
       call put('max_speed', maxval(norm2(model%u0, dim=1)))
    end subroutine probe_timing
 
+   subroutine probe_dl_outside()
+      type(surface_mesh_t) :: mesh
+      type(single_layer_t) :: sl
+      type(double_layer_t) :: dl
+      real(dp), allocatable :: x(:, :), u(:, :), p(:, :), w(:, :)
+      real(dp) :: a, film, c(3)
+      real(dp), parameter :: big_u(3) = [0.3_dp, -0.2_dp, 1.0_dp], omega(3) = [0.5_dp, 1.0_dp, -0.7_dp]
+      integer :: stat, i, t, n
+      character(len=:), allocatable :: errmsg
+      a = real_arg(3)
+      film = real_arg(4)
+      call icosphere(int_arg(2), mesh, x, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      x = a * x
+      n = mesh%n_nodes
+      call sl%init(mesh, 4, 0)
+      call dl%init(mesh, sl)
+      call dl%set_geometry(mesh, x)
+      allocate (u(3, n), p(3, n + mesh%n_tri), w(3, n + mesh%n_tri))
+      do i = 1, n
+         u(:, i) = big_u + cross(omega, x(:, i))
+         p(:, i) = (a + film) * x(:, i) / norm2(x(:, i))
+      end do
+      do t = 1, mesh%n_tri
+         c = sum(x(:, mesh%tri(:, t)), dim=2) / 3.0_dp
+         p(:, n + t) = (a + film) * c / norm2(c)
+      end do
+      call dl%apply_outside(mesh, u, p, real_arg(5), w)
+      call put_int('n_points', size(p, 2))
+      call put('error_over_nodes', maxval(norm2(w(:, 1:n), dim=1)) / maxval(norm2(u, dim=1)))
+      call put('error_over_centroids', maxval(norm2(w(:, n + 1:), dim=1)) / maxval(norm2(u, dim=1)))
+      ! A constant density: 0 by construction (the nearest node's density is subtracted).
+      u = spread(big_u, 2, n)
+      call dl%apply_outside(mesh, u, p, real_arg(5), w)
+      call put('constant_error', maxval(norm2(w, dim=1)) / norm2(big_u))
+   end subroutine probe_dl_outside
+
+   subroutine probe_lambda_residual()
+      type(run_options_t) :: opts
+      type(tube_capsule_t) :: base, model
+      integer :: stat, steps, k, n
+      character(len=:), allocatable :: errmsg
+      real(dp), allocatable :: x(:, :), u1(:, :), ul(:, :), du(:, :), dl_wall(:, :), g(:, :), vw(:, :), res(:, :)
+      real(dp) :: lambda, t0, t_base, t_lambda, flux
+
+      opts%flow = 'tube'
+      opts%model = '3d'
+      opts%law = 'NH'
+      opts%level = int_arg(2)
+      opts%a_over_l = real_arg(3)
+      opts%ca = real_arg(4)
+      opts%tube_length = real_arg(5)
+      opts%wall_h_far = real_arg(6)
+      opts%wall_h_centre = real_arg(7)
+      opts%wall_cache = string_arg(8)
+      opts%quiet = .true.
+      lambda = real_arg(9)
+      steps = int_arg(10)
+      call base%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      opts%lambda = lambda
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      call base%reset()
+      do k = 1, steps
+         call base%advance()
+      end do
+      x = base%positions
+      n = size(x, 2)
+      allocate (u1(3, n), ul(3, n), du(3, n), vw(3, n), res(3, n))
+      allocate (dl_wall(3, base%wall%mesh%n_nodes), g(3, base%wall%mesh%n_nodes))
+      t0 = omp_get_wtime()
+      call base%velocity(x, u1)
+      t_base = omp_get_wtime() - t0
+      ! The right-hand side of the lambda solve: the lambda = 1 velocity, volume-corrected, lab frame.
+      u1(3, :) = u1(3, :) + base%v_c
+      t0 = omp_get_wtime()
+      call model%velocity(x, ul)
+      t_lambda = omp_get_wtime() - t0
+      if (allocated(model%fault)) error stop model%fault
+      ul = model%u_guess
+      ! (1+lambda)/2 u - (1-lambda) D[u] - u_1 - S_wall g'/Ca, with S_wall g' = -Ca (1-lambda) D_out[u]
+      ! at the wall nodes: the equation of the module header, from its pieces.
+      call model%double_layer%set_geometry(model%mesh, x)
+      call model%double_layer%apply(model%mesh, ul, du)
+      call model%double_layer%apply_outside(model%mesh, ul, base%wall%x, 0.5_dp, dl_wall)
+      dl_wall = -opts%ca * (1.0_dp - lambda) * dl_wall
+      call base%wall_op%solve(dl_wall, g, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      call base%wall_op%velocity_at(base%wall, g, x, vw)
+      res = 0.5_dp * (1.0_dp + lambda) * ul - (1.0_dp - lambda) * du - u1 - vw / opts%ca
+      call put('lambda', lambda)
+      call put('residual', maxval(norm2(res, dim=1)) / maxval(norm2(u1, dim=1)))
+      ! The Wielandt deflation solves the equation plus (1-lambda)/2 (flux/area) n, which
+      ! leaves a solution with zero flux unchanged: the discrete one carries a small flux.
+      flux = model%double_layer%normal_flux(ul) / model%double_layer%area_sum
+      res = res + 0.5_dp * (1.0_dp - lambda) * flux * model%double_layer%node_normal
+      call put('residual_deflated', maxval(norm2(res, dim=1)) / maxval(norm2(u1, dim=1)))
+      call put('mean_normal_velocity', flux / maxval(norm2(u1, dim=1)))
+      call put('gmres_residual', model%interface%last_residual)
+      call put_int('applications', model%interface%last_applications)
+      call put('relative_change', maxval(norm2(ul - u1, dim=1)) / maxval(norm2(u1, dim=1)))
+      call put('wall_dl_share', maxval(norm2(vw, dim=1)) / opts%ca / maxval(norm2(u1, dim=1)))
+      ! Departure of the lab-frame velocity from its mean translation (a rigid interior at
+      ! large lambda; no rotation on the axis by symmetry).
+      call put('rigid_deviation', maxval(norm2(ul - spread(sum(ul, dim=2) / n, 2, n), dim=1)) / norm2(sum(ul, dim=2) / n))
+      call put('v_c_base', base%v_c)
+      call put('v_c_lambda', model%v_c)
+      call put('velocity_s_base', t_base)
+      call put('velocity_s_lambda', t_lambda)
+   end subroutine probe_lambda_residual
 
 end program tube3d_probe

@@ -35,7 +35,6 @@ def axi(*args: object) -> dict[str, float]:
     (["--lambda", "-2"], "must be > 0"),
     (["--lambda", "2e6"], "must be <= 1e6"),
     (["--lambda", "fast"], ""),
-    (["--model", "3d", "--lambda", "2"], "not for the 3d tube model"),
 ])
 def test_bad_lambda_in_the_tube_exits_2(capsim, tmp_path, override, fragment):
     out = tmp_path / "x.h5"

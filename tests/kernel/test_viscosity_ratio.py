@@ -229,16 +229,6 @@ def test_bad_lambda_exits_2_naming_the_flag(capsim, tmp_path, override):
     assert_usage_error(capsim, base, override, "--lambda", out)
 
 
-def test_lambda_other_than_one_is_refused_in_the_3d_tube(capsim, tmp_path):
-    # The axisymmetric tube has lambda (tests/kernel/test_tube_lambda.py); the 3D one not yet.
-    out = tmp_path / "x.h5"
-    base = {"--flow": "tube", "--model": "3d", "--law": "NH", "--ca": "0.1", "--a-over-l": "0.5", "--out": str(out)}
-    assert_usage_error(capsim, base, ["--lambda", "2"], "--lambda", out)
-    result = subprocess.run([str(capsim)] + [a for kv in base.items() for a in kv] + ["--lambda", "0.5"],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2 and "not for the 3d tube model" in result.stderr
-
-
 def test_lambda_one_is_accepted_in_the_tube(capsim, tmp_path):
     out = tmp_path / "tube.h5"
     subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--ca", "0.1", "--a-over-l", "0.5",

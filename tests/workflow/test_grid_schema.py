@@ -63,13 +63,14 @@ def test_workflow_refuses_malformed_grid(what: str, grid: dict, key: str, tmp_pa
     assert not (tmp_path / "work" / "results").exists()
 
 
-def test_lambda_in_the_3d_tube_is_refused() -> None:
-    # capsim has lambda /= 1 in the axisymmetric tube model only.
-    grid = malformed(("tube", "laws"), ["NH+lambda0.1"])
+def test_lambda_in_the_3d_tube_is_accepted() -> None:
+    # capsim has lambda /= 1 in both tube models (tests/kernel/test_tube3d_lambda.py).
+    grid = malformed(("tube", "laws"), ["NH", "NH+lambda0.1"])
     grid["tube"]["settings"] = {"model": "3d"}
-    with pytest.raises(GridError) as error:
-        validate_grid(grid, "bad.yaml")
-    assert "tube.laws[0]: law key 'NH+lambda0.1': lambda needs tube.settings.model: axi" in str(error.value)
+    validate_grid(grid, "grid.yaml")
+    args = [case.kernel_args() for case in expand_cases(grid, "tube")]
+    assert any(a[a.index("--lambda") + 1] == "0.1" and a[a.index("--model") + 1] == "3d"
+               for a in args if "--lambda" in a)
 
 
 def test_tube_laws_take_lambda() -> None:

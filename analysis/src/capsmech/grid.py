@@ -51,8 +51,8 @@ EFFECTS = {
 EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear", "tube"), "kb": ("tube", "shear"),
                 "offset": ("tube",)}
 #: Tube models that have each effect (tube.settings.model, default axi): the off-centre capsule
-#: exists in the 3D model only, lambda /= 1 in the axisymmetric one only.
-EFFECT_TUBE_MODELS = {"offset": ("3d",), "lambda": ("axi",)}
+#: exists in the 3D model only, lambda /= 1 in both.
+EFFECT_TUBE_MODELS = {"offset": ("3d",), "lambda": ("axi", "3d")}
 
 
 class GridError(ValueError):
