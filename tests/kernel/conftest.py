@@ -1,9 +1,11 @@
 """Fixtures that locate and run the kernel executables built by `make build`."""
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 
+import h5py
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -27,6 +29,29 @@ def run_probe(*args: object) -> dict[str, float]:
         key, value = line.split()
         values[key] = float(value)
     return values
+
+
+def axi(*args: object) -> dict[str, float]:
+    """Run `bin/axi_probe ARGS` on one thread and parse its "key value" lines; repr() keeps
+    all 17 digits of a float, so the probe sees exactly the caller's point."""
+    result = subprocess.run([str(_executable("axi_probe")), *(repr(a) if isinstance(a, float) else str(a) for a in args)],
+                            capture_output=True, text=True, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    return {key: float(value) for key, value in (line.split() for line in result.stdout.splitlines())}
+
+
+def run_quiet(capsim: Path, out: Path, *args: object, timeout: float = 1800) -> Path:
+    """Run capsim with ARGS, quietly, on one thread, writing ``out``; return ``out``."""
+    subprocess.run([str(capsim), *map(str, args), "--threads", "1", "--quiet", "--out", str(out)],
+                   check=True, timeout=timeout)
+    return out
+
+
+def datasets(path: Path) -> dict[str, object]:
+    """Every dataset of an HDF5 file by name (for bit-for-bit comparisons of case files)."""
+    found: dict[str, object] = {}
+    with h5py.File(path) as f:
+        f.visititems(lambda name, obj: found.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+    return found
 
 
 @pytest.fixture(scope="session")

@@ -20,7 +20,7 @@ import pytest
 
 from capsmech.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
 from capsmech.io import read_case
-from conftest import REPO, _executable
+from conftest import REPO, _executable, datasets, run_quiet
 
 
 def bending_probe(*args: object) -> dict[str, float]:
@@ -105,25 +105,12 @@ def test_incremental_tube_jacobian_follows_the_wider_bending_stencil(probe):
     assert r["max_rel_difference"] < 1e-5
 
 
-def _run(capsim, out, *args):
-    subprocess.run([str(capsim), *map(str, args), "--threads", "1", "--quiet", "--out", str(out)],
-                   check=True, timeout=600)
-    return out
-
-
-def _datasets(path):
-    found = {}
-    with h5py.File(path) as f:
-        f.visititems(lambda name, obj: found.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
-    return found
-
-
 @pytest.mark.parametrize("flow_args", [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
                                        ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)],
                          ids=["shear", "tube"])
 def test_zero_kb_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
-    base = _datasets(_run(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
-    zero = _datasets(_run(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--kb", 0))
+    base = datasets(run_quiet(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
+    zero = datasets(run_quiet(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--kb", 0))
     assert base.keys() == zero.keys()
     for name in base:
         assert np.array_equal(base[name], zero[name]), name
@@ -136,7 +123,7 @@ def test_bending_stiffness_flattens_the_parachute(capsim, tmp_path):
     #   k_b 0:    L_z 1.8962, L_p 0.1761, v_c/V 1.2194
     #   k_b 0.01: L_z 1.9249, L_p 0.0339, v_c/V 1.2301
     #   k_b 0.05: L_z 1.9909, L_p 0,      v_c/V 1.2102
-    cases = [read_case(_run(capsim, tmp_path / f"kb{kb}.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9,
+    cases = [read_case(run_quiet(capsim, tmp_path / f"kb{kb}.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9,
                             "--ca", 0.05, "--kb", kb)) for kb in (0, 0.01, 0.05)]
     assert all(c.status == "steady" for c in cases), [c.message for c in cases]
     assert [c.effects["kb"] for c in cases] == [0, 0.01, 0.05]   # the case attribute k_b, read back
@@ -150,7 +137,7 @@ def test_bending_stiffness_flattens_the_parachute(capsim, tmp_path):
 def test_bending_stiffness_reduces_shear_deformation(capsim, tmp_path):
     # NH, Ca_s 0.1, level 2: D12 0.1960 (k_b 0) -> 0.1799 (k_b 0.01); level 3: 0.1986 -> 0.1831,
     # and 0.1142 at k_b 0.1. A stiffer membrane deforms less at the same Ca_s.
-    cases = [read_case(_run(capsim, tmp_path / f"kb{kb}.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
+    cases = [read_case(run_quiet(capsim, tmp_path / f"kb{kb}.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
                             "--level", 2, "--kb", kb)) for kb in (0, 0.01)]
     assert all(c.status == "steady" for c in cases), [c.message for c in cases]
     d12 = [c.steady_value("D12") for c in cases]
@@ -161,7 +148,7 @@ def test_automatic_step_follows_the_bending_stiffness(capsim, tmp_path):
     # k_b = 1 at level 2: the elastic step (0.5 Ca h_min = 0.0138) breaks the mesh within
     # t = 0.11; the bending bound 0.5 Ca h_min**3 / k_b (measured limit: 1.2 Ca h_min**3 / k_b)
     # keeps it smooth (t_max 0.5, ~500 steps).
-    case = read_case(_run(capsim, tmp_path / "stiff.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
+    case = read_case(run_quiet(capsim, tmp_path / "stiff.h5", "--flow", "shear", "--law", "NH", "--ca", 0.1,
                           "--level", 2, "--kb", 1, "--t-max", 0.5))
     assert case.status == "max_time", case.message
     assert np.all(np.isfinite(case.history["D12"])) and case.history["max_stretch"].max() < 1.1

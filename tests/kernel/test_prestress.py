@@ -18,26 +18,15 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
-
-
-def _run(capsim, out, *args):
-    subprocess.run([str(capsim), *map(str, args), "--quiet", "--out", str(out)], check=True, timeout=1800)
-    return out
-
-
-def _datasets(path):
-    found = {}
-    with h5py.File(path) as f:
-        f.visititems(lambda name, obj: found.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
-    return found
+from conftest import datasets, run_quiet
 
 
 @pytest.mark.parametrize("flow_args", [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
                                        ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)],
                          ids=["shear", "tube"])
 def test_zero_prestress_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
-    base = _datasets(_run(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
-    zero = _datasets(_run(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--prestress", 0))
+    base = datasets(run_quiet(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
+    zero = datasets(run_quiet(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--prestress", 0))
     assert base.keys() == zero.keys()
     for name in base:
         assert np.array_equal(base[name], zero[name]), name
@@ -64,8 +53,8 @@ def test_prestressed_capsule_at_rest_stays_at_rest(probe, law, nu_s):
 
 
 def test_pretension_removes_the_parachute(capsim, tmp_path):
-    base = read_case(_run(capsim, tmp_path / "a0.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9, "--ca", 0.05))
-    inflated = read_case(_run(capsim, tmp_path / "a5.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9,
+    base = read_case(run_quiet(capsim, tmp_path / "a0.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9, "--ca", 0.05))
+    inflated = read_case(run_quiet(capsim, tmp_path / "a5.h5", "--flow", "tube", "--law", "NH", "--a-over-l", 0.9,
                               "--ca", 0.05, "--prestress", 0.05))
     assert base.status == inflated.status == "steady"
     # Measured: L_p 0.176 -> 0, L_z 1.896 -> 1.902, v_c/V 1.2194 -> 1.2212.

@@ -9,27 +9,13 @@ the meridian segment. Normalisation as in kernel/src/ring_stokeslet.f90:
 from __future__ import annotations
 
 import math
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import integrate, special
 
-# As in conftest.py (not imported from it: `conftest` is not a reliable module name when
-# several test directories each have one).
-REPO = Path(__file__).resolve().parents[2]
+from conftest import axi
 
-
-def axi(*args: object) -> dict[str, float]:
-    """Run `bin/axi_probe ARGS` and parse its "key value" lines."""
-    exe = REPO / "bin" / "axi_probe"
-    if not exe.exists():
-        pytest.fail(f"{exe} is missing: run `make build` in {REPO} first")
-    # repr() keeps all 17 digits of a float, so the probe sees exactly the reference's point.
-    result = subprocess.run([str(exe), *(repr(a) if isinstance(a, float) else str(a) for a in args)],
-                            capture_output=True, text=True, check=True)
-    return {key: float(value) for key, value in (line.split() for line in result.stdout.splitlines())}
 
 
 def kernel_matrix(r0, z0, r, z) -> np.ndarray:

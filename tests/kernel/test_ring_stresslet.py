@@ -10,24 +10,12 @@ so that D[q](x0) = 1/(8 pi) integral Q q r ds is -q inside a closed surface, -q/
 from __future__ import annotations
 
 import math
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import integrate
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-def axi(*args: object) -> dict[str, float]:
-    """Run `bin/axi_probe ARGS` and parse its "key value" lines."""
-    exe = REPO / "bin" / "axi_probe"
-    if not exe.exists():
-        pytest.fail(f"{exe} is missing: run `make build` in {REPO} first")
-    result = subprocess.run([str(exe), *(repr(a) if isinstance(a, float) else str(a) for a in args)],
-                            capture_output=True, text=True, check=True)
-    return {key: float(value) for key, value in (line.split() for line in result.stdout.splitlines())}
+from conftest import axi
 
 
 def phi_quadrature(r0, z0, r, z, n_r, n_z) -> np.ndarray:

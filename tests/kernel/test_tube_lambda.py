@@ -7,7 +7,6 @@ the deformation, and a more viscous capsule takes longer to reach its steady sha
 """
 from __future__ import annotations
 
-import os
 import subprocess
 from pathlib import Path
 
@@ -15,19 +14,7 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def axi(*args: object) -> dict[str, float]:
-    """Run `bin/axi_probe ARGS` and parse its "key value" lines."""
-    exe = REPO / "bin" / "axi_probe"
-    if not exe.exists():
-        pytest.fail(f"{exe} is missing: run `make build` in {REPO} first")
-    result = subprocess.run([str(exe), *(repr(a) if isinstance(a, float) else str(a) for a in args)],
-                            capture_output=True, text=True, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
-    return {key: float(value) for key, value in (line.split() for line in result.stdout.splitlines())}
+from conftest import assert_usage_error, axi
 
 
 @pytest.mark.parametrize("override, fragment", [
