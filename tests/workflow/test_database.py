@@ -201,7 +201,8 @@ def test_cli_assemble_show_and_figures(cases_dir: Path, tmp_path: Path, capsys: 
     assert main(["figures", "--database", str(tmp_path / "tube.h5"), "--grid", str(grid_file),
                  "--out", str(tmp_path / "fig")]) == 0
     names = sorted(p.name for p in (tmp_path / "fig").iterdir())
-    assert len(names) == 10 and "figure6_shear_D12_L3.png" in names and "figure2_tube_profiles_nu_s.pdf" in names
+    assert len(names) == 12 and "figure6_shear_D12_L3.png" in names and "figure2_tube_profiles_nu_s.pdf" in names
+    assert "tube_steady_range.png" in names
     assert main(["database", "assemble", "--grid", str(grid_file), "--flow", "shear",
                  "--cases", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.h5")]) == 2
     assert "case file missing" in capsys.readouterr().err

@@ -67,7 +67,7 @@ def test_smoke_grid_end_to_end(smoke_run: dict) -> None:
     assert all(tube.law(k).steady.all() for k in tube.laws)
     assert tube.law("NH").profiles["profile_r"].shape == (6, GRID["profile_points"])
     figures = sorted(p.name for p in (workdir / GRID["results_dir"] / "figures").rglob("*.p*"))
-    assert len(figures) == 10 and "figure6_shear_D12_L3.pdf" in figures
+    assert len(figures) == 12 and "figure6_shear_D12_L3.pdf" in figures and "tube_steady_range.pdf" in figures
     print(f"smoke grid end to end: {smoke_run['seconds']:.1f} s")
 
 
