@@ -450,22 +450,21 @@ contains
       sig = trim(buf)
       ! Effects are appended only when present, so that the signatures (and checkpoints) of
       ! the base model are those of kernel versions without the options.
-      if (opts%prestress /= 0.0_dp) then
-         write (buf, '(a,es23.16)') ' prestress ', opts%prestress
-         sig = sig//trim(buf)
-      end if
-      if (opts%lambda /= 1.0_dp) then
-         write (buf, '(a,es23.16)') ' lambda ', opts%lambda
-         sig = sig//trim(buf)
-      end if
-      if (opts%kb /= 0.0_dp) then
-         write (buf, '(a,es23.16)') ' kb ', opts%kb
-         sig = sig//trim(buf)
-      end if
-      if (opts%offset /= 0.0_dp) then
-         write (buf, '(a,es23.16)') ' offset ', opts%offset
-         sig = sig//trim(buf)
-      end if
+      call append_effect(sig, 'prestress', opts%prestress, 0.0_dp)
+      call append_effect(sig, 'lambda', opts%lambda, 1.0_dp)
+      call append_effect(sig, 'kb', opts%kb, 0.0_dp)
+      call append_effect(sig, 'offset', opts%offset, 0.0_dp)
    end function option_signature
+
+   !> Append " name value" to a signature when the effect is away from its neutral value.
+   pure subroutine append_effect(sig, name, value, neutral)
+      character(len=:), allocatable, intent(inout) :: sig
+      character(len=*), intent(in) :: name
+      real(dp), intent(in) :: value, neutral
+      character(len=64) :: buf
+      if (value == neutral) return
+      write (buf, '(a,es23.16)') ' '//name//' ', value
+      sig = sig//trim(buf)
+   end subroutine append_effect
 
 end module run_options

@@ -40,13 +40,10 @@ program tube3d_probe
 
 contains
 
-   subroutine probe_timing()
-      type(run_options_t) :: opts
-      type(tube_capsule_t) :: model
-      integer :: stat, steps, k
-      character(len=:), allocatable :: errmsg
-      real(dp) :: t0, t_step, t_velocity
-
+   !> The NH 3D tube case of the command line: level, a/l, Ca_s, tube length, wall sizes and
+   !> wall cache in arguments 2-8.
+   subroutine read_tube_case(opts)
+      type(run_options_t), intent(inout) :: opts
       opts%flow = 'tube'
       opts%model = '3d'
       opts%law = 'NH'
@@ -58,6 +55,16 @@ contains
       opts%wall_h_centre = real_arg(7)
       opts%wall_cache = string_arg(8)
       opts%quiet = .true.
+   end subroutine read_tube_case
+
+   subroutine probe_timing()
+      type(run_options_t) :: opts
+      type(tube_capsule_t) :: model
+      integer :: stat, steps, k
+      character(len=:), allocatable :: errmsg
+      real(dp) :: t0, t_step, t_velocity
+
+      call read_tube_case(opts)
       steps = int_arg(9)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
@@ -136,17 +143,7 @@ contains
       real(dp), allocatable :: x(:, :), u1(:, :), ul(:, :), du(:, :), dl_wall(:, :), g(:, :), vw(:, :), res(:, :)
       real(dp) :: lambda, t0, t_base, t_lambda, flux
 
-      opts%flow = 'tube'
-      opts%model = '3d'
-      opts%law = 'NH'
-      opts%level = int_arg(2)
-      opts%a_over_l = real_arg(3)
-      opts%ca = real_arg(4)
-      opts%tube_length = real_arg(5)
-      opts%wall_h_far = real_arg(6)
-      opts%wall_h_centre = real_arg(7)
-      opts%wall_cache = string_arg(8)
-      opts%quiet = .true.
+      call read_tube_case(opts)
       lambda = real_arg(9)
       steps = int_arg(10)
       call base%init(opts, stat, errmsg)

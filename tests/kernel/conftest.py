@@ -6,6 +6,7 @@ import subprocess
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -52,6 +53,23 @@ def datasets(path: Path) -> dict[str, object]:
     with h5py.File(path) as f:
         f.visititems(lambda name, obj: found.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
     return found
+
+
+#: Short runs of both flows for the "neutral value of an effect = base model" checks.
+NEUTRAL_FLOW_ARGS = [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
+                     ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)]
+
+
+def assert_neutral_effect_is_base(capsim: Path, tmp_path: Path, flow_args: tuple, flag: str, attr: str) -> None:
+    """The effect ``flag`` at 0 gives every dataset of the base model's case file bit for bit,
+    and the file records the attribute ``attr`` = 0."""
+    base = datasets(run_quiet(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
+    zero = datasets(run_quiet(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, flag, 0))
+    assert base.keys() == zero.keys()
+    for name in base:
+        assert np.array_equal(base[name], zero[name]), name
+    with h5py.File(tmp_path / "zero.h5") as f:
+        assert f.attrs[attr] == 0.0
 
 
 @pytest.fixture(scope="session")

@@ -14,13 +14,12 @@ import copy
 import math
 import subprocess
 
-import h5py
 import numpy as np
 import pytest
 
 from capsmech.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
 from capsmech.io import read_case
-from conftest import REPO, _executable, datasets, run_quiet
+from conftest import NEUTRAL_FLOW_ARGS, REPO, _executable, assert_neutral_effect_is_base, run_quiet
 
 
 def bending_probe(*args: object) -> dict[str, float]:
@@ -105,17 +104,9 @@ def test_incremental_tube_jacobian_follows_the_wider_bending_stencil(probe):
     assert r["max_rel_difference"] < 1e-5
 
 
-@pytest.mark.parametrize("flow_args", [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
-                                       ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)],
-                         ids=["shear", "tube"])
+@pytest.mark.parametrize("flow_args", NEUTRAL_FLOW_ARGS, ids=["shear", "tube"])
 def test_zero_kb_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
-    base = datasets(run_quiet(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
-    zero = datasets(run_quiet(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--kb", 0))
-    assert base.keys() == zero.keys()
-    for name in base:
-        assert np.array_equal(base[name], zero[name]), name
-    with h5py.File(tmp_path / "zero.h5") as f:
-        assert f.attrs["k_b"] == 0.0
+    assert_neutral_effect_is_base(capsim, tmp_path, flow_args, "--kb", "k_b")
 
 
 def test_bending_stiffness_flattens_the_parachute(capsim, tmp_path):

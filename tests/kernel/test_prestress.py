@@ -13,25 +13,15 @@ from __future__ import annotations
 
 import subprocess
 
-import h5py
-import numpy as np
 import pytest
 
 from capsmech.io import read_case
-from conftest import datasets, run_quiet
+from conftest import NEUTRAL_FLOW_ARGS, assert_neutral_effect_is_base, run_quiet
 
 
-@pytest.mark.parametrize("flow_args", [("--flow", "shear", "--ca", 0.2, "--level", 2, "--t-max", 0.5),
-                                       ("--flow", "tube", "--a-over-l", 0.6, "--ca", 0.1)],
-                         ids=["shear", "tube"])
+@pytest.mark.parametrize("flow_args", NEUTRAL_FLOW_ARGS, ids=["shear", "tube"])
 def test_zero_prestress_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
-    base = datasets(run_quiet(capsim, tmp_path / "base.h5", "--law", "NH", *flow_args))
-    zero = datasets(run_quiet(capsim, tmp_path / "zero.h5", "--law", "NH", *flow_args, "--prestress", 0))
-    assert base.keys() == zero.keys()
-    for name in base:
-        assert np.array_equal(base[name], zero[name]), name
-    with h5py.File(tmp_path / "zero.h5") as f:
-        assert f.attrs["prestress"] == 0.0
+    assert_neutral_effect_is_base(capsim, tmp_path, flow_args, "--prestress", "prestress")
 
 
 @pytest.mark.parametrize("law,nu_s", [("NH", 0.5), ("GH", 0.5)])
