@@ -27,7 +27,8 @@ import numpy as np
 import pytest
 
 from capsmech.database import load_database
-from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, law_candidate, prestress_candidate, write_report
+from capsmech.diagnose import (NOT_ASSESSED, BlendedLaw, DatabaseSet, candidate_library, diagnose, interpolation_weights,
+                               law_candidate, prestress_candidate, write_report)
 from capsmech.effect_grid import case_count
 from capsmech.grid import validate_grid
 from capsmech.measurements import read_measurements
@@ -109,6 +110,38 @@ def test_cli_prints_what_a_missing_candidate_needs(tmp_path, capsys):
     assert (tmp_path / "effects_prestress.yaml").is_file()
 
 
+@pytest.mark.parametrize("levels", [(0.0, 0.04, 0.08), (0.0, 0.0025, 0.005, 0.01)])
+def test_blend_weights_reproduce_quadratics_and_the_levels(levels):
+    """Between an effect's levels the law is a blend of its groups: the weights reproduce any
+    quadratic in the strength exactly (so they sum to 1), and at a level only that group counts."""
+    for value in np.linspace(levels[0], levels[-1], 17):
+        weights = interpolation_weights(levels, float(value))
+        assert len(weights) == 3
+        for power in (0, 1, 2):
+            assert sum(w * levels[k] ** power for k, w in weights) == pytest.approx(value ** power, abs=1e-14)
+    for k, level in enumerate(levels):
+        weights = dict(interpolation_weights(levels, level))
+        assert weights[k] == pytest.approx(1.0, abs=1e-12)
+        assert sum(abs(w) for j, w in weights.items() if j != k) < 1e-12
+
+
+@pytest.mark.skipif(not PRESTRESS.is_file(), reason="no pre-stress effect database")
+def test_blended_law_between_levels_lies_between_their_profiles():
+    """The blend at an effect database's level is that group's profile, and at mid-level its
+    capsule length lies between the neighbouring groups' (a monotone effect stays monotone)."""
+    from capsmech.fitting import tube_inverter
+
+    keys = ["NH", "NH+prestress0.04", "NH+prestress0.08"]
+    point = (0.95, 0.06)
+    profiles = [tube_inverter(databases(), key).profile(*point) for key in keys]
+    at_level = BlendedLaw(keys, [0.0, 1.0, 0.0]).inverter(databases()).profile(*point)
+    assert np.max(np.abs(at_level - profiles[1])) < 1e-14
+    lengths = [np.ptp(p[:, 1]) for p in profiles]
+    weights = [w for _, w in interpolation_weights([0.0, 0.04, 0.08], 0.06)]
+    mid = np.ptp(BlendedLaw(keys, weights).inverter(databases()).profile(*point)[:, 1])
+    assert min(lengths[1:]) < mid < max(lengths[1:])
+
+
 @pytest.mark.skipif(not PRESTRESS.is_file(), reason="no pre-stress effect database")
 def test_no_effect_batch_supports_no_candidate_short():
     result = diagnosis("batch_A", "short")
@@ -133,6 +166,9 @@ def test_law_batch_names_the_law_and_draws_the_report(tmp_path):
         png = tmp_path / f"report_{figure}.png"
         assert png.is_file() and png.stat().st_size > 5000
         assert f"]({png.name})" in text
+    # Effects the library cannot fit on tube batches are named with the reason.
+    for name in NOT_ASSESSED:
+        assert f"| {name} |" in text
 
 
 @pytest.mark.validate

@@ -409,11 +409,17 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for key in args.other_law or []:
         if key not in databases.laws:
             raise DatabaseError(f"{args.database}: no law {key!r} (it has {', '.join(databases.laws)})")
-    try:
-        levels = [float(v) for v in args.prestress_levels.split(",") if v.strip()]
-    except ValueError:
-        raise MeasurementError(f"--prestress-levels: not a comma-separated list of numbers: {args.prestress_levels!r}") from None
-    candidates = candidate_library(args.law, list(database.laws), levels, args.other_law)
+    levels = {}
+    for option in ("prestress_levels", "kb_levels"):
+        text = getattr(args, option)
+        try:
+            levels[option] = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise MeasurementError(f"--{option.replace('_', '-')}: not a comma-separated list of numbers: {text!r}") from None
+        if any(v <= 0 for v in levels[option]):
+            raise MeasurementError(f"--{option.replace('_', '-')}: levels must be > 0 (0 is the base law): {text!r}")
+    candidates = candidate_library(args.law, list(database.laws), levels["prestress_levels"], args.other_law,
+                                   kb_levels=levels["kb_levels"])
     if args.candidate:
         candidates = [c for c in candidates if c.name in args.candidate
                       or ("laws" in args.candidate and c.name.startswith("law "))]
@@ -643,15 +649,17 @@ def build_parser() -> argparse.ArgumentParser:
                       help="tube database of effect law groups (repeatable; default: data/databases/effects/*/tube.h5)")
     diag.add_argument("--prestress-levels", default="0.04,0.08", metavar="A1,A2,..",
                       help="pre-stress levels of the prestress candidate (default 0.04,0.08; empty: no candidate)")
-    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "laws"),
+    diag.add_argument("--kb-levels", default="0.0025,0.005,0.01", metavar="K1,K2,..",
+                      help="bending stiffness levels of the kb candidate (default 0.0025,0.005,0.01; empty: no candidate)")
+    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "laws"),
                       help="test only these candidates (repeatable; default all: the effect library)")
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
     mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")
-    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "GH_nu"),
+    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "GH_nu"),
                     help="effect to switch on (repeatable; none: no effect)")
-    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, nu_s)")
+    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, k_b, nu_s)")
     mb.add_argument("--out", required=True, metavar="DIR", help="output folder")
     mb.add_argument("--name", default="batch", help="file stem (default batch)")
     mb.add_argument("-n", type=int, default=24, help="capsules (default 24)")

@@ -31,11 +31,22 @@ Measurement effects need no new simulation:
 Model effects come from the database: every other law group (another law or nu_s, or a
 law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
 one discrete parameter.
-- ``prestress`` (alpha, continuous): the groups ``<base>+prestress<alpha>`` of an effect
-  database (``capsmech.effect_grid``) at a few levels, the base law being alpha = 0. Between
-  two levels the law is their blend (profiles and velocity ratio linear in alpha at the same
-  a/l and Ca_s, ``BlendedLaw``), so the batch is refitted at any alpha like the other
-  continuous candidates.
+- ``prestress`` (alpha) and ``kb`` (bending stiffness k_b), continuous: the groups
+  ``<base>+prestress<alpha>`` and ``<base>+kb<k_b>`` of effect databases
+  (``capsmech.effect_grid``) at a few levels, the base law being 0. Between levels the law is
+  their blend (profiles and velocity ratio quadratic in the strength through the three
+  nearest levels at the same a/l and Ca_s, ``BlendedLaw``), so the batch is refitted at any
+  strength like the other continuous candidates.
+- ``viscosity ratio`` is not a candidate for tube batches: a steady capsule translates as a
+  rigid body, its inner fluid with it, so lambda drops out of every steady observable (the
+  kernel reproduces the lambda = 1 shape to 6e-8 at lambda 0.2 and 5); it acts on the shear
+  method (``capsmech.microrheometry``, ``capsmech compare-methods``). ``NOT_ASSESSED``
+  says so in every report.
+- ``off-centre position`` is not assessed: it needs the 3D tube model (``--offset``, minutes
+  to hours a case, against seconds for the axisymmetric one) for a database of its own. Its
+  signature, an up-down asymmetric contour, is flagged capsule by capsule by the inversion;
+  confined capsules (a/l near 1) have no room to be off-centre, and small ones migrate to
+  the axis (at 6.8e-4 V for a/l 0.2, Ca_s 0.05, b = 0.3 l).
 A candidate whose law groups the databases lack is not guessed: it is reported as "not
 assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
@@ -59,6 +70,14 @@ from capsmech.measurements import Capsule
 from capsmech.population import law_drift
 from capsmech.residuals import PreparedContour
 
+#: Effects of the library diagnose does not fit on tube batches, and why (in every report).
+NOT_ASSESSED: dict[str, str] = {
+    "viscosity ratio": "not identifiable: a steady capsule moves as a rigid body with its inner fluid, so lambda "
+                       "leaves its shape and velocity unchanged (kernel: lambda 0.2 and 5 reproduce lambda = 1 to "
+                       "6e-8); it acts on the shear method (capsmech compare-methods)",
+    "off-centre position": "not assessed: needs a 3D tube database (--offset; minutes to hours a case); an "
+                           "off-centre capsule's up-down asymmetric contour is flagged by the inversion",
+}
 #: Points of each capsule's residual profile in the score.
 PROFILE_POINTS = 16
 #: BIC drop that counts as strong evidence (Kass & Raftery 1995: > 6).
@@ -142,73 +161,123 @@ def law_candidate(base_law: str, other_law: str) -> Candidate:
     return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply, laws=(other_law,))
 
 
+#: Kernel effects with one scalar strength that an effect database holds at a few levels
+#: (law keys ``<base>+<effect><value>``): effect -> (parameter name, default levels).
+SCALAR_EFFECTS: dict[str, tuple[str, tuple[float, ...]]] = {
+    "prestress": ("alpha", (0.04, 0.08)),
+    "kb": ("k_b", (0.0025, 0.005, 0.01)),
+}
+
+
+def effect_key(base_law: str, effect: str, value: float) -> str:
+    """The database law key of the base law with a scalar effect (``NH+prestress0.05``,
+    ``NH+kb0.01``); the base law itself at value 0."""
+    return base_law if value == 0 else f"{base_law}+{effect}{value:g}"
+
+
 def prestress_key(base_law: str, alpha: float) -> str:
     """The database law key of the base law with pre-stress alpha (``NH+prestress0.05``)."""
-    return base_law if alpha == 0 else f"{base_law}+prestress{alpha:g}"
+    return effect_key(base_law, "prestress", alpha)
+
+
+def interpolation_weights(levels: Sequence[float], value: float) -> list[tuple[int, float]]:
+    """Weights of the levels whose blend is the law at ``value``: Lagrange quadratic through
+    the three levels nearest to it (linear with two levels), [(level index, weight)].
+
+    Quadratic rather than linear because an effect's profiles are curved in its strength:
+    linear blending between the levels biases the fitted strength towards the nearer level
+    by about the curvature times the squared spacing (the pre-stress batch's interval missed
+    the truth that way)."""
+    levels = np.asarray(levels, dtype=float)
+    if len(levels) < 3:
+        k = int(np.clip(np.searchsorted(levels, value) - 1, 0, len(levels) - 2))
+        w = (value - levels[k]) / (levels[k + 1] - levels[k])
+        return [(k, 1 - w), (k + 1, w)]
+    nearest = np.sort(np.argsort(np.abs(levels - value), kind="stable")[:3])
+    weights = []
+    for i in nearest:
+        others = [j for j in nearest if j != i]
+        weights.append((int(i), float(np.prod([(value - levels[j]) / (levels[i] - levels[j]) for j in others]))))
+    return weights
 
 
 class BlendedLaw:
-    """A law between two database groups (pre-stress between two levels): its profiles and
-    velocity ratio are (1 - w) times the first group's plus w times the second's, at the same
-    (a/l, Ca_s); its length fit is the nearer group's (a contour fit's start only)."""
+    """A law between database groups (a scalar effect between its levels): its profiles and
+    velocity ratio are the weighted sum of the groups', at the same (a/l, Ca_s); its length
+    fit is that of the group with the largest weight (a contour fit's start only)."""
 
-    def __init__(self, low: str, high: str, w: float) -> None:
-        self.low, self.high, self.w = low, high, float(w)
+    def __init__(self, keys: Sequence[str], weights: Sequence[float]) -> None:
+        self.keys, self.weights = list(keys), [float(w) for w in weights]
 
     def __str__(self) -> str:
-        return f"{self.low}..{self.high} at w = {self.w:.3g}"
+        return " + ".join(f"{w:.3g} {key}" for key, w in zip(self.keys, self.weights))
 
     def inverter(self, database) -> _BlendedInverter:
-        return _BlendedInverter(tube_inverter(database, self.low), tube_inverter(database, self.high), self.w)
+        return _BlendedInverter([tube_inverter(database, key) for key in self.keys], self.weights)
 
 
 class _BlendedInverter:
     """The TubeInverter interface diagnose uses, for a BlendedLaw."""
 
-    def __init__(self, low: TubeInverter, high: TubeInverter, w: float) -> None:
-        self.low, self.high, self.w = low, high, w
-        self.nearer = low if w < 0.5 else high
+    def __init__(self, inverters: Sequence[TubeInverter], weights: Sequence[float]) -> None:
+        self.inverters, self.weights = list(inverters), list(weights)
+        self.nearer = self.inverters[int(np.argmax(self.weights))]
         self.table = self.nearer.table
 
     def fit(self, L_z: float, L_p: float):
         return self.nearer.fit(L_z, L_p)
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
-        low, high = self.low.profile(a_over_l, Ca_s), self.high.profile(a_over_l, Ca_s)
-        if low is None or high is None:
+        profiles = [inverter.profile(a_over_l, Ca_s) for inverter in self.inverters]
+        if any(p is None for p in profiles):
             return None
-        return (1 - self.w) * low + self.w * high
+        return sum(w * p for w, p in zip(self.weights, profiles))
 
     def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
-        return (1 - self.w) * self.low.velocity_ratio(a_over_l, Ca_s) + self.w * self.high.velocity_ratio(a_over_l, Ca_s)
+        return sum(w * inverter.velocity_ratio(a_over_l, Ca_s) for w, inverter in zip(self.weights, self.inverters))
 
 
-def prestress_candidate(base_law: str, levels: Sequence[float] = (0.04, 0.08)) -> Candidate:
-    """Membrane pre-stress alpha (``--prestress``), fitted between the database's levels:
-    between two levels the law is their blend (``BlendedLaw``), so that the batch is refitted
-    at any alpha, not only at the levels."""
-    values = (0.0, *sorted(float(v) for v in levels))
+def scalar_effect_candidate(base_law: str, effect: str, levels: Sequence[float] | None = None) -> Candidate:
+    """A kernel effect with one scalar strength (``SCALAR_EFFECTS``: pre-stress alpha, bending
+    stiffness k_b), fitted between the effect database's levels: between levels the law is
+    their blend (``BlendedLaw``, ``interpolation_weights``), so that the batch is refitted at
+    any strength, not only at the levels."""
+    parameter, default_levels = SCALAR_EFFECTS[effect]
+    values = (0.0, *sorted(float(v) for v in (default_levels if levels is None else levels)))
 
-    def apply(capsules: Sequence[Capsule], alpha: float) -> tuple[list[Capsule], str | BlendedLaw]:
-        at = [v for v in values if math.isclose(v, alpha, rel_tol=0, abs_tol=1e-12)]
+    def apply(capsules: Sequence[Capsule], theta: float) -> tuple[list[Capsule], str | BlendedLaw]:
+        at = [v for v in values if math.isclose(v, theta, rel_tol=0, abs_tol=1e-12)]
         if at:
-            return list(capsules), prestress_key(base_law, at[0])
-        k = int(np.clip(np.searchsorted(values, alpha) - 1, 0, len(values) - 2))
-        w = (alpha - values[k]) / (values[k + 1] - values[k])
-        return list(capsules), BlendedLaw(prestress_key(base_law, values[k]), prestress_key(base_law, values[k + 1]), w)
+            return list(capsules), effect_key(base_law, effect, at[0])
+        weights = interpolation_weights(values, theta)
+        return list(capsules), BlendedLaw([effect_key(base_law, effect, values[k]) for k, _ in weights],
+                                          [w for _, w in weights])
 
-    return Candidate("prestress", "alpha", "", values, 0.0, apply,
-                     laws=tuple(prestress_key(base_law, v) for v in values[1:]))
+    return Candidate(effect, parameter, "", values, 0.0, apply,
+                     laws=tuple(effect_key(base_law, effect, v) for v in values[1:]))
 
 
-def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] = (0.04, 0.08),
-                      other_laws: Sequence[str] | None = None) -> list[Candidate]:
-    """The effect library (issue 7): contour offset, tube radius, pre-stress, and every other
-    law group of the databases without an effect (another law, nu_s or C) unless
-    ``other_laws`` names them."""
+def prestress_candidate(base_law: str, levels: Sequence[float] = SCALAR_EFFECTS["prestress"][1]) -> Candidate:
+    """Membrane pre-stress alpha (``--prestress``) between the database's levels."""
+    return scalar_effect_candidate(base_law, "prestress", levels)
+
+
+def bending_candidate(base_law: str, levels: Sequence[float] = SCALAR_EFFECTS["kb"][1]) -> Candidate:
+    """Bending stiffness k_b = K_B/(G_s a^2) (``--kb``) between the database's levels."""
+    return scalar_effect_candidate(base_law, "kb", levels)
+
+
+def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] | None = None,
+                      other_laws: Sequence[str] | None = None, kb_levels: Sequence[float] | None = None
+                      ) -> list[Candidate]:
+    """The effect library (issue 7): contour offset, tube radius, pre-stress, bending
+    stiffness, and every other law group of the databases without an effect (another law,
+    nu_s or C) unless ``other_laws`` names them. Levels None: the defaults of
+    ``SCALAR_EFFECTS``; empty: no such candidate."""
     candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
-    if prestress_levels:
-        candidates.append(prestress_candidate(base_law, prestress_levels))
+    for effect, levels in (("prestress", prestress_levels), ("kb", kb_levels)):
+        if levels is None or len(levels):
+            candidates.append(scalar_effect_candidate(base_law, effect, levels))
     if other_laws is None:
         other_laws = [key for key in database_laws if key != base_law and "+" not in key]
     return candidates + [law_candidate(base_law, key) for key in other_laws]

@@ -109,7 +109,7 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     """A Markdown report: the verdict, per candidate its parameter with the interval, the
     criteria and G_s before and after, the grids candidates need, and the figures (written
     whole: temporary name, then renamed)."""
-    from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, PROFILE_POINTS
+    from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, NOT_ASSESSED, PROFILE_POINTS
 
     out = Path(out)
     lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
@@ -126,6 +126,7 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
             f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
             f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
             f"| {'yes' if r.supported else 'no'} |")
+    lines += [f"| {name} | | | | | | | | {why} |" for name, why in NOT_ASSESSED.items()]
     lines += ["", "Supported: leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < "
               f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
               "standard errors. chi2: contour residuals over each capsule's tracing noise, "

@@ -14,6 +14,7 @@ Effects (name: strength, its unit)
 - ``tube_radius`` (relative): the capillary radius is l (1 + eps). Capsules are simulated at
   their true a/l; lengths and contours are scaled with the true l, the nominal l is written.
 - ``prestress`` (alpha): the kernel's ``--prestress alpha``, law key ``<law>+prestress<alpha>``.
+- ``kb`` (k_b = K_B/(G_s a^2)): the kernel's ``--kb k_b``, law key ``<law>+kb<k_b>``.
 - ``GH_nu`` (nu_s): the membrane is GH with this nu_s (``GH_nu0.5``) while the user fits ``law``.
 Several effects at once combine (e.g. ``{"prestress": 0.05, "contour_offset": 1.5}``).
 """
@@ -36,7 +37,7 @@ CA_S = (0.03, 0.10)
 #: Nominal capillary radius [um] and image scale [um per pixel] (a 100 um tube is 200 px wide).
 TUBE_RADIUS_UM = 50.0
 PIXEL_SIZE_UM = 0.5
-EFFECT_UNITS = {"contour_offset": "px", "tube_radius": "1", "prestress": "1", "GH_nu": "1"}
+EFFECT_UNITS = {"contour_offset": "px", "tube_radius": "1", "prestress": "1", "kb": "1", "GH_nu": "1"}
 
 Simulator = Callable[[float, float, str], SimulatedCapsule]
 
@@ -53,8 +54,9 @@ class Batch:
 def simulated_law(effects: Mapping[str, float], law: str = "NH") -> str:
     """The law key the kernel runs for these effects (``NH+prestress0.05``, ``GH_nu0.5`` ...)."""
     key = f"GH_nu{effects['GH_nu']:g}" if "GH_nu" in effects else law
-    if effects.get("prestress", 0.0):
-        key += f"+prestress{effects['prestress']:g}"
+    for effect in ("prestress", "kb"):
+        if effects.get(effect, 0.0):
+            key += f"+{effect}{effects[effect]:g}"
     return key
 
 
@@ -150,8 +152,9 @@ def expected_candidates(truth: Mapping[str, float | str], base_law: str = "NH") 
         out["contour_offset"] = float(truth["contour_offset"])
     if truth.get("tube_radius", 0.0):
         out["tube_radius"] = float(truth["tube_radius"])
-    if truth.get("prestress", 0.0):
-        out["prestress"] = float(truth["prestress"])
+    for effect in ("prestress", "kb"):
+        if truth.get(effect, 0.0):
+            out[effect] = float(truth[effect])
     law = str(truth["law"]).split("+")[0]
     if law != base_law:
         out[f"law {law}"] = 1.0
