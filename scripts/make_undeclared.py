@@ -2,7 +2,7 @@
 
 Every batch has the same 24 capsules (one material, G_s = 0.04 N/m, (a/l, Ca_s) drawn at random
 between the database nodes) and differs in the effect switched on and in the noise; the kernel
-runs once per capsule and simulated law (96 runs, about 15 minutes on one core). The
+runs once per capsule and simulated law (120 runs, about 20 minutes on one core). The
 measurement files say nothing about the effect; each ``<name>_truth.csv`` holds it.
 
     PYTHONPATH=analysis/src .venv/bin/python scripts/make_undeclared.py [--only NAME] [--out DIR]
@@ -29,6 +29,7 @@ BATCHES: dict[str, tuple[dict[str, float], int]] = {
     "batch_F": ({"prestress": 0.05, "contour_offset": 1.5}, 6),
     # k_b = K_B/(G_s a^2) ~ (h/a)^2/3 for a shell of thickness h: 0.004 is h ~ 0.11 a.
     "batch_G": ({"kb": 0.004}, 8),
+    "batch_H": ({"SK_C": 1.0}, 9),
 }
 DRAW_SEED = 7
 N_CAPSULES = 24

@@ -657,9 +657,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="where grids of candidates that need simulations are written (default config)")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
     mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")
-    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "GH_nu"),
+    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "GH_nu", "SK_C"),
                     help="effect to switch on (repeatable; none: no effect)")
-    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, k_b, nu_s)")
+    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, k_b, nu_s, C)")
     mb.add_argument("--out", required=True, metavar="DIR", help="output folder")
     mb.add_argument("--name", default="batch", help="file stem (default batch)")
     mb.add_argument("-n", type=int, default=24, help="capsules (default 24)")

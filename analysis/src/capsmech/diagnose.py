@@ -115,9 +115,12 @@ class Candidate:
     apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
     #: Law groups the candidate needs from the databases (beyond the base law).
     laws: tuple[str, ...] = ()
+    #: "capsules" (a measurement effect: changes the data, keeps the law it was built on) or
+    #: "law" (a model effect: changes the law, keeps the data); what makes two effects compose.
+    acts_on: str = "law"
 
 
-def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
+def contour_offset_candidate(base_law: str | BlendedLaw, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
     """Traced contour offset outward by delta pixels (needs a ``pixel_size`` column)."""
 
     def apply(capsules: Sequence[Capsule], delta: float) -> tuple[list[Capsule], str]:
@@ -133,10 +136,10 @@ def contour_offset_candidate(base_law: str, max_px: float = 3.0, step_px: float 
         return out, base_law
 
     values = tuple(np.round(np.arange(-2 * step_px, max_px + 1e-9, step_px), 6))
-    return Candidate("contour_offset", "delta", "px", values, 0.0, apply)
+    return Candidate("contour_offset", "delta", "px", values, 0.0, apply, acts_on="capsules")
 
 
-def tube_radius_candidate(base_law: str, max_rel: float = 0.045, step: float = 0.015) -> Candidate:
+def tube_radius_candidate(base_law: str | BlendedLaw, max_rel: float = 0.045, step: float = 0.015) -> Candidate:
     """The capillary radius is l (1 + eps) instead of the nominal l."""
 
     def apply(capsules: Sequence[Capsule], eps: float) -> tuple[list[Capsule], str]:
@@ -148,7 +151,7 @@ def tube_radius_candidate(base_law: str, max_rel: float = 0.045, step: float = 0
         return out, base_law
 
     values = tuple(np.round(np.arange(-max_rel, max_rel + 1e-9, step), 6))
-    return Candidate("tube_radius", "eps", "1", values, 0.0, apply)
+    return Candidate("tube_radius", "eps", "1", values, 0.0, apply, acts_on="capsules")
 
 
 def law_candidate(base_law: str, other_law: str) -> Candidate:
@@ -400,12 +403,16 @@ def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[d
     return rows
 
 
+def _law_inverter(database, law: str | BlendedLaw):
+    return law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
+
+
 def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw, sigma: np.ndarray,
                 prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
     """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
     capsule. A capsule whose lengths the law cannot reproduce starts from its fit in ``starts``
     (the base fit), else from the database row nearest in lengths."""
-    inverter = law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
+    inverter = _law_inverter(database, law)
     rows = _central_fits(capsules, inverter)
     if starts is not None:
         for i, row in enumerate(rows):
@@ -436,11 +443,11 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | 
     return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual)
 
 
-def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str) -> np.ndarray:
+def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw) -> np.ndarray:
     """Each capsule's tracing-noise level: the rms over the meridian of the half difference of
     its contour's two halves (the standard error of the mean residual at a point), measured
     against its length-based fit."""
-    inverter = tube_inverter(database, law)
+    inverter = _law_inverter(database, law)
     rows = _central_fits(capsules, inverter)
     sigma = np.full(len(capsules), np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
@@ -602,13 +609,15 @@ class Diagnosis:
                 f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
 
 
-def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
-             candidates: Sequence[Candidate] | None = None) -> Diagnosis:
+def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
+             candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None) -> Diagnosis:
     """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
 
     ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
     effect databases). A candidate whose law groups none has is not assessed; its result
-    carries the grid to run (``needs``, see ``capsmech.effect_grid``)."""
+    carries the grid to run (``needs``, see ``capsmech.effect_grid``). ``sigma``: the
+    capsules' tracing-noise levels when already measured (``noise_levels``), so that the chi2
+    of successive diagnoses of one batch share their scale."""
     from capsmech.effect_grid import needed_grid
 
     if candidates is None:
@@ -616,7 +625,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     with_contours = [c for c in capsules if c.contour is not None]
     if len(with_contours) < 3:
         raise ValueError(f"diagnose needs contours of at least 3 capsules, the batch has {len(with_contours)}")
-    sigma = noise_levels(with_contours, database, base_law)
+    if sigma is None:
+        sigma = noise_levels(with_contours, database, base_law)
     prepared = [PreparedContour(c.contour) for c in with_contours]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
     base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
@@ -634,6 +644,88 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     supported = [r for r in results if r.supported]
     chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
     return Diagnosis(base_law, results, chosen, base)
+
+
+@dataclass
+class SequentialDiagnosis:
+    """Effects found one after another (``diagnose_sequential``): each round's diagnosis
+    (round k on the batch with the effects of rounds 1..k-1 fixed), the effects found with
+    their values after the joint refinement, and the batch's G_s through the rounds."""
+
+    rounds: list[Diagnosis]
+    effects: list[tuple[str, float]]
+    g_s: list[tuple[float, float]]
+    note: str = ""
+
+    @property
+    def verdict(self) -> str:
+        if not self.effects:
+            return self.rounds[0].verdict
+        found = "; then ".join(f"{name} = {theta:.3g}" for name, theta in self.effects)
+        return f"{found} ({self.note})" if self.note else found
+
+
+def _apply_all(capsules: Sequence[Capsule], base_law: str, fixed: Sequence[tuple[Candidate, float]],
+               library: Callable[[str | BlendedLaw], Sequence[Candidate]]) -> tuple[list[Capsule], str | BlendedLaw]:
+    """The batch and law with the effects ``fixed`` switched on: measurement effects change the
+    capsules, a model effect the law; each candidate is rebuilt (by name) on the law so far."""
+    capsules, law = list(capsules), base_law
+    for candidate, theta in sorted(fixed, key=lambda f: f[0].acts_on != "law"):
+        rebuilt = next(c for c in library(law) if c.name == candidate.name)
+        capsules, law = rebuilt.apply(capsules, theta)
+    return capsules, law
+
+
+def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
+                        library: Callable[[str | BlendedLaw], Sequence[Candidate]],
+                        max_effects: int = 2) -> SequentialDiagnosis:
+    """A second effect after fixing the first: diagnose the batch; if a candidate is
+    supported, switch it on at its fitted value and diagnose again with the other candidates
+    that compose with it (any measurement effect; a model effect only on top of a measurement
+    one: two model effects at once need law groups with both, which the databases do not
+    hold); then refit the first effect with the second fixed (one sweep of coordinate
+    descent, since the first was fitted with the second missing).
+
+    ``library(law)`` builds the candidate list on a law (a key or a ``BlendedLaw``), e.g.
+    ``lambda law: candidate_library(law, laws)`` for the base key. The noise levels are
+    measured once, on the base fit."""
+    with_contours = [c for c in capsules if c.contour is not None]
+    sigma = noise_levels(with_contours, database, base_law)
+    rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma)]
+    fixed: list[tuple[Candidate, float]] = []
+    note = ""
+    while rounds[-1].chosen is not None:
+        chosen = rounds[-1].chosen
+        fixed.append((next(c for c in library(base_law) if c.name == chosen.name), chosen.theta))
+        if len(fixed) == max_effects:
+            break
+        state, law = _apply_all(with_contours, base_law, fixed, library)
+        model_fixed = any(c.acts_on == "law" for c, _ in fixed)
+        names = {c.name for c, _ in fixed}
+        rest = [c for c in library(law) if c.name not in names and not (model_fixed and c.acts_on == "law")]
+        if not rest:
+            break
+        rounds.append(diagnose(state, database, law, rest, sigma))
+        if model_fixed and rounds[-1].chosen is None:
+            note = "model effects on top of a model effect not assessed (no database holds both)"
+    if len(fixed) == 2:
+        (first, _), (second, theta_2) = fixed
+        state, law = _apply_all(with_contours, base_law, [(second, theta_2)], library)
+        rebuilt = [c for c in library(law) if c.name == first.name]
+        refit = diagnose(state, database, law, rebuilt, sigma)
+        result = refit.results[0]
+        if math.isfinite(result.theta):
+            fixed[0] = (first, result.theta)
+            note = (f"{first.name} refitted with {second.name} fixed: {result.theta:.3g}, "
+                    f"interval [{result.interval[0]:.3g}, {result.interval[1]:.3g}]")
+    effects = [(c.name, theta) for c, theta in fixed]
+    g_s = [rounds[0].chosen.g_s_before if rounds[0].chosen else (math.nan, math.nan)]
+    if fixed:
+        state, law = _apply_all(with_contours, base_law, fixed, library)
+        final = score_batch(state, database, law, sigma)
+        keep = np.isfinite(final.g_s)
+        g_s.append(_g_s_summary(final, keep)[0])
+    return SequentialDiagnosis(rounds, effects, g_s, note)
 
 
 def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "") -> Path:

@@ -16,6 +16,7 @@ Effects (name: strength, its unit)
 - ``prestress`` (alpha): the kernel's ``--prestress alpha``, law key ``<law>+prestress<alpha>``.
 - ``kb`` (k_b = K_B/(G_s a^2)): the kernel's ``--kb k_b``, law key ``<law>+kb<k_b>``.
 - ``GH_nu`` (nu_s): the membrane is GH with this nu_s (``GH_nu0.5``) while the user fits ``law``.
+- ``SK_C`` (C): the membrane is Skalak with this C (``SK_C1``) while the user fits ``law``.
 Several effects at once combine (e.g. ``{"prestress": 0.05, "contour_offset": 1.5}``).
 """
 from __future__ import annotations
@@ -37,7 +38,7 @@ CA_S = (0.03, 0.10)
 #: Nominal capillary radius [um] and image scale [um per pixel] (a 100 um tube is 200 px wide).
 TUBE_RADIUS_UM = 50.0
 PIXEL_SIZE_UM = 0.5
-EFFECT_UNITS = {"contour_offset": "px", "tube_radius": "1", "prestress": "1", "kb": "1", "GH_nu": "1"}
+EFFECT_UNITS = {"contour_offset": "px", "tube_radius": "1", "prestress": "1", "kb": "1", "GH_nu": "1", "SK_C": "1"}
 
 Simulator = Callable[[float, float, str], SimulatedCapsule]
 
@@ -53,7 +54,9 @@ class Batch:
 
 def simulated_law(effects: Mapping[str, float], law: str = "NH") -> str:
     """The law key the kernel runs for these effects (``NH+prestress0.05``, ``GH_nu0.5`` ...)."""
-    key = f"GH_nu{effects['GH_nu']:g}" if "GH_nu" in effects else law
+    if "GH_nu" in effects and "SK_C" in effects:
+        raise ValueError("GH_nu and SK_C are two membrane laws: switch on one")
+    key = f"GH_nu{effects['GH_nu']:g}" if "GH_nu" in effects else f"SK_C{effects['SK_C']:g}" if "SK_C" in effects else law
     for effect in ("prestress", "kb"):
         if effects.get(effect, 0.0):
             key += f"+{effect}{effects[effect]:g}"
