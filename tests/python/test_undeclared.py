@@ -114,13 +114,14 @@ def test_cli_prints_what_a_missing_candidate_needs(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("levels", [(0.0, 0.04, 0.08), (0.0, 0.0025, 0.005, 0.01)])
-def test_blend_weights_reproduce_quadratics_and_the_levels(levels):
-    """Between an effect's levels the law is a blend of its groups: the weights reproduce any
-    quadratic in the strength exactly (so they sum to 1), and at a level only that group counts."""
+def test_blend_weights_reproduce_linear_functions_and_the_levels(levels):
+    """Between an effect's levels the law is a blend of the two bracketing groups: the weights
+    reproduce any linear function of the strength exactly (so they sum to 1), and at a level
+    only that group counts."""
     for value in np.linspace(levels[0], levels[-1], 17):
         weights = interpolation_weights(levels, float(value))
-        assert len(weights) == 3
-        for power in (0, 1, 2):
+        assert len(weights) == 2 and all(w >= -1e-15 for _, w in weights)
+        for power in (0, 1):
             assert sum(w * levels[k] ** power for k, w in weights) == pytest.approx(value ** power, abs=1e-14)
     for k, level in enumerate(levels):
         weights = dict(interpolation_weights(levels, level))
@@ -193,11 +194,13 @@ def test_law_batch_names_the_law_and_draws_the_report(tmp_path):
 @pytest.mark.validate
 @pytest.mark.parametrize("name", [
     "batch_B", "batch_C",
-    # Measured: alpha = 0.0510 [0.05005, 0.0520] for the truth 0.05: the jackknife interval
-    # holds the scatter between capsules, not the error of blending the profiles between the
-    # database's levels 0.04 and 0.08 (G_s +130 % -> +2.7 %, chi2 44997 -> 366).
-    pytest.param("batch_D", marks=pytest.mark.xfail(reason="interval misses the truth by 5e-5: no level-blending error in it",
-                                                    strict=False)),
+    # Measured: alpha = 0.0522 [0.0512, 0.0532] for the truth 0.05 (G_s +130 % -> +4 %, chi2
+    # 44997 -> 363): the batch's chi2 has its minimum there, within 4 units only from 0.0519
+    # to 0.0527, so the bias is the effect database's, not the fit's: between its levels 0.04
+    # and 0.08 the law is a linear blend of the two, and pre-stress is not linear there. A
+    # level at 0.06 would shrink that error about fourfold.
+    pytest.param("batch_D", marks=pytest.mark.xfail(reason="alpha biased by +4 % by the linear blend between the "
+                                                           "effect database's levels 0.04 and 0.08", strict=False)),
     "batch_E",
     pytest.param("batch_G", marks=pytest.mark.skipif(not KB.is_file(), reason="no bending effect database")),
     "batch_H"])
