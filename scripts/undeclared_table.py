@@ -2,10 +2,12 @@
 finds against the truth (the README's before/after table, issue 7).
 
 For each batch: the effect library of ``capsmech diagnose`` (contour offset, tube radius,
-pre-stress from data/databases/effects/prestress/tube.h5, every other law of the tube
-database), base law NH. Columns: the truth, the chosen candidate and its value with the
-interval, the relative error of the batch's mean G_s against the truth before (base fit) and
-after (the chosen effect), and chi2 before and after. Reports with figures go to --reports.
+pre-stress and bending stiffness from data/databases/effects/*/tube.h5, every other law of
+the tube database), base law NH, diagnosed sequentially (``diagnose_sequential``: a second
+effect after fixing the first). Columns: the truth, the first chosen candidate and its value
+with the interval, the second effect found (or none), the relative error of the batch's mean
+G_s against the truth before (base fit) and after (every effect found), and chi2 before and
+after the first. Reports (first round) with figures go to --reports.
 
     PYTHONPATH=analysis/src .venv/bin/python scripts/undeclared_table.py [--readme] [--only batch_A]
 """
@@ -19,13 +21,14 @@ import time
 from pathlib import Path
 
 from capsmech.database import load_database
-from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, write_report
+from capsmech.diagnose import DatabaseSet, candidate_library, diagnose_sequential, write_report
 from capsmech.measurements import read_measurements
 from capsmech.undeclared import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
-DATABASES = [ROOT / "data" / "databases" / "tube.h5", ROOT / "data" / "databases" / "effects" / "prestress" / "tube.h5"]
+DATABASES = [ROOT / "data" / "databases" / "tube.h5",
+             *sorted((ROOT / "data" / "databases" / "effects").glob("*/tube.h5"))]
 BEGIN, END = "<!-- undeclared-table: scripts/undeclared_table.py -->", "<!-- /undeclared-table -->"
 
 
@@ -41,40 +44,47 @@ def analyse(name: str, databases: DatabaseSet, reports: Path) -> dict:
     truth = read_truth(BATCHES / f"{name}_truth.csv")
     capsules = read_measurements(BATCHES / f"{name}.csv", "tube")
     start = time.perf_counter()
-    result = diagnose(capsules, databases, "NH", candidate_library("NH", databases.databases[0].laws))
+    laws = databases.databases[0].laws
+    sequence = diagnose_sequential(capsules, databases, "NH", lambda law: candidate_library(law, laws))
+    result = sequence.rounds[0]
     seconds = time.perf_counter() - start
     reports.mkdir(parents=True, exist_ok=True)
     write_report(result, reports / f"{name}.md", name)
     g_s = float(truth["G_s"])
     row = {"batch": name, "truth": truth_text(truth), "seconds": seconds,
            "supported": [r.name for r in result.results if r.supported],
-           "expected": expected_candidates(truth)}
+           "expected": expected_candidates(truth), "effects": sequence.effects, "note": sequence.note}
     chosen = result.chosen
     if chosen is None:
         base = result.base.g_s[[math.isfinite(x) for x in result.base.g_s]]
         row.update(found="no candidate supported", error_before=(base.mean() - g_s) / g_s)
         return row
+    second = (f"{sequence.effects[1][0]}: {sequence.effects[1][1]:.3g}" if len(sequence.effects) > 1
+              else "none supported")
     row.update(found=f"{chosen.name}: {chosen.parameter} = {chosen.theta:.3g}", interval=list(chosen.interval),
-               error_before=(chosen.g_s_before[0] - g_s) / g_s, error_after=(chosen.g_s_after[0] - g_s) / g_s,
+               second=second, error_before=(sequence.g_s[0][0] - g_s) / g_s,
+               error_after=(sequence.g_s[-1][0] - g_s) / g_s,
                chi2_before=chosen.chi2_base, chi2_after=chosen.chi2, bic_drop=chosen.bic_drop,
                rivals=[r.name for r in result.rivals])
     return row
 
 
 def markdown(rows: list[dict]) -> str:
-    lines = ["| batch | truth (undeclared) | diagnose finds | interval | G_s error before -> after | "
-             "chi2 before -> after | other supported |", "|---|---|---|---|---|---|---|"]
+    lines = ["| batch | truth (undeclared) | diagnose finds | interval | then (effect fixed) | "
+             "G_s error before -> after | chi2 before -> after | other supported |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error_after" in r:
             interval = f"[{r['interval'][0]:.3g}, {r['interval'][1]:.3g}]"
             error = f"{100 * r['error_before']:+.1f} % -> {100 * r['error_after']:+.1f} %"
             chi2 = f"{r['chi2_before']:.0f} -> {r['chi2_after']:.0f}"
+            second = r["second"]
         else:
-            interval, chi2 = "", ""
+            interval, chi2, second = "", "", ""
             error = f"{100 * r['error_before']:+.1f} %"
         found = r["found"].split(":")[0]
         others = ", ".join(s for s in r["supported"] if s != found) or "-"
-        lines.append(f"| {r['batch']} | {r['truth']} | {r['found']} | {interval} | {error} | {chi2} | {others} |")
+        lines.append(f"| {r['batch']} | {r['truth']} | {r['found']} | {interval} | {second} | {error} | {chi2} | {others} |")
     return "\n".join(lines)
 
 

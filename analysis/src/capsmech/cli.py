@@ -391,7 +391,7 @@ def _effect_databases(paths: Sequence[str] | None) -> list[str]:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
     from capsmech.database import load_database
-    from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, write_report
+    from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, diagnose_sequential, write_report
     from capsmech.effect_grid import case_count, estimated_core_minutes, write_grid
     from capsmech.measurements import read_measurements
 
@@ -423,8 +423,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.candidate:
         candidates = [c for c in candidates if c.name in args.candidate
                       or ("laws" in args.candidate and c.name.startswith("law "))]
+    if args.max_effects < 1:
+        raise MeasurementError(f"--max-effects: must be at least 1, got {args.max_effects}")
     try:
-        result = diagnose(capsules, databases, args.law, candidates)
+        if args.max_effects == 1:
+            sequence = None
+            result = diagnose(capsules, databases, args.law, candidates)
+        else:
+            names = {c.name for c in candidates}
+            sequence = diagnose_sequential(
+                capsules, databases, args.law,
+                lambda law: [c for c in candidate_library(law, list(database.laws), levels["prestress_levels"],
+                                                          args.other_law, kb_levels=levels["kb_levels"])
+                             if c.name in names],
+                max_effects=args.max_effects)
+            result = sequence.rounds[0]
     except ValueError as err:
         raise MeasurementError(f"{args.measurements}: {err}") from None
     for r in result.results:
@@ -437,8 +450,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
               f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
               f"make database GRID={r.needs['name']} (grid written to {path})")
     print(f"verdict: {result.verdict}")
+    if sequence is not None and sequence.effects:
+        for k, later in enumerate(sequence.rounds[1:], start=2):
+            fixed = ", ".join(f"{name} = {theta:.3g}" for name, theta in sequence.effects[:k - 1])
+            print(f"with {fixed} fixed: {later.verdict}")
+        print(f"effects found: {sequence.verdict}; G_s {sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
     if args.out:
         print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+        for k, later in enumerate(sequence.rounds[1:] if sequence is not None else [], start=2):
+            out = Path(args.out).with_name(f"{Path(args.out).stem}_round{k}{Path(args.out).suffix}")
+            print(f"wrote {write_report(later, out, Path(args.measurements).name + f' (round {k})')}")
     return 0
 
 
@@ -653,6 +674,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="bending stiffness levels of the kb candidate (default 0.0025,0.005,0.01; empty: no candidate)")
     diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "laws"),
                       help="test only these candidates (repeatable; default all: the effect library)")
+    diag.add_argument("--max-effects", type=int, default=2, metavar="N",
+                      help="effects to look for one after another, each fixed before the next (default 2; 1: one)")
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")

@@ -112,6 +112,7 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, NOT_ASSESSED, PROFILE_POINTS
 
     out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
              f"Base law: `{diagnosis.base_law}`.", "", f"**Verdict:** {diagnosis.verdict}.", "",
              "| candidate | parameter | interval | chi2 base -> fitted | BIC drop | CV gain per capsule (p) "
