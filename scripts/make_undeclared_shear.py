@@ -21,7 +21,7 @@ OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "undeclared"
 #: name -> (viscosity ratio, noise seed); the capsules' draw seed is DRAW_SEED for both.
 BATCHES: dict[str, tuple[float, int]] = {"shear_batch_A": (1.0, 11), "shear_batch_L": (0.001, 12)}
 DRAW_SEED = 17
-N_CAPSULES = 14
+N_CAPSULES = 16
 G_S = 0.04
 
 
