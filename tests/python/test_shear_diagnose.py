@@ -9,7 +9,8 @@ Facts checked:
   scored only on the capsules both groups fit;
 - on the shipped kernel batches: lambda = 0.001 undeclared (shear_batch_L) is named, G_s moves
   to the truth and its drift with D12 disappears; with lambda = 1 (shear_batch_A) no
-  candidate is supported;
+  candidate is supported; the same batches with the inclination angle measured to 1 deg
+  (_theta) decide far more sharply, and the same way;
 - the batches are kernel runs: re-running a capsule reproduces its steady D12.
 """
 from __future__ import annotations
@@ -55,9 +56,9 @@ def node_capsules(groups: ShearGroups, key: str, a: float = 45e-6) -> list[Capsu
     rows = database.law(key).steady_rows()
     out = []
     for k in np.flatnonzero((rows["D12"] >= 0.35) & (rows["D12"] < np.nanmax(rows["D12"]))):
-        l1, l2, l3, ca = (float(rows[c][k]) for c in ("L1_over_a", "L2_over_a", "L3_over_a", "Ca_s"))
+        l1, l2, l3, ca, theta = (float(rows[c][k]) for c in ("L1_over_a", "L2_over_a", "L3_over_a", "Ca_s", "theta"))
         rate = ca * G_S / (MU * a * math.sqrt(l1 * l2 * l3))
-        out.append(Capsule(f"n{k}", {"L1": l1 * a, "L2": l2 * a, "shear_rate": rate, "mu": MU}, k))
+        out.append(Capsule(f"n{k}", {"L1": l1 * a, "L2": l2 * a, "shear_rate": rate, "mu": MU, "theta": theta}, k))
     return out
 
 
@@ -65,10 +66,11 @@ def node_capsules(groups: ShearGroups, key: str, a: float = 45e-6) -> list[Capsu
 def test_exact_nodes_give_zero_chi2_and_the_modulus(groups, key):
     capsules = node_capsules(groups, key)
     assert len(capsules) >= 4
-    score = score_group(capsules, groups.inverter(key), key)
+    score = score_group(capsules, groups.inverter(key), key, theta=groups.theta(key))
     assert score.fitted.all(), score.flags
     mean, _, chi2 = weighted_mean(score.y, score.s)
     assert chi2 < 1e-12
+    assert np.all(np.abs(score.t) < 1e-9)
     assert modulus(score.y, score.s)[0] == pytest.approx(G_S, rel=1e-9)
 
 
@@ -136,6 +138,29 @@ def test_batch_without_effect_supports_no_candidate(groups):
     assert abs(weighted_mean(base.y[base.fitted], base.s[base.fitted])[2] - (n - 1)) < 3 * math.sqrt(2 * (n - 1))
 
 
+@pytest.mark.parametrize("name", ["shear_batch_A", "shear_batch_L"])
+def test_measured_inclination_sharpens_the_same_verdict(groups, name):
+    plain = diagnose_shear(read_measurements(BATCHES / f"{name}.csv", "shear"), groups, "NH")
+    sharp = diagnose_shear(read_measurements(BATCHES / f"{name}_theta.csv", "shear"), groups, "NH")
+    assert (sharp.chosen is None) == (plain.chosen is None)
+    if plain.chosen is not None:
+        assert sharp.chosen.law == plain.chosen.law == LAMBDA_KEY
+        assert sharp.chosen.cv_p_value < plain.chosen.cv_p_value / 10
+    lam, lam_plain = sharp.results[0], plain.results[0]
+    assert lam.law == LAMBDA_KEY
+    # The angle's evidence adds to that of the G_s drift, in the same direction.
+    assert abs(lam.bic_drop) > abs(lam_plain.bic_drop) and lam.bic_drop * lam_plain.bic_drop > 0
+
+
+def test_theta_column_is_read_and_checked(tmp_path):
+    path = tmp_path / "m.csv"
+    path.write_text("id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s],theta [deg]\nc1,60,25,350,0.756,30\n")
+    assert read_measurements(path, "shear")[0]["theta"] == pytest.approx(math.pi / 6)
+    path.write_text("id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s],theta [deg]\nc1,60,25,350,0.756,95\n")
+    with pytest.raises(ValueError, match="field 'theta' must be below 90 deg"):
+        read_measurements(path, "shear")
+
+
 def test_cli_writes_the_report_and_names_bad_fields(tmp_path, capsys):
     report = tmp_path / "report.md"
     assert main(["diagnose-shear", str(BATCHES / "shear_batch_L.csv"), "--out", str(report)]) == 0
@@ -143,7 +168,7 @@ def test_cli_writes_the_report_and_names_bad_fields(tmp_path, capsys):
     assert (tmp_path / "report_gs_d12.png").exists()
     assert "NH+lambda0.001" in report.read_text()
     for args, field in ((["--law", "XX"], "--law"), (["--pixel-size", "-1"], "--pixel-size"),
-                        (["--lambda-value", "0.2"], "--lambda-value")):
+                        (["--lambda-value", "0.2"], "--lambda-value"), (["--theta-error", "0"], "--theta-error")):
         assert main(["diagnose-shear", str(BATCHES / "shear_batch_A.csv"), *args]) == 2
         assert f"capsmech: error: {field}" in capsys.readouterr().err
     assert main(["diagnose-shear", str(BATCHES / "batch_A.csv")]) == 2

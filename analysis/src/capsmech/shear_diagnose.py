@@ -20,6 +20,13 @@ the semi-axes' measurement noise (finite differences of y in L1 and L2):
 
     chi2 = sum_i ((y_i - y_bar) / s_i)^2,   y_bar the weighted mean (weights 1/s_i^2).
 
+When the batch carries the inclination angle theta (optional column), each capsule adds
+((theta_i - theta_g(D12_i)) / sigma_theta,i)^2, theta_g the group's steady theta at the
+measured D12 (no free parameter: lambda turns the capsule towards the flow, 5-7 deg at
+D12 ~ 0.5); sigma_theta,i^2 = e_theta^2 + (theta_g' s_D12)^2, e_theta the angle's measurement
+error (1 deg by default), s_D12 from the semi-axes' noise (its correlation with y_i is left out:
+the angle's own error dominates).
+
 Candidates: the viscosity ratio (the group ``<base>+lambda<X>`` of the lambda database, a
 discrete candidate as ``capsmech.diagnose.law_candidate``) and every other law of the shear
 database. A capsule outside a group's D12 range (or below D12 = 0.35, paper section 4.3) is
@@ -47,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import stats
+from scipy.interpolate import PchipInterpolator
 
 from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP
 from capsmech.fitting import shear_inverter
@@ -58,6 +66,8 @@ from capsmech.population import law_drift
 #: of each semi-axis in pixels (uniform in [-e, e]).
 PIXEL_SIZE = 0.5e-6
 ERROR_PX = 1.0
+#: Standard deviation of a measured inclination angle [rad] (1 deg).
+THETA_ERROR = math.radians(1.0)
 #: The lambda database's viscosity ratio, as in its law keys.
 LAMBDA_VALUE = "0.001"
 
@@ -70,7 +80,8 @@ def lambda_key(base_law: str, value: str = LAMBDA_VALUE) -> str:
 @dataclass
 class GroupScore:
     """One law group's fit of the batch: per capsule y = ln G_s [ln N/m], its standard error s,
-    the measured D12, and a flag (empty when fitted)."""
+    the measured D12, a flag (empty when fitted), and the standardised inclination residual t
+    (0 where the capsule has no theta)."""
 
     law: str
     ids: list[str]
@@ -78,6 +89,7 @@ class GroupScore:
     s: np.ndarray
     d12: np.ndarray
     flags: list[str]
+    t: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @property
     def fitted(self) -> np.ndarray:
@@ -95,11 +107,23 @@ def _ln_g(inverter: ShearInverter, L1: float, L2: float, rate: float, mu: float)
     return math.log(fit.G_s) if fit.ok and fit.G_s and fit.G_s > 0 else math.nan
 
 
+def theta_curve(rows: dict[str, np.ndarray]) -> PchipInterpolator:
+    """A group's steady inclination theta [rad] against D12 (PCHIP, no extrapolation), from
+    its database rows (``LawTable.steady_rows()``)."""
+    ca, d12, theta = (np.asarray(rows[k], dtype=float) for k in ("Ca_s", "D12", "theta"))
+    keep = np.isfinite(ca) & np.isfinite(d12) & np.isfinite(theta)
+    order = np.argsort(ca[keep])
+    return PchipInterpolator(d12[keep][order], theta[keep][order], extrapolate=False)
+
+
 def score_group(capsules: Sequence[Capsule], inverter: ShearInverter, law: str, pixel_size: float = PIXEL_SIZE,
-                error_px: float = ERROR_PX) -> GroupScore:
-    """Fit every capsule with one group; ln G_s, its standard error and flags (see the module)."""
+                error_px: float = ERROR_PX, theta: PchipInterpolator | None = None,
+                theta_error: float = THETA_ERROR) -> GroupScore:
+    """Fit every capsule with one group; ln G_s, its standard error, flags, and with ``theta``
+    (the group's theta(D12)) the inclination residual of capsules that carry theta (see the module)."""
     n = len(capsules)
     y, s, d12 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    t = np.zeros(n)
     flags = [""] * n
     for i, c in enumerate(capsules):
         L1, L2, rate, mu = c["L1"], c["L2"], c["shear_rate"], c["mu"]
@@ -127,7 +151,12 @@ def score_group(capsules: Sequence[Capsule], inverter: ShearInverter, law: str, 
         if not math.isfinite(s[i]):
             y[i] = np.nan
             flags[i] = "no standard error: the capsule sits on the database's edge"
-    return GroupScore(law, [c.id for c in capsules], y, s, d12, flags)
+            continue
+        if theta is not None and math.isfinite(c["theta"]):
+            s_d12 = sigma * 2 * math.hypot(L1, L2) / (L1 + L2) ** 2
+            predicted, slope = float(theta(d12[i])), float(theta.derivative()(d12[i]))
+            t[i] = (c["theta"] - predicted) / math.hypot(theta_error, slope * s_d12)
+    return GroupScore(law, [c.id for c in capsules], y, s, d12, flags, t)
 
 
 def weighted_mean(y: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:
@@ -168,6 +197,9 @@ class ShearCandidateResult:
     capsules: int = 0
     chi2_base: float = math.nan
     chi2: float = math.nan
+    #: The inclination's part of chi2_base and chi2 (0 without theta).
+    chi2_theta_base: float = math.nan
+    chi2_theta: float = math.nan
     bic_drop: float = math.nan
     cv_gain: float = math.nan
     cv_gain_error: float = math.nan
@@ -192,10 +224,13 @@ def evaluate(base: GroupScore, candidate: GroupScore, name: str) -> ShearCandida
         result.note = f"only {n} capsules fitted by both groups: not assessed"
         return result
     yb, sb, yc, sc = base.y[used], base.s[used], candidate.y[used], candidate.s[used]
-    result.chi2_base = weighted_mean(yb, sb)[2]
-    result.chi2 = weighted_mean(yc, sc)[2]
+    tb, tc = base.t[used] ** 2, candidate.t[used] ** 2
+    result.chi2_theta_base, result.chi2_theta = float(tb.sum()), float(tc.sum())
+    result.chi2_base = weighted_mean(yb, sb)[2] + result.chi2_theta_base
+    result.chi2 = weighted_mean(yc, sc)[2] + result.chi2_theta
     result.bic_drop = result.chi2_base - result.chi2 - math.log(n)
-    gains = leave_one_out_errors(yb, sb) - leave_one_out_errors(yc, sc)
+    # theta has no fitted parameter: its held-out error is its own residual.
+    gains = (leave_one_out_errors(yb, sb) + tb) - (leave_one_out_errors(yc, sc) + tc)
     result.cv_gain = float(gains.mean())
     result.cv_gain_error = float(gains.std(ddof=1) / math.sqrt(n))
     result.cv_p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
@@ -249,11 +284,17 @@ class ShearGroups:
     def laws(self) -> list[str]:
         return list(dict.fromkeys(key for d in self.databases for key in d.laws))
 
-    def inverter(self, key: str) -> ShearInverter:
+    def _database(self, key: str):
         for database in self.databases:
             if key in database.laws:
-                return shear_inverter(database, key)
+                return database
         raise KeyError(f"no shear database has law {key!r} (they have {', '.join(self.laws)})")
+
+    def inverter(self, key: str) -> ShearInverter:
+        return shear_inverter(self._database(key), key)
+
+    def theta(self, key: str) -> PchipInterpolator:
+        return theta_curve(self._database(key).law(key).steady_rows())
 
 
 def default_candidates(base_law: str, laws: Sequence[str], lambda_value: str = LAMBDA_VALUE) -> dict[str, str]:
@@ -265,7 +306,7 @@ def default_candidates(base_law: str, laws: Sequence[str], lambda_value: str = L
 
 def diagnose_shear(capsules: Sequence[Capsule], databases: ShearGroups | Sequence, base_law: str = "NH",
                    candidates: dict[str, str] | None = None, pixel_size: float = PIXEL_SIZE,
-                   error_px: float = ERROR_PX) -> ShearDiagnosis:
+                   error_px: float = ERROR_PX, theta_error: float = THETA_ERROR) -> ShearDiagnosis:
     """Test the candidate groups on a shear batch fitted with ``base_law`` (see the module).
 
     Parameters
@@ -280,6 +321,8 @@ def diagnose_shear(capsules: Sequence[Capsule], databases: ShearGroups | Sequenc
         Candidate name -> law key (default ``default_candidates``).
     pixel_size, error_px : float
         The noise model where the batch has no ``pixel_size`` column [m], and the error bound [px].
+    theta_error : float
+        Standard deviation of a measured theta [rad] (used for capsules that carry theta).
 
     Raises
     ------
@@ -294,9 +337,11 @@ def diagnose_shear(capsules: Sequence[Capsule], databases: ShearGroups | Sequenc
     for key in [base_law, *candidates.values()]:
         if key not in groups.laws:
             raise ValueError(f"no shear database has law {key!r} (they have {', '.join(groups.laws)})")
-    base = score_group(capsules, groups.inverter(base_law), base_law, pixel_size, error_px)
-    results = [evaluate(base, score_group(capsules, groups.inverter(key), key, pixel_size, error_px), name)
-               for name, key in candidates.items()]
+    def score(key: str) -> GroupScore:
+        return score_group(capsules, groups.inverter(key), key, pixel_size, error_px, groups.theta(key), theta_error)
+
+    base = score(base_law)
+    results = [evaluate(base, score(key), name) for name, key in candidates.items()]
     supported = [r for r in results if r.supported]
     chosen = max(supported, key=lambda r: r.bic_drop) if supported else None
     return ShearDiagnosis(base_law, base, results, chosen)
@@ -343,6 +388,10 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
     """A Markdown report: the verdict, a table of the candidates, the flagged capsules and the
     figure of G_s against D12 (written whole: temporary name, then renamed)."""
     out = Path(out)
+
+    def theta_part(r: ShearCandidateResult) -> str:
+        return f" (theta: {r.chi2_theta_base:.1f} -> {r.chi2_theta:.1f})" if r.chi2_theta_base or r.chi2_theta else ""
+
     lines = [f"# capsmech diagnose-shear{': ' + batch if batch else ''}", "",
              f"Base law: `{diagnosis.base_law}` (lambda = 1).", "", f"**Verdict:** {diagnosis.verdict}.", "",
              "| candidate | group | capsules | chi2 base -> candidate | BIC drop | CV gain per capsule (p) "
@@ -353,14 +402,14 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
             lines.append(f"| {r.name} | {r.law} | {r.capsules} | | | | | | | {r.note} |")
             continue
         lines.append(
-            f"| {r.name} | {r.law} | {r.capsules} | {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} "
+            f"| {r.name} | {r.law} | {r.capsules} | {r.chi2_base:.1f} -> {r.chi2:.1f}{theta_part(r)} | {r.bic_drop:.1f} "
             f"| {r.cv_gain:.2f} ± {r.cv_gain_error:.2f} ({r.cv_p_value:.2g}) "
             f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
             f"| {r.drift_p_before:.2g} -> {r.drift_p_after:.2g} | {'yes' if r.supported else 'no'} |")
     lines += ["", f"Supported: the BIC drops by more than {MIN_BIC_DROP:g} (chi2_base - chi2 - ln n) and "
               f"leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < {CV_ALPHA}). chi2: "
               "scatter of ln G_s about the weighted mean, over each capsule's standard error from +-1 pixel "
-              "(uniform) on L1 and L2. G_s: weighted mean ± standard error (scaled by sqrt(chi2/(n-1)) when "
+              "(uniform) on L1 and L2, plus, for capsules with theta, its residuals over the angle's error. G_s: weighted mean ± standard error (scaled by sqrt(chi2/(n-1)) when "
               "above 1). Drift p: slope of G_s/mean against D12 (capsmech.population.law_drift).", ""]
     groups = [diagnosis.base] + [r.score for r in diagnosis.results if r.score is not None]
     flagged = [(g.law, cid, flag) for g in groups for cid, flag in zip(g.ids, g.flags) if flag]
@@ -389,6 +438,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--pixel-size", type=float, default=PIXEL_SIZE * 1e6,
                    help="pixel size [um] of the noise model where the CSV has no pixel_size column (default 0.5)")
     p.add_argument("--error-px", type=float, default=ERROR_PX, help="error bound of each semi-axis [px] (default 1)")
+    p.add_argument("--theta-error", type=float, default=math.degrees(THETA_ERROR),
+                   help="standard deviation of a measured theta [deg], for batches with a theta column (default 1)")
     p.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figure beside it)")
     return p
 
@@ -398,7 +449,7 @@ def cmd_diagnose_shear(args: argparse.Namespace) -> int:
     from capsmech.database import DatabaseError, load_database
     from capsmech.measurements import MeasurementError, read_measurements
 
-    for option in ("pixel_size", "error_px"):
+    for option in ("pixel_size", "error_px", "theta_error"):
         value = getattr(args, option)
         if not (math.isfinite(value) and value > 0):
             raise MeasurementError(f"--{option.replace('_', '-')}: must be a positive number, got {value}")
@@ -419,7 +470,8 @@ def cmd_diagnose_shear(args: argparse.Namespace) -> int:
     candidates.update({f"law {k}": k for k in databases[0].laws if k != args.law and "+" not in k})
     try:
         result = diagnose_shear(capsules, ShearGroups(databases), args.law, candidates,
-                                pixel_size=args.pixel_size * 1e-6, error_px=args.error_px)
+                                pixel_size=args.pixel_size * 1e-6, error_px=args.error_px,
+                                theta_error=math.radians(args.theta_error))
     except ValueError as err:
         raise MeasurementError(f"{args.measurements}: {err}") from None
     for r in result.results:

@@ -8,7 +8,8 @@ thread), never an interpolation of a database. The capsule's shear rate is the o
 its Ca_s at the outer viscosity ``MU_PA_S`` (Ca_s = mu gamma_dot a / G_s). The measured
 semi-axes L1, L2 [um] are the steady ones times a, each off by a uniform error in
 [-1, 1] pixel (0.5 um pixels, written in the ``pixel_size`` column); the shear rate and mu are
-exact. The rows say nothing about lambda; the truth is returned apart
+exact. With ``theta_error_deg`` the rows also carry the inclination theta [deg], off by a
+Gaussian error of that standard deviation (its own generator: the semi-axes stay the same). The rows say nothing about lambda; the truth is returned apart
 and written to ``<stem>_truth.csv`` (conventions of ``capsmech.undeclared.write_batch``).
 
 ``CA_S`` is where both shear databases (lambda = 1 and 0.001, NH) give D12 >= 0.35 (the paper's
@@ -38,6 +39,8 @@ RADIUS_UM = (40.0, 50.0)
 MU_PA_S = 0.756
 PIXEL_SIZE_UM = 0.5
 ERROR_PX = 1.0
+#: Standard deviation of a measured inclination angle [deg] when the batch carries one.
+THETA_ERROR_DEG = 1.0
 #: Kernel settings of the shear databases (config/paper.yaml, config/microrheometry.yaml).
 LEVEL = 3
 T_MAX = 60.0
@@ -109,6 +112,7 @@ class ShearBatch:
     rows: list[dict]
     truth: list[dict]
     viscosity_ratio: float
+    theta_error_deg: float | None = None
 
 
 def draw_capsules(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -120,7 +124,8 @@ def draw_capsules(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_shear_batch(viscosity_ratio: float = 1.0, n_capsules: int = 14, law: str = "NH", g_s: float = 0.04,
-                     seed: int = 0, draw_seed: int | None = None, simulate: Simulator | None = None) -> ShearBatch:
+                     seed: int = 0, draw_seed: int | None = None, simulate: Simulator | None = None,
+                     theta_error_deg: float | None = None) -> ShearBatch:
     """A synthetic shear batch of one material simulated at ``viscosity_ratio`` (see the module).
 
     Parameters
@@ -139,11 +144,14 @@ def make_shear_batch(viscosity_ratio: float = 1.0, n_capsules: int = 14, law: st
     simulate : callable, optional
         ``(Ca_s, law_key) -> ShearCapsule`` (default :func:`simulate_shear`, one kernel run
         per capsule, one at a time).
+    theta_error_deg : float, optional
+        When given, each row carries the measured inclination theta [deg] with this error.
     """
     simulate = simulate or simulate_shear
     key = law_key(law, float(viscosity_ratio))
     ca, a_um = draw_capsules(n_capsules, seed if draw_seed is None else draw_seed)
     rng = np.random.default_rng(seed)
+    theta_rng = np.random.default_rng(seed + 1000)
     error_um = ERROR_PX * PIXEL_SIZE_UM
     rows, truth = [], []
     for k, (ca_k, a_k) in enumerate(zip(ca, a_um)):
@@ -151,6 +159,7 @@ def make_shear_batch(viscosity_ratio: float = 1.0, n_capsules: int = 14, law: st
         capsule_id = f"c{k + 1:03d}"
         shear_rate = float(ca_k) * g_s / (MU_PA_S * a_k * 1e-6)
         noise = rng.uniform(-error_um, error_um, 2)
+        theta_noise = theta_rng.standard_normal()
         truth.append({"id": capsule_id, "law": key, "viscosity_ratio": float(viscosity_ratio), "Ca_s": float(ca_k),
                       "a": float(a_k), "G_s": float(g_s), "D12": capsule.D12, "L1": capsule.L1_over_a * a_k,
                       "L2": capsule.L2_over_a * a_k, "theta": capsule.theta, "status": capsule.status})
@@ -159,21 +168,30 @@ def make_shear_batch(viscosity_ratio: float = 1.0, n_capsules: int = 14, law: st
         l1, l2 = capsule.L1_over_a * a_k + noise[0], capsule.L2_over_a * a_k + noise[1]
         rows.append({"id": capsule_id, "L1": max(l1, l2), "L2": min(l1, l2), "shear_rate": shear_rate,
                      "mu": MU_PA_S, "pixel_size": PIXEL_SIZE_UM})
-    return ShearBatch(rows, truth, float(viscosity_ratio))
+        if theta_error_deg is not None:
+            rows[-1]["theta"] = math.degrees(capsule.theta) + theta_error_deg * theta_noise
+    return ShearBatch(rows, truth, float(viscosity_ratio), theta_error_deg)
 
 
 def write_shear_batch(batch: ShearBatch, path: str | Path) -> tuple[Path, Path]:
     """The measurement CSV at ``path`` (shear format) and the truth beside it, ``<stem>_truth.csv``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    columns = ["L1", "L2", "shear_rate", "mu", "pixel_size"]
+    header = ["id", "L1 [um]", "L2 [um]", "shear_rate [1/s]", "mu [Pa s]", "pixel_size [um]"]
+    if batch.rows and "theta" in batch.rows[0]:
+        columns.append("theta")
+        header.append("theta [deg]")
     with open(path, "w", newline="", encoding="utf-8") as stream:
         stream.write("# synthetic shear batch made with the kernel by capsmech.undeclared_shear;\n"
                      f"# semi-axes off by a uniform error in [-{ERROR_PX:g}, {ERROR_PX:g}] pixel "
                      f"({PIXEL_SIZE_UM:g} um pixels)\n")
+        if "theta" in columns:
+            stream.write(f"# theta off by a Gaussian error of {batch.theta_error_deg:g} deg\n")
         writer = csv.writer(stream)
-        writer.writerow(["id", "L1 [um]", "L2 [um]", "shear_rate [1/s]", "mu [Pa s]", "pixel_size [um]"])
+        writer.writerow(header)
         for row in batch.rows:
-            writer.writerow([row["id"], *(f"{row[k]:.6g}" for k in ("L1", "L2", "shear_rate", "mu", "pixel_size"))])
+            writer.writerow([row["id"], *(f"{row[k]:.6g}" for k in columns)])
     truth_path = path.with_name(f"{path.stem}_truth.csv")
     columns = list(batch.truth[0])
     with open(truth_path, "w", newline="", encoding="utf-8") as stream:
