@@ -27,6 +27,7 @@ from capsmech.database import load_database
 from capsmech.fitting import shear_inverter
 from capsmech.measurements import Capsule, read_measurements
 from capsmech.shear_diagnose import ShearGroups, diagnose_shear, length_error, modulus, score_group, weighted_mean
+from capsmech.undeclared_shear import law_key, read_shear_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -119,10 +120,11 @@ def test_capsules_outside_a_group_are_flagged_and_left_out(groups):
 def test_undeclared_viscosity_ratio_is_named_and_corrected(groups):
     capsules = read_measurements(BATCHES / "shear_batch_L.csv", "shear")
     result = diagnose_shear(capsules, groups, "NH")
+    true = read_shear_truth(BATCHES / "shear_batch_L_truth.csv")
     assert result.chosen is not None, result.verdict
-    assert result.chosen.law == LAMBDA_KEY, result.verdict
+    assert result.chosen.law == law_key("NH", true["viscosity_ratio"]) == LAMBDA_KEY, result.verdict
     c = result.chosen
-    g_true = float(next(iter(truth("shear_batch_L").values()))["G_s"])
+    g_true = true["G_s"]
     assert abs(c.g_s_after[0] - g_true) < abs(c.g_s_before[0] - g_true)
     assert abs(c.g_s_after[0] - g_true) < 3 * c.g_s_after[1]
     assert c.drift_p_before < 0.05 < c.drift_p_after

@@ -466,8 +466,7 @@ def cmd_diagnose_shear(args: argparse.Namespace) -> int:
     if key not in databases[1].laws:
         raise DatabaseError(f"--lambda-value: {args.lambda_database} has no law {key!r} "
                             f"(it has {', '.join(databases[1].laws)})")
-    candidates = {f"viscosity ratio lambda = {args.lambda_value}": key}
-    candidates.update({f"law {k}": k for k in databases[0].laws if k != args.law and "+" not in k})
+    candidates = default_candidates(args.law, databases[0].laws, args.lambda_value)
     try:
         result = diagnose_shear(capsules, ShearGroups(databases), args.law, candidates,
                                 pixel_size=args.pixel_size * 1e-6, error_px=args.error_px,

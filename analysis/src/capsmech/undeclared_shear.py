@@ -23,7 +23,7 @@ import json
 import math
 import subprocess
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -208,10 +208,3 @@ def read_shear_truth(path: str | Path) -> dict[str, float | str]:
         first = next(csv.DictReader(stream))
     return {"law": first["law"], "G_s": float(first["G_s"]), "viscosity_ratio": float(first["viscosity_ratio"])}
 
-
-def shear_batch_rows(capsules: Sequence[ShearCapsule], a_um: Sequence[float], g_s: float,
-                     mu: float = MU_PA_S) -> list[dict]:
-    """Noise-free measurement rows [um] of given steady states (for tests of the score)."""
-    return [{"id": f"c{k + 1:03d}", "L1": c.L1_over_a * a, "L2": c.L2_over_a * a,
-             "shear_rate": c.Ca_s * g_s / (mu * a * 1e-6), "mu": mu}
-            for k, (c, a) in enumerate(zip(capsules, a_um))]
