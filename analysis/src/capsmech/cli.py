@@ -697,6 +697,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="shear database with the experiment's viscosity ratio (config/microrheometry.yaml)")
     comp.add_argument("--lambda-value", default="0.001", help="its viscosity ratio, as in the law keys (default 0.001)")
     comp.add_argument("--law", nargs="+", default=["NH", "GH_nu0.5", "GH_nu0.2"], help="base law keys")
+    from capsmech.shear_diagnose import add_parser as add_diagnose_shear
+    add_diagnose_shear(sub)
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
     ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
     ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the TIFF's metadata)")
@@ -737,6 +739,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
                 "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract,
                 "diagnose": cmd_diagnose, "make-batch": cmd_make_batch, "compare-methods": cmd_compare_methods}
+    from capsmech.shear_diagnose import cmd_diagnose_shear
+    commands["diagnose-shear"] = cmd_diagnose_shear
     try:
         if args.command == "simulate":
             return cmd_simulate(rest)

@@ -30,7 +30,9 @@ Shear (``fit-shear``)::
     id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s]
     s01,52.1,23.5,350,0.756
 
-required ``id``, ``L1``, ``L2`` (semi-axes in the shear plane), ``shear_rate``, ``mu``.
+required ``id``, ``L1``, ``L2`` (semi-axes in the shear plane), ``shear_rate``, ``mu``;
+optional ``theta`` (inclination of the major axis to the flow direction, in (0, 90) deg, unit
+``deg`` or ``rad``), which ``diagnose-shear`` uses when given.
 
 Units: lengths m, mm, um (or µm), nm, px (with a ``pixel_size`` column); velocities m/s, mm/s,
 um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Everything is converted to SI on reading.
@@ -57,14 +59,16 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px":
 VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
 VISCOSITY_UNITS = {"Pa s": 1.0, "Pa.s": 1.0, "mPa s": 1e-3, "mPa.s": 1e-3, "cP": 1e-3}
 RATE_UNITS = {"1/s": 1.0, "s^-1": 1.0}
+ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
 
 #: Column -> (kind, required) per flow.
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
                 "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
                 "pixel_size": ("length", False), "contour": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
-                 "mu": ("viscosity", True), "pixel_size": ("length", False)}
-UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS}
+                 "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False)}
+UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
+         "angle": ANGLE_UNITS}
 HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 
 
@@ -212,6 +216,9 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
             raise MeasurementError(f"{path}:{capsule.line}: field 'L_p' must be smaller than L_z")
         if flow == "shear" and capsule["L2"] > capsule["L1"]:
             raise MeasurementError(f"{path}:{capsule.line}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
+        if flow == "shear" and capsule["theta"] >= math.pi / 2:
+            raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
+                                   "inclination to the flow direction)")
     return capsules
 
 
