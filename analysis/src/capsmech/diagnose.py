@@ -41,7 +41,7 @@ one discrete parameter.
 - ``viscosity ratio`` is not a candidate for tube batches: a steady capsule translates as a
   rigid body, its inner fluid with it, so lambda drops out of every steady observable (the
   kernel reproduces the lambda = 1 shape to 6e-8 at lambda 0.2 and 5); it acts on the shear
-  method (``capsmech.microrheometry``, ``capsmech compare-methods``). ``NOT_ASSESSED``
+  method (``capsmech.shear_diagnose``: ``capsmech diagnose-shear``). ``NOT_ASSESSED``
   says so in every report.
 - ``off-centre position`` is not assessed: it needs the 3D tube model (``--offset``, minutes
   to hours a case, against seconds for the axisymmetric one) for a database of its own. Its
@@ -75,15 +75,15 @@ from capsmech.residuals import PreparedContour
 NOT_ASSESSED: dict[str, str] = {
     "viscosity ratio": "not identifiable: a steady capsule moves as a rigid body with its inner fluid, so lambda "
                        "leaves its shape and velocity unchanged (kernel: lambda 0.2 and 5 reproduce lambda = 1 to "
-                       "6e-8); it acts on the shear method (capsmech compare-methods)",
+                       "6e-8); it acts on the shear method: capsmech diagnose-shear tests it on Couette batches",
     "off-centre position": "not assessed: needs a 3D tube database (--offset; minutes to hours a case); an "
                            "off-centre capsule's up-down asymmetric contour is flagged by the inversion",
 }
 #: Points of each capsule's residual profile in the score.
 PROFILE_POINTS = 16
 #: Refinement of a continuous candidate's strength: evaluations of the batch (each a refit of
-#: every capsule) and tolerance as a fraction of the bracket around the best grid value.
-REFINE_EVALUATIONS = 8
+#: every capsule) on each side of the best grid value, and tolerance as a fraction of a side.
+REFINE_EVALUATIONS = 6
 REFINE_XATOL = 0.01
 #: Rise of the batch's chi2 over its minimum that bounds the profile interval (two sigma).
 PROFILE_RISE = 4.0
@@ -527,8 +527,12 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
             extras.append((float(theta), extra))
             return float(extra.chi2[usable].sum())
 
-        minimize_scalar(batch_chi2, bounds=(low, high), method="bounded",
-                        options={"xatol": REFINE_XATOL * (high - low), "maxiter": REFINE_EVALUATIONS})
+        # Each side of the best grid value separately: a blended law is piecewise in the
+        # strength, kinked at the levels, and one search across the kink stays on one side.
+        for side in ((low, values[k]), (values[k], high)):
+            if side[1] > side[0]:
+                minimize_scalar(batch_chi2, bounds=side, method="bounded",
+                                options={"xatol": REFINE_XATOL * (side[1] - side[0]), "maxiter": REFINE_EVALUATIONS})
         for theta, extra in extras:
             if np.any(np.isclose(values, theta, rtol=0, atol=1e-12)):
                 continue
