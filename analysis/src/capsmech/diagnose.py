@@ -491,8 +491,10 @@ def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, floa
 
 
 def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
-                       sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour]) -> CandidateResult:
-    """Refit the batch over the candidate's grid; fit theta, its interval, the criteria."""
+                       sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour],
+                       refine_evaluations: int = REFINE_EVALUATIONS) -> CandidateResult:
+    """Refit the batch over the candidate's grid; fit theta (refined with at most
+    ``refine_evaluations`` refits on each side of the best grid value), its interval, the criteria."""
     result = CandidateResult(candidate.name, candidate.parameter, candidate.unit)
     values = np.array(candidate.values, dtype=float)
 
@@ -515,7 +517,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     # lowest grid point, every evaluation kept in the table, so that the minimum chi2 the
     # criteria compare is computed, not extrapolated (a parabola through three grid points
     # misplaces a sharp minimum: on the pre-stress batches by 20-40 % of the level spacing).
-    if len(values) > 2:
+    if len(values) > 2 and refine_evaluations > 0:
         k = int(np.argmin(table.sum(axis=1)))
         low, high = values[max(k - 1, 0)], values[min(k + 1, len(values) - 1)]
         extras: list[tuple[float, BatchScore]] = []
@@ -532,7 +534,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         for side in ((low, values[k]), (values[k], high)):
             if side[1] > side[0]:
                 minimize_scalar(batch_chi2, bounds=side, method="bounded",
-                                options={"xatol": REFINE_XATOL * (side[1] - side[0]), "maxiter": REFINE_EVALUATIONS})
+                                options={"xatol": REFINE_XATOL * (side[1] - side[0]), "maxiter": refine_evaluations})
         for theta, extra in extras:
             if np.any(np.isclose(values, theta, rtol=0, atol=1e-12)):
                 continue
@@ -621,14 +623,16 @@ class Diagnosis:
 
 
 def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
-             candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None) -> Diagnosis:
+             candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None,
+             refine_evaluations: int = REFINE_EVALUATIONS) -> Diagnosis:
     """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
 
     ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
     effect databases). A candidate whose law groups none has is not assessed; its result
     carries the grid to run (``needs``, see ``capsmech.effect_grid``). ``sigma``: the
     capsules' tracing-noise levels when already measured (``noise_levels``), so that the chi2
-    of successive diagnoses of one batch share their scale."""
+    of successive diagnoses of one batch share their scale. ``refine_evaluations``: refits of
+    the batch on each side of a continuous candidate's best grid value (0: the grid only)."""
     from capsmech.effect_grid import needed_grid
 
     if candidates is None:
@@ -645,7 +649,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     for candidate in candidates:
         missing = [key for key in candidate.laws if key not in database.laws]
         if not missing:
-            results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared))
+            results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared,
+                                              refine_evaluations))
             continue
         result = CandidateResult(candidate.name, candidate.parameter, candidate.unit,
                                  note="not assessed: needs simulations")
