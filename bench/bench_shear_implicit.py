@@ -8,7 +8,7 @@ how far the implicit steady D12 and theta are from RK2's. The times are of a sha
 load average is printed with the table; the CPU time (one thread) suffers less from the load than
 the wall time, and only the ratios of one run mean much.
 
-    .venv/bin/python bench/bench_shear_implicit.py [--level 3] [--ca 0.01 0.05 0.2 1]
+    .venv/bin/python bench/bench_shear_implicit.py [--level 3] [--ca 0.01 0.05 0.2 1] [--capsim bin/capsim]
 """
 from __future__ import annotations
 
@@ -28,10 +28,10 @@ REPO = Path(__file__).resolve().parents[1]
 ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
-def run_case(level: int, ca: float, integrator: str, out: Path) -> dict[str, object]:
+def run_case(capsim: Path, level: int, ca: float, integrator: str, out: Path) -> dict[str, object]:
     """One capsim run; its status, steady time, wall and CPU time and counts."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    subprocess.run(["nice", str(REPO / "bin" / "capsim"), "--flow", "shear", "--law", "NH", "--ca", repr(ca),
+    subprocess.run(["nice", str(capsim), "--flow", "shear", "--law", "NH", "--ca", repr(ca),
                     "--level", str(level), "--integrator", integrator, "--threads", "1", "--quiet",
                     "--out", str(out)], check=True, env=ONE_THREAD)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -56,12 +56,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--level", type=int, default=3)
     parser.add_argument("--ca", type=float, nargs="+", default=[0.01, 0.05, 0.2, 1.0])
+    parser.add_argument("--capsim", type=Path, default=REPO / "bin" / "capsim")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for ca in args.ca:
-            rk2 = run_case(args.level, ca, "rk2", Path(tmp) / f"rk2_{ca}.h5")
-            imp = run_case(args.level, ca, "implicit", Path(tmp) / f"implicit_{ca}.h5")
+            rk2 = run_case(args.capsim, args.level, ca, "rk2", Path(tmp) / f"rk2_{ca}.h5")
+            imp = run_case(args.capsim, args.level, ca, "implicit", Path(tmp) / f"implicit_{ca}.h5")
             rows.append((ca, rk2, imp))
             print(f"  done Ca_s = {ca}: rk2 {rk2['wall']:.1f} s, implicit {imp['wall']:.1f} s (wall)", flush=True)
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end; "

@@ -323,10 +323,6 @@ contains
          else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'implicit', 'rk2'])) then
             errmsg = '--integrator: the shear flow steps with rk2 (auto) or implicit, got "'//trim(opts%integrator)//'"'
             return
-         else if (trim(opts%integrator) == 'implicit' .and. opts%lambda /= 1.0_dp) then
-            ! The implicit step's Jacobian is that of the lambda = 1 velocity formula.
-            errmsg = '--integrator: implicit shear steps need --lambda 1, got --lambda '//real_text(opts%lambda)
-            return
          end if
       case ('tube')
          if (opts%a_over_l == -huge(1.0_dp)) then

@@ -1,7 +1,10 @@
 !> The linear algebra of the linearly implicit (Rosenbrock) steps of the 3D capsule in shear
 !> (capsule_dynamics, --integrator implicit): the velocity Jacobian
-!>     J = grad v_inf + (1/Ca) M(x) K(x)
-!> and the LU of I - gamma dt J.
+!>     J = 2/(1+lambda) (grad v_inf + (1/Ca) M(x) K(x))
+!> and the LU of I - gamma dt J. At lambda /= 1 the velocity also carries the double layer of
+!> the interface equation (interface_equation); it is left out of J: on the membrane waves of
+!> length h that make the explicit step stiff it vanishes (stokes_double_layer), so their
+!> relaxation rates are the single layer's times 2/(1+lambda).
 !>   M: the single-layer matrix, nodal force density -> velocity, with the quadrature of
 !>      stokes_single_layer (vertex rule far, Duffy and 7-point corrections near), so that
 !>      M f is single_layer_t%velocity's u to round-off.
@@ -215,12 +218,13 @@ contains
       !$omp end parallel do
    end subroutine stencil_product
 
-   !> Adds the gradient of the undisturbed shear v_inf = y e_z: d v_z / d y = 1 at each node.
-   pure subroutine add_shear_gradient(jac)
+   !> Adds scale times the gradient of the undisturbed shear v_inf = y e_z: d v_z / d y = 1.
+   pure subroutine add_shear_gradient(jac, scale)
       real(dp), intent(inout) :: jac(:, :)
+      real(dp), intent(in) :: scale
       integer :: i
       do i = 1, size(jac, 1) / 3
-         jac(3 * i, 3 * i - 1) = jac(3 * i, 3 * i - 1) + 1.0_dp
+         jac(3 * i, 3 * i - 1) = jac(3 * i, 3 * i - 1) + scale
       end do
    end subroutine add_shear_gradient
 

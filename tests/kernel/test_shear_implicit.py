@@ -4,9 +4,10 @@ against the explicit RK2 path that built the databases.
 The steady shape is a property of the model, not of the integrator: both paths must reach the
 same D12, L1, L2 and theta. How close: the steady criterion stops a run once D12 has varied by
 less than shape_tol = 5e-3 of itself over one time unit, so two correct runs that stop at
-different times may differ by up to that much; we ask for 2e-3 (measured: at most 1.3e-3 on
-these cases and at level 3, Ca_s 0.01-0.2).
-Each case runs on one thread (OpenMP and OpenBLAS) at mesh level 2 (162 nodes), about a second.
+different times may differ by up to that much; we ask for 2e-3 (measured with the step
+tolerance 2e-4 a: at most 1.4e-3, theta at lambda = 5, 6e-4 or less at lambda = 1).
+Each case runs on one thread (OpenMP and OpenBLAS) at mesh level 2 (162 nodes): about a
+second at lambda = 1, 5-8 s at lambda = 5 (the GMRES solve of every velocity evaluation).
 """
 from __future__ import annotations
 
@@ -60,7 +61,9 @@ def velocity_evaluations(path: Path) -> int:
     ("--law", "NH", "--ca", "0.2"),
     ("--law", "GH", "--nu-s", "0.5", "--ca", "0.05"),
     ("--law", "NH", "--kb", "0.01", "--ca", "0.05"),
-], ids=["NH-0.05", "NH-0.2", "GH0.5-0.05", "NH-kb0.01-0.05"])
+    ("--law", "NH", "--lambda", "5", "--ca", "0.05"),
+    pytest.param(("--law", "NH", "--lambda", "0.2", "--ca", "0.05"), marks=pytest.mark.validate),
+], ids=["NH-0.05", "NH-0.2", "GH0.5-0.05", "NH-kb0.01-0.05", "NH-lambda5-0.05", "NH-lambda0.2-0.05"])
 def test_implicit_reaches_the_rk2_steady_shape(run_shear, law_args):
     rk2 = read_case(run_shear(*law_args))
     implicit = read_case(run_shear(*law_args, "--integrator", "implicit"))
@@ -73,7 +76,7 @@ def test_implicit_reaches_the_rk2_steady_shape(run_shear, law_args):
 
 def test_implicit_needs_fewer_velocity_evaluations_at_small_ca(run_shear):
     # RK2's step is bound to 0.5 Ca h_min by the membrane stiffness (dt = 1.4e-3 at Ca_s 0.01,
-    # level 2); the implicit step only by accuracy. Measured: 2900 against 288 evaluations.
+    # level 2); the implicit step only by accuracy. Measured: 2900 against 332 evaluations.
     args = ("--law", "NH", "--ca", "0.01")
     rk2, implicit = run_shear(*args), run_shear(*args, "--integrator", "implicit")
     assert read_case(implicit).status == read_case(rk2).status == "steady"
@@ -81,9 +84,10 @@ def test_implicit_needs_fewer_velocity_evaluations_at_small_ca(run_shear):
         assert read_case(implicit).steady_value(name) == pytest.approx(read_case(rk2).steady_value(name),
                                                                         rel=STEADY_REL_TOL), name
     assert velocity_evaluations(rk2) >= 5 * velocity_evaluations(implicit)
-    # At Ca_s 0.05 the explicit step is 5 times longer and the ratio smaller (measured 1.6).
-    args = ("--law", "NH", "--ca", "0.05")
-    assert velocity_evaluations(run_shear(*args)) > 1.3 * velocity_evaluations(run_shear(*args, "--integrator", "implicit"))
+    # At lambda = 5, Ca_s 0.05 (where an evaluation is a GMRES solve) measured 842 against 328;
+    # at lambda = 1, Ca_s 0.05 only 610 against 477: the step there is bound by accuracy too.
+    args = ("--law", "NH", "--lambda", "5", "--ca", "0.05")
+    assert velocity_evaluations(run_shear(*args)) >= 2 * velocity_evaluations(run_shear(*args, "--integrator", "implicit"))
 
 
 def test_implicit_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path, monkeypatch):
@@ -103,13 +107,13 @@ def test_implicit_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path
 
 
 BAD_INPUTS = [
-    (["--integrator", "implicit", "--lambda", "5"], "--integrator"),
     (["--integrator", "newton"], "--integrator"),
     (["--integrator", "euler"], "--integrator"),
+    (["--integrator", "implicit", "--dt", "-1"], "--dt"),
 ]
 
 
-@pytest.mark.parametrize("override,field", BAD_INPUTS, ids=["implicit-lambda5", "newton", "unknown"])
+@pytest.mark.parametrize("override,field", BAD_INPUTS, ids=["newton", "unknown", "implicit-dt"])
 def test_bad_integrator_exits_2_naming_the_field(capsim, tmp_path, override, field):
     out = tmp_path / "x.h5"
     base = {"--flow": "shear", "--law": "NH", "--ca": "0.1", "--out": str(out)}
