@@ -41,8 +41,9 @@ module capsule_dynamics
                                   '1/gamma_dot', 'a^2', 'a^3', '1', 'a', 'a', 'a', 'rad', 'G_s a^2', '1']
 
    !> Implicit steps (implicit_step). implicit_tol: the largest error estimate of a step (node
-   !> displacement, a); at level 3, NH, it kept D12 within 8e-4 and theta within 2e-3 of RK2's
-   !> at Ca_s 0.01-0.2 (1e-3 doubled those, 1e-4 halved them for 1.5 times the work).
+   !> displacement, a); at level 2 it kept the steady D12, L1, L2 and theta within 6e-4 of
+   !> RK2's at lambda = 1 (NH Ca_s 0.01-0.2, GH, k_b) and 1.4e-3 at lambda = 5 and 0.2; 3e-4
+   !> gave 1.9e-3 (theta, lambda = 5), and at level 3 1e-3 gave 3.6e-3 (theta, Ca_s 0.01).
    !> implicit_dt_max: the largest step (1/gamma_dot). A Jacobian is renewed after
    !> jacobian_max_age accepted steps, or sooner when a step's estimate exceeds stale_error (in
    !> units of the tolerance); the step that comes with it is chosen to make the first estimate
