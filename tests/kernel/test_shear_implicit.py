@@ -5,7 +5,7 @@ The steady shape is a property of the model, not of the integrator: both paths m
 same D12, L1, L2 and theta. How close: the steady criterion stops a run once D12 has varied by
 less than shape_tol = 5e-3 of itself over one time unit, so two correct runs that stop at
 different times may differ by up to that much; we ask for 2e-3 (measured with the step
-tolerance 2e-4 a: at most 1.4e-3, theta at lambda = 5, 6e-4 or less at lambda = 1).
+tolerance 2e-4 a: at most 1.4e-3, theta at lambda = 5; 6.3e-4 at lambda = 1).
 Each case runs on one thread (OpenMP and OpenBLAS) at mesh level 2 (162 nodes): about a
 second at lambda = 1, 5-8 s at lambda = 5 (the GMRES solve of every velocity evaluation).
 """
