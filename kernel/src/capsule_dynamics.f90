@@ -1,5 +1,6 @@
 !> One capsule in unbounded simple shear flow, 3D: the membrane (P1 forces) coupled to the
-!> fluid (boundary integrals), advanced by RK2 (Heun). The time loop and the classification
+!> fluid (boundary integrals), advanced by RK2 (Heun) or, with --integrator implicit, by
+!> linearly implicit ROS2 steps (implicit_step). The time loop and the classification
 !> of the run are capsule_model's.
 !>
 !> Non-dimensional velocity of the membrane nodes (lengths in a, time in 1/gamma_dot,
@@ -22,9 +23,8 @@ module capsule_dynamics
    use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
    use run_options, only: run_options_t
-   use case_output, only: write_surface_mesh
+   use case_output, only: write_surface_mesh, case_summary_t
    use capsule_model, only: capsule_model_t
-   use case_output, only: case_summary_t
    use text_format, only: int_text, real_text
    use shear_implicit, only: load_stencil_t, single_layer_matrix, stencil_product, add_shear_gradient, &
                              step_matrix_lu, step_solve
@@ -86,13 +86,15 @@ module capsule_dynamics
       real(dp), allocatable :: sl_matrix(:, :), jacobian(:, :), lu(:, :)
       integer, allocatable :: pivot(:)
       real(dp), allocatable :: k1(:, :), k2(:, :), x_fd(:, :), f_fd(:, :)
-      !> Largest step; the Jacobian's age in accepted steps; counts for the run's message.
-      real(dp) :: dt_max = 0, dt_min = 0, volume_target = 0
+      !> Largest and smallest step; the Jacobian's age in accepted steps; whether the LU must
+      !> be redone (new dt or J), J renewed, and the next step's estimate kept (err_fresh).
+      real(dp) :: dt_max = 0, dt_min = 0
       integer :: jacobian_age = huge(1)
       logical :: lu_stale = .true., want_refresh = .false., measure_next = .true.
       !> Error estimate (in units of the tolerance) of the first step after the last new
       !> Jacobian or step change, and that step's dt.
       real(dp) :: err_fresh = 0, dt_fresh = 0
+      !> Counts for the run's message (velocity evaluations counted on both paths).
       integer :: n_velocity = 0, n_jacobians = 0, n_factorisations = 0, n_rejected = 0
    contains
       procedure :: init
