@@ -19,7 +19,8 @@ module run_options
       character(len=16) :: model = 'axi'
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
-      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise).
+      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise). Shear: 'auto' is
+      !> 'rk2'; 'implicit' takes linearly implicit ROS2 steps (capsule_dynamics).
       integer :: n_meridian = 64
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
