@@ -1,5 +1,6 @@
 !> One capsule in unbounded simple shear flow, 3D: the membrane (P1 forces) coupled to the
-!> fluid (boundary integrals), advanced by RK2 (Heun). The time loop and the classification
+!> fluid (boundary integrals), advanced by RK2 (Heun) or, with --integrator implicit, by
+!> linearly implicit ROS2 steps (implicit_step). The time loop and the classification
 !> of the run are capsule_model's.
 !>
 !> Non-dimensional velocity of the membrane nodes (lengths in a, time in 1/gamma_dot,
@@ -22,8 +23,11 @@ module capsule_dynamics
    use surface_diagnostics, only: shape_measures_t, shape_measures, shear_plane_contour
    use background_flow, only: flow_shear, undisturbed_velocity
    use run_options, only: run_options_t
-   use case_output, only: write_surface_mesh
+   use case_output, only: write_surface_mesh, case_summary_t
    use capsule_model, only: capsule_model_t
+   use text_format, only: int_text, real_text
+   use shear_implicit, only: load_stencil_t, single_layer_matrix, stencil_product, add_shear_gradient, &
+                             step_matrix_lu, step_solve
    implicit none
    private
    public :: capsule_t
@@ -35,6 +39,25 @@ module capsule_dynamics
                                   't', 'area', 'volume', 'D12', 'L1', 'L2', 'L3', 'theta', 'energy', 'max_stretch']
    character(len=*), parameter :: shear_history_units(10) = [character(len=16) :: &
                                   '1/gamma_dot', 'a^2', 'a^3', '1', 'a', 'a', 'a', 'rad', 'G_s a^2', '1']
+
+   !> Implicit steps (implicit_step). implicit_tol: the largest error estimate of a step (node
+   !> displacement, a); at level 2 it kept the steady D12, L1, L2 and theta within 6e-4 of
+   !> RK2's at lambda = 1 (NH Ca_s 0.01-0.2, GH, k_b) and 1.4e-3 at lambda = 5 and 0.2; 3e-4
+   !> gave 1.9e-3 (theta, lambda = 5), and at level 3 1e-3 gave 3.6e-3 (theta, Ca_s 0.01).
+   !> implicit_dt_max: the largest step (1/gamma_dot). A Jacobian is renewed after
+   !> jacobian_max_age accepted steps, or sooner when a step's estimate exceeds stale_error (in
+   !> units of the tolerance); the step that comes with it is chosen to make the first estimate
+   !> fresh_target: the estimate then grows as the membrane tank-treads away from the Jacobian
+   !> (at Ca_s 0.01, from 0.3 to 1 in about 15 steps), and renewals cost more than steps (at
+   !> level 3 a Jacobian and its LU take as long as ~50 velocity evaluations).
+   !> jacobian_fd_step: the finite-difference step of the load derivative (a).
+   real(dp), parameter :: ros2_gamma = 1.0_dp + 1.0_dp / sqrt(2.0_dp)
+   real(dp), parameter :: implicit_tol = 2.0e-4_dp, implicit_dt_max = 0.1_dp
+   integer, parameter :: jacobian_max_age = 60
+   real(dp), parameter :: fresh_target = 0.3_dp, stale_error = 0.8_dp
+   !> The LU of I - gamma h J serves steps dt within a factor lu_band of h (see implicit_step).
+   real(dp), parameter :: lu_band = 2.0_dp
+   real(dp), parameter :: jacobian_fd_step = 1.0e-6_dp
 
    type, extends(capsule_model_t) :: capsule_t
       type(surface_mesh_t) :: mesh
@@ -58,10 +81,33 @@ module capsule_dynamics
       ! Work arrays allocated once by init: the time loop allocates nothing.
       real(dp), allocatable :: x_pred(:, :), u0(:, :), u1(:, :), force(:, :), density(:, :), v_inf(:, :)
       real(dp), allocatable :: tri_area(:), node_area(:)
+      !> --integrator implicit (see implicit_step): the load stencil and its derivative, the
+      !> single-layer matrix, the Jacobian and the LU of I - gamma dt J.
+      logical :: implicit = .false.
+      type(load_stencil_t) :: stencil
+      real(dp), allocatable :: sl_matrix(:, :), jacobian(:, :), lu(:, :)
+      integer, allocatable :: pivot(:)
+      real(dp), allocatable :: k1(:, :), k2(:, :), x_fd(:, :), f_fd(:, :)
+      !> Largest and smallest step; the Jacobian's age in accepted steps; whether the LU must
+      !> be redone (new dt or J), J renewed, and the next step's estimate kept (err_fresh).
+      real(dp) :: dt_max = 0, dt_min = 0
+      integer :: jacobian_age = huge(1)
+      logical :: lu_stale = .true., want_refresh = .false., measure_next = .true.
+      !> Error estimate (in units of the tolerance) of the first step after the last new
+      !> Jacobian or step change, and that step's dt.
+      real(dp) :: err_fresh = 0, dt_fresh = 0
+      !> The step h of the factorised I - gamma h J.
+      real(dp) :: dt_lu = 0
+      !> Counts for the run's message (velocity evaluations counted on both paths).
+      integer :: n_velocity = 0, n_jacobians = 0, n_factorisations = 0, n_rejected = 0
    contains
       procedure :: init
       procedure :: velocity
-      procedure :: advance => rk2_step
+      procedure :: advance
+      procedure :: run
+      procedure :: state_size
+      procedure :: get_state
+      procedure :: set_state
       procedure :: record
       procedure :: progress_text
       procedure :: write_geometry
@@ -126,6 +172,7 @@ contains
       ! level 3 k_b 0.1 and 1), so dt_factor keeps the elastic step's margin of about 2.
       if (opts%dt <= 0 .and. opts%kb > 0.0_dp) &
          self%dt = min(self%dt, opts%dt_factor * opts%ca * self%h_min**3 / opts%kb)
+      if (trim(opts%integrator) == 'implicit') call init_implicit(self, opts)
       call self%allocate_history(shear_history_names, shear_history_units, opts%t_max, opts%record_every)
       self%col_length = h_l1
       self%col_stretch = h_stretch
@@ -140,14 +187,8 @@ contains
       class(capsule_t), intent(inout) :: self
       real(dp), intent(in) :: x(:, :)
       real(dp), intent(out) :: u(:, :)
-      integer :: i
-      call membrane_nodal_forces(self%ref, self%mesh, self%law, x, self%force, self%energy)
-      if (self%bending%kb > 0.0_dp) call self%bending%add_forces(self%mesh, x, self%force, self%energy)
-      call triangle_areas(self%mesh, x, self%tri_area)
-      call node_areas(self%mesh, self%tri_area, self%node_area)
-      do i = 1, self%mesh%n_nodes
-         self%density(:, i) = self%force(:, i) / self%node_area(i)
-      end do
+      self%n_velocity = self%n_velocity + 1
+      call load_density(self, x, self%density)
       call self%single_layer%velocity(self%mesh, x, self%density, u)
       call undisturbed_velocity(self%flow, x, self%v_inf)
       if (self%lambda /= 1.0_dp) then
@@ -158,6 +199,22 @@ contains
       end if
       if (self%volume_correction) call remove_volume_flux(self%mesh, x, u, self%force)
    end subroutine velocity
+
+   !> Membrane load density f = F / A_node at positions x (F in self%force, areas in
+   !> self%tri_area, self%node_area).
+   subroutine load_density(self, x, density)
+      class(capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: density(:, :)
+      integer :: i
+      call membrane_nodal_forces(self%ref, self%mesh, self%law, x, self%force, self%energy)
+      if (self%bending%kb > 0.0_dp) call self%bending%add_forces(self%mesh, x, self%force, self%energy)
+      call triangle_areas(self%mesh, x, self%tri_area)
+      call node_areas(self%mesh, self%tri_area, self%node_area)
+      do i = 1, self%mesh%n_nodes
+         density(:, i) = self%force(:, i) / self%node_area(i)
+      end do
+   end subroutine load_density
 
    !> lambda /= 1: on entry u = S[f] (the single layer of the membrane load), on exit the
    !> solution of u = 2/(1+lambda) (v_inf + S[f]/Ca) + kappa L'[u] (interface_equation).
@@ -228,6 +285,15 @@ contains
       end do
    end subroutine remove_volume_flux
 
+   subroutine advance(self)
+      class(capsule_t), intent(inout) :: self
+      if (self%implicit) then
+         call implicit_step(self)
+      else
+         call rk2_step(self)
+      end if
+   end subroutine advance
+
    !> Heun's RK2: predictor with v(x), corrector with the mean of v(x) and v(x_pred).
    subroutine rk2_step(self)
       class(capsule_t), intent(inout) :: self
@@ -242,6 +308,245 @@ contains
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
+
+   !> --integrator implicit: the load stencil (radius 2 with bending, whose nodal energy reads
+   !> the node's ring of dihedral angles; 1 otherwise) and the dense matrices of the Jacobian.
+   !> The first step starts from the explicit step dt and the error control grows it.
+   subroutine init_implicit(self, opts)
+      class(capsule_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      integer :: n
+      n = self%mesh%n_nodes
+      self%implicit = .true.
+      if (opts%kb > 0.0_dp) then
+         call self%stencil%init(self%mesh, 2)
+      else
+         call self%stencil%init(self%mesh, 1)
+      end if
+      allocate (self%sl_matrix(3 * n, 3 * n), self%jacobian(3 * n, 3 * n), self%lu(3 * n, 3 * n), self%pivot(3 * n))
+      allocate (self%k1(3, n), self%k2(3, n), self%x_fd(3, n), self%f_fd(3, n))
+      self%dt_max = implicit_dt_max
+      self%dt = min(self%dt, self%dt_max)
+      self%dt_min = 1.0e-3_dp * self%dt
+   end subroutine init_implicit
+
+   !> One step of ROS2, the two-stage Rosenbrock-W method of Verwer et al. (1999,
+   !> SIAM J. Sci. Comput. 20, 1456), gamma = 1 + 1/sqrt(2):
+   !>     (I - gamma dt J) k1 = u(x_n)
+   !>     (I - gamma dt J) k2 = u(x_n + dt k1) - 2 k1
+   !>     x_{n+1} = x_n + dt (3/2 k1 + 1/2 k2)
+   !> It is of second order for any matrix J (a W-method), so the approximate, reused Jacobian
+   !> of refresh_jacobian costs no accuracy, and L-stable for J exact: the stiff membrane modes
+   !> that bind RK2 to dt ~ Ca h are damped whatever dt. Two velocity evaluations per step, as
+   !> RK2. Why not linearly implicit Euler: a tank-treading membrane never stops moving, and a
+   !> first-order step shifts the steady shape by O(dt). The embedded first-order solution
+   !> x_n + dt k1 gives the error estimate dt |k1 + k2| / 2 (largest node displacement, a),
+   !> held below implicit_tol. With a reused Jacobian the estimate grows with its age (the
+   !> stiff modes are damped less exactly), so a step above the tolerance, or one above
+   !> stale_error of it, renews the Jacobian (and picks the step for it, see refresh_jacobian);
+   !> a step above the tolerance on a new Jacobian is redone shorter; a step far below it (the
+   !> start) lengthens the next one on the same Jacobian. The LU of I - gamma h J is kept while
+   !> dt stays within a factor lu_band of h: with h /= dt the step is still ROS2 with the matrix
+   !> (h/dt) J, second order as any W-method, and on the stiffest modes its amplification
+   !> tends to 1 - 2q + q**2/2, q = dt/(gamma h): 0 at dt = h, 0.46 at h/2, -0.66 at 2h (it
+   !> stays below 1 in modulus up to dt = 4 gamma h). So a new LU comes with a new Jacobian or
+   !> a step change beyond the band, and serves many steps. The volume is then put back to its value at x_n along the node normals (the
+   !> RK2 path's flux-free velocity conserves it to O(dt**3) per step; a Rosenbrock increment,
+   !> mixing velocities through (I - gamma dt J)^-1, does not).
+   subroutine implicit_step(self)
+      class(capsule_t), intent(inout) :: self
+      integer, parameter :: max_attempts = 30
+      integer :: attempt
+      real(dp) :: err, growth, v_start
+      self%stage = 1
+      call self%velocity(self%positions, self%u0)
+      if (allocated(self%fault)) return
+      err = huge(1.0_dp)
+      do attempt = 1, max_attempts
+         if (self%jacobian_age >= jacobian_max_age .or. self%want_refresh) call refresh_jacobian(self)
+         if (self%lu_stale .or. self%dt > lu_band * self%dt_lu .or. self%dt < self%dt_lu / lu_band) &
+            call factorise(self)
+         if (allocated(self%fault)) return
+         self%k1 = self%u0
+         call step_solve(self%lu, self%pivot, self%k1)
+         self%x_pred = self%positions + self%dt * self%k1
+         self%stage = 2
+         call self%velocity(self%x_pred, self%u1)
+         if (allocated(self%fault)) return
+         self%k2 = self%u1 - 2.0_dp * self%k1
+         call step_solve(self%lu, self%pivot, self%k2)
+         err = 0.5_dp * self%dt * maxval(norm2(self%k1 + self%k2, dim=1)) / implicit_tol
+         if (err <= 1.0_dp) exit
+         if (self%dt <= self%dt_min) exit
+         self%n_rejected = self%n_rejected + 1
+         if (self%jacobian_age > 0) then
+            ! Most likely the Jacobian has aged: a new one, with the step it allows.
+            self%want_refresh = .true.
+         else
+            self%dt = max(self%dt_min, self%dt * max(0.2_dp, 0.9_dp / sqrt(err)))
+            self%measure_next = .true.
+         end if
+      end do
+      if (.not. (err <= 1.0_dp)) then
+         self%fault = 'implicit step: error estimate above tolerance at dt = '//real_text(self%dt)
+         return
+      end if
+      if (self%volume_correction) v_start = enclosed_volume(self%mesh, self%positions)
+      self%positions = self%positions + self%dt * (1.5_dp * self%k1 + 0.5_dp * self%k2)
+      if (self%volume_correction) call restore_volume(self%mesh, self%positions, v_start, self%force)
+      self%t = self%t + self%dt
+      self%step = self%step + 1
+      self%jacobian_age = self%jacobian_age + 1
+      if (self%measure_next) then
+         self%err_fresh = max(err, 1.0e-12_dp)
+         self%dt_fresh = self%dt
+         self%measure_next = .false.
+      end if
+      growth = sqrt(fresh_target / max(err, 1.0e-12_dp))
+      if (growth >= 1.5_dp .and. self%dt < self%dt_max) then
+         ! Well below the tolerance (the start): a longer step on the same Jacobian.
+         self%dt = min(self%dt_max, min(2.0_dp, growth) * self%dt)
+         self%measure_next = .true.
+      else if (err > stale_error) then
+         self%want_refresh = .true.
+      end if
+   end subroutine implicit_step
+
+   !> J = 2/(1+lambda) (grad v_inf + (1/Ca) M K) at the current positions (see shear_implicit):
+   !> M assembled, K = df/dx by forward differences, one load evaluation per colour and direction.
+   subroutine refresh_jacobian(self)
+      class(capsule_t), intent(inout) :: self
+      integer :: c, d, j, p, m
+      ! f at x, and the areas the matrix needs (load_density leaves them in self%tri_area etc.).
+      call load_density(self, self%positions, self%density)
+      call single_layer_matrix(self%single_layer, self%mesh, self%positions, self%tri_area, self%node_area, &
+                               self%sl_matrix)
+      associate (st => self%stencil)
+         do c = 1, st%n_colours
+            do d = 1, 3
+               self%x_fd = self%positions
+               do j = 1, self%mesh%n_nodes
+                  if (st%colour(j) == c) self%x_fd(d, j) = self%x_fd(d, j) + jacobian_fd_step
+               end do
+               call load_density(self, self%x_fd, self%f_fd)
+               do j = 1, self%mesh%n_nodes
+                  if (st%colour(j) /= c) cycle
+                  do p = st%start(j), st%start(j + 1) - 1
+                     m = st%node(p)
+                     st%block(:, d, p) = (self%f_fd(:, m) - self%density(:, m)) / jacobian_fd_step
+                  end do
+               end do
+            end do
+         end do
+         call stencil_product(self%sl_matrix, st, 2.0_dp / ((1.0_dp + self%lambda) * self%ca), self%jacobian)
+      end associate
+      call add_shear_gradient(self%jacobian, 2.0_dp / (1.0_dp + self%lambda))
+      ! The step for the new Jacobian: the error of the first step on the last one, scaled to
+      ! fresh_target (error ~ dt**2), within a factor of 2.
+      if (self%err_fresh > 0.0_dp) self%dt = min(self%dt_max, self%dt_fresh * &
+                                               min(2.0_dp, max(0.5_dp, sqrt(fresh_target / self%err_fresh))))
+      self%want_refresh = .false.
+      self%measure_next = .true.
+      self%n_jacobians = self%n_jacobians + 1
+      self%jacobian_age = 0
+      self%lu_stale = .true.
+   end subroutine refresh_jacobian
+
+   subroutine factorise(self)
+      class(capsule_t), intent(inout) :: self
+      integer :: info
+      call step_matrix_lu(self%jacobian, ros2_gamma * self%dt, self%lu, self%pivot, info)
+      self%dt_lu = self%dt
+      self%n_factorisations = self%n_factorisations + 1
+      self%lu_stale = .false.
+      if (info /= 0) self%fault = 'implicit step: I - gamma dt J is singular (LAPACK dgetrf info '//int_text(info)//')'
+   end subroutine factorise
+
+   !> Volume enclosed by the closed, outward-oriented mesh.
+   pure real(dp) function enclosed_volume(mesh, x) result(v)
+      type(surface_mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: x(:, :)
+      integer :: t
+      v = 0
+      do t = 1, mesh%n_tri
+         v = v + dot_product(x(:, mesh%tri(1, t)), cross(x(:, mesh%tri(2, t)), x(:, mesh%tri(3, t))))
+      end do
+      v = v / 6.0_dp
+   end function enclosed_volume
+
+   !> Moves the nodes along their normals, by one common distance, until the volume is v_target
+   !> (two Newton steps from a step's O(dt**3) change leave round-off); the direction is
+   !> remove_volume_flux's. `grad` is scratch.
+   subroutine restore_volume(mesh, x, v_target, grad)
+      type(surface_mesh_t), intent(in) :: mesh
+      real(dp), intent(inout) :: x(:, :)
+      real(dp), intent(in) :: v_target
+      real(dp), intent(out) :: grad(:, :)
+      integer :: i, p, t, iter
+      real(dp) :: g(3), norm_sum, shift
+      do iter = 1, 2
+         norm_sum = 0
+         do i = 1, mesh%n_nodes
+            g = 0
+            do p = mesh%node_tri_start(i), mesh%node_tri_start(i + 1) - 1
+               t = mesh%node_tri(p)
+               g = g + cross(x(:, mesh%tri(2, t)) - x(:, mesh%tri(1, t)), x(:, mesh%tri(3, t)) - x(:, mesh%tri(1, t)))
+            end do
+            grad(:, i) = g / 6.0_dp
+            norm_sum = norm_sum + norm2(grad(:, i))
+         end do
+         shift = (v_target - enclosed_volume(mesh, x)) / norm_sum
+         do i = 1, mesh%n_nodes
+            x(:, i) = x(:, i) + shift * grad(:, i) / norm2(grad(:, i))
+         end do
+      end do
+   end subroutine restore_volume
+
+   !> The shared time loop; an implicit run adds its solver counts to the message.
+   subroutine run(self, opts, checkpoint_path, summary, steady_index)
+      class(capsule_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      character(len=*), intent(in) :: checkpoint_path
+      type(case_summary_t), intent(inout) :: summary
+      integer, intent(out) :: steady_index
+      call self%time_loop(opts, checkpoint_path, summary, steady_index)
+      if (self%implicit) then
+         summary%message = summary%message//' ('//int_text(self%step)//' implicit steps, '// &
+                           int_text(self%n_velocity)//' velocity evaluations, '//int_text(self%n_jacobians)// &
+                           ' Jacobians, '//int_text(self%n_factorisations)//' factorisations, '// &
+                           int_text(self%n_rejected)//' steps redone)'
+      end if
+   end subroutine run
+
+   !> Checkpoint state: the positions, and for implicit steps the current dt (a resumed run
+   !> continues with the step it had; its Jacobian is recomputed).
+   pure integer function state_size(self)
+      class(capsule_t), intent(in) :: self
+      state_size = size(self%positions)
+      if (self%implicit) state_size = state_size + 1
+   end function state_size
+
+   subroutine get_state(self, state)
+      class(capsule_t), intent(in) :: self
+      real(dp), intent(out) :: state(:)
+      integer :: m
+      m = size(self%positions)
+      state(1:m) = reshape(self%positions, [m])
+      if (self%implicit) state(m + 1) = self%dt
+   end subroutine get_state
+
+   subroutine set_state(self, state)
+      class(capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: state(:)
+      integer :: m
+      m = size(self%positions)
+      self%positions = reshape(state(1:m), shape(self%positions))
+      if (self%implicit) then
+         self%dt = state(m + 1)
+         self%jacobian_age = huge(1)
+         self%lu_stale = .true.
+      end if
+   end subroutine set_state
 
    !> Append the current diagnostics to the history.
    subroutine record(self)

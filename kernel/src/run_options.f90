@@ -19,7 +19,8 @@ module run_options
       character(len=16) :: model = 'axi'
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
-      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise).
+      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise). Shear: 'auto' is
+      !> 'rk2'; 'implicit' takes linearly implicit ROS2 steps (capsule_dynamics).
       integer :: n_meridian = 64
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
@@ -319,6 +320,9 @@ contains
       case ('shear')
          if (opts%offset /= 0.0_dp) then
             errmsg = '--offset: only for --flow tube --model 3d, got '//real_text(opts%offset)
+            return
+         else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'implicit', 'rk2'])) then
+            errmsg = '--integrator: the shear flow steps with rk2 (auto) or implicit, got "'//trim(opts%integrator)//'"'
             return
          end if
       case ('tube')
