@@ -307,9 +307,6 @@ contains
       call self%capsule_single_layer_at(x, self%wall%x, self%wall_data)
       self%wall_data = -self%wall_data
       t1 = omp_get_wtime()
-      if (self%self_near_field) call self_corrections(self, x, u)
-      self%seconds_self_near_field = self%seconds_self_near_field + (omp_get_wtime() - t1)
-      t1 = omp_get_wtime()
       call self%wall_op%solve(self%wall_data, self%wall_traction, stat, errmsg)
       if (stat /= 0) error stop 'tube_capsule: wall solve failed (the operator was initialised)'
       t2 = omp_get_wtime()
@@ -318,6 +315,11 @@ contains
       self%seconds_capsule_at_wall = self%seconds_capsule_at_wall + (t1 - t0)
       self%seconds_wall_solve = self%seconds_wall_solve + (t2 - t1)
       self%seconds_wall_at_capsule = self%seconds_wall_at_capsule + (t3 - t2)
+      ! Uses the triangle data and cells that capsule_single_layer_at has set up for x.
+      if (self%self_near_field) then
+         call self_corrections(self, x, u)
+         self%seconds_self_near_field = self%seconds_self_near_field + (omp_get_wtime() - t3)
+      end if
       do i = 1, n
          u(:, i) = poiseuille_velocity(x(:, i)) + (u(:, i) + self%u_wall(:, i)) / self%ca
       end do

@@ -634,7 +634,8 @@ contains
    !> Per-step routine: no allocation (work arrays of self). The traction-dependent
    !> quadrature data (7-point and vertex strengths per triangle) are computed once per call,
    !> not once per point; points farther than the reach of any correction from the cylinder
-   !> and the disks skip the triangle search.
+   !> and the disks skip the triangle search, the others find their near triangles through
+   !> the cell index (triangle_cells; the first call, or a changed mid_radius, builds it).
    subroutine velocity_at(self, wall, f_wall, points, u, rim_jump)
       class(wall_operator_t), intent(inout) :: self
       type(tube_wall_t), intent(in) :: wall

@@ -1,9 +1,10 @@
 !> tube3d_probe: measures the 3D tube model (tube_capsule) and prints "key value" lines;
 !> tests/kernel/test_tube_3d.py and bench/bench_tube_3d.py run it, so tolerances live there.
 !>
-!>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS
+!>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS [SELF]
 !>     wall setup (assembly + LU, or the cache load), then STEPS RK2 steps from the start shape
-!>     and one velocity evaluation after them, each part timed.
+!>     and one velocity evaluation after them, each part timed (SELF = 1: with the membrane's
+!>     near-field self correction, tube_capsule_t%self_near_field).
 !>   tube3d_probe dl-outside LEVEL A FILM NEAR_RADIUS
 !>     capsule double layer off the membrane (stokes_double_layer apply_outside) of a rigid-body
 !>     density U + Omega x y on the level-LEVEL sphere of radius A, at the points FILM outside
@@ -153,6 +154,7 @@ contains
       steps = int_arg(9)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
+      if (command_argument_count() >= 10) model%self_near_field = int_arg(10) == 1
       call put_int('threads', omp_get_max_threads())
       call put_int('n_nodes', model%mesh%n_nodes)
       call put_int('n_wall_nodes', model%wall%mesh%n_nodes)
