@@ -110,6 +110,9 @@ module tube_capsule
       !> what it changes: the vertex rule's O(h) mid-field error is most of the 3D model's
       !> first-order v_c/V error at a/l = 0.8 (tube3d_probe self-quadrature).
       logical :: self_near_field = .false.
+      !> Experiment (tube3d_probe self-quadrature): remove the net flux of the capsule's single
+      !> layer through the wall from the wall data, along the node normals, before the solve.
+      logical :: wall_flux_free = .false.
       !> Viscosity ratio; the double layer, its equation and their work arrays are set up only
       !> when lambda /= 1.
       real(dp) :: lambda = 1
@@ -306,6 +309,9 @@ contains
       t0 = omp_get_wtime()
       call self%capsule_single_layer_at(x, self%wall%x, self%wall_data)
       self%wall_data = -self%wall_data
+      if (self%wall_flux_free) self%wall_data = self%wall_data - (sum(self%wall_op%flux_weight * self%wall_data) &
+                                                                  / sum(self%wall_op%flux_weight * self%wall_op%node_normal)) &
+                                                                 * self%wall_op%node_normal
       t1 = omp_get_wtime()
       call self%wall_op%solve(self%wall_data, self%wall_traction, stat, errmsg)
       if (stat /= 0) error stop 'tube_capsule: wall solve failed (the operator was initialised)'

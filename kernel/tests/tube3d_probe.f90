@@ -18,7 +18,10 @@
 !>     without), then v_c at that shape with the capsule's own single layer of single_layer
 !>     alone (vertex rule beyond the second ring of triangles), with the non-touching
 !>     triangles within R (and leaf_ratio diameters) integrated by the subdivided 7-point
-!>     rule, R = 0.25 ... 100, and with the model's self_near_field correction (v_c_model).
+!>     rule, R = 0.25 ... 100, and with the model's self_near_field correction (v_c_model);
+!>     then the net flux of the capsule's single layer through the wall, v_c with it removed
+!>     from the wall data (wall_flux_free), and v_c with the 7-point rule on every wall
+!>     triangle at the membrane nodes (the tube-length experiments of README "Tube flow (3D)").
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
@@ -59,7 +62,7 @@ contains
       character(len=32) :: key
       real(dp), parameter :: radii(5) = [0.25_dp, 0.5_dp, 0.75_dp, 1.0_dp, 100.0_dp]
       real(dp), allocatable :: x(:, :), u(:, :), s_base(:, :), du(:, :), grad(:, :), mgrad(:, :)
-      real(dp) :: t_end, volume, moment, dvc, xv(3, 3), fv(3, 3), qp(3, 7), qs(3, 7), vs(3, 3), diam, corr(3)
+      real(dp) :: t_end, volume, moment, dvc, v_c_base, xv(3, 3), fv(3, 3), qp(3, 7), qs(3, 7), vs(3, 3), diam, corr(3)
       real(dp), parameter :: huge_dist = 1.0e30_dp
       logical, allocatable :: in_list(:)
       integer, allocatable :: list_vertex(:)
@@ -83,6 +86,20 @@ contains
       model%self_near_field = .false.
       call model%velocity(x, u)
       call put('v_c_base', model%v_c)
+      v_c_base = model%v_c
+      ! Net flux of the capsule's single layer through the closed wall, int_B (S f) . n dS
+      ! (zero for the exact single layer: its field is divergence-free inside B), against the
+      ! tube's flow rate pi; the wall's first-kind equation has no solution for such data.
+      call put('wall_data_flux_over_flow_rate', -sum(model%wall_op%flux_weight * model%wall_data) / pi)
+      model%wall_flux_free = .true.
+      call model%velocity(x, u)
+      call put('v_c_wall_flux_free', model%v_c)
+      model%wall_flux_free = .false.
+      ! The wall's single layer at the membrane nodes with the 7-point rule on every triangle.
+      model%wall_op%mid_radius = 100.0_dp
+      call model%velocity(x, u)
+      call put('v_c_wall_all_7_point', model%v_c)
+      model%wall_op%mid_radius = 0.5_dp
       call model%single_layer%velocity(model%mesh, x, model%density, s_base)
       allocate (in_list(model%mesh%n_tri), list_vertex(model%mesh%n_tri))
       call volume_gradients(model%mesh, x, grad, mgrad, volume, moment)
@@ -120,7 +137,7 @@ contains
       if (model%volume_correction) call remove_volume_flux(du, grad)
       dvc = (sum(du * mgrad) - (moment / volume) * sum(du * grad)) / volume
       write (key, '(a,f0.2)') 'v_c_refined_within_', radii(ir)
-      call put(trim(key), model%v_c + dvc)
+      call put(trim(key), v_c_base + dvc)
       write (key, '(a,f0.2)') 'max_du_within_', radii(ir)
       call put(trim(key), maxval(norm2(du, dim=1)) / maxval(norm2(u, dim=1)))
       end do
