@@ -1,11 +1,18 @@
 """Time the 3D tube model (`--model 3d`): the wall's assembly and LU factorisation, the load
 of the cached LU, one membrane velocity evaluation and one RK2 step, at capsule levels 3 and
 4 on 1 and 2 OpenMP threads, and where a velocity evaluation spends its time (capsule single
-layer at the wall nodes, wall solve, wall single layer at the membrane nodes).
+layer at the wall nodes, the membrane's near-field self correction, wall solve, wall single
+layer at the membrane nodes).
 
 Run through `make bench` or directly after `make build`:
 
     .venv/bin/python bench/bench_tube_3d.py [--wall H_FAR H_CENTRE LENGTH] [--steps N]
+        [--repeats N] [--baseline OTHER/bin/tube3d_probe]
+
+`--baseline` times a second build (e.g. a worktree of an earlier commit) in the same run,
+alternating the two binaries case by case, and prints this build's time over the
+baseline's per column: on a shared machine only such ratios are meaningful. Each figure is
+the smallest of `--repeats` runs (the load only ever adds time).
 
 The default wall (0.2 / 0.1 l over 6 l, 2772 nodes) is the one of the level-3 validation;
 `--wall 0.14 0.07 10` is the paper's (7138 nodes: a 3.7 GB LU, minutes to factorise).
@@ -15,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -25,39 +33,91 @@ PROBE = REPO / "bin" / "tube3d_probe"
 SIZE_RATIO, CA = 0.8, 0.05
 
 
-def measure(level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
+TIMED = ("velocity_s", "capsule_at_wall_s", "capsule_self_near_s", "wall_solve_s", "wall_at_capsule_s", "rk2_step_s",
+         "velocity_cpu_s")
+
+
+def run_probe(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
+    """One probe run; its CPU time (user + system, all threads) as cpu_s."""
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), OMP_PROC_BIND="close")
-    args = [str(PROBE), "timing", str(level), str(SIZE_RATIO), str(CA), wall[2], wall[0], wall[1], str(cache), str(steps)]
+    args = [str(probe), "timing", str(level), str(SIZE_RATIO), str(CA), wall[2], wall[0], wall[1], str(cache), str(steps)]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
-    return {k: float(v) for k, v in (line.split() for line in out.splitlines())}
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    r = {k: float(v) for k, v in (line.split() for line in out.splitlines())}
+    r["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return r
+
+
+def measure(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
+    """The probe's wall-clock figures, and the CPU time of one velocity evaluation: the CPU
+    time of a run with `steps` RK2 steps less that of a run with none, over 2 x steps
+    evaluations. CPU time is what a loaded machine disturbs least (no waiting for a core)."""
+    r = run_probe(probe, level, threads, wall, cache, steps)
+    r["velocity_cpu_s"] = (r["cpu_s"] - run_probe(probe, level, threads, wall, cache, 0)["cpu_s"]) / (2 * steps)
+    return r
+
+
+def fastest(runs: list[dict[str, float]]) -> dict[str, float]:
+    """The first run's record with each timed figure replaced by its minimum over the runs."""
+    best = dict(runs[0])
+    for key in TIMED:
+        # A build from before the membrane's near-field self correction has no such figure.
+        best[key] = min(r.get(key, 0.0) for r in runs)
+    return best
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--wall", nargs=3, default=["0.2", "0.1", "6"], metavar=("H_FAR", "H_CENTRE", "LENGTH"))
-    parser.add_argument("--steps", type=int, default=3, help="RK2 steps timed per case")
+    parser.add_argument("--steps", type=int, default=3, help="RK2 steps timed per case (at least 1)")
+    parser.add_argument("--repeats", type=int, default=1, help="runs per case; the fastest is reported")
+    parser.add_argument("--baseline", type=Path, help="a tube3d_probe of another build, timed alternately")
     args = parser.parse_args()
     if not PROBE.exists():
         print(f"{PROBE} is missing: run `make build` first", file=sys.stderr)
         return 2
+    if args.baseline is not None and not args.baseline.exists():
+        print(f"{args.baseline} is missing", file=sys.stderr)
+        return 2
     print(f"3D tube model, NH a/l = {SIZE_RATIO}, Ca_s = {CA}, wall h {args.wall[0]} / {args.wall[1]} l over "
-          f"{args.wall[2]} l; {os.cpu_count() or 1} cores on this machine")
+          f"{args.wall[2]} l; {os.cpu_count() or 1} cores on this machine, load {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         cache = Path(tmp)
-        first = True
+        # The wall LU first, so that every timed run loads it from the cache.
+        w = run_probe(PROBE, 3, 1, args.wall, cache, 0)
+        print(f"wall of {int(w['n_wall_nodes'])} nodes: assembly {w['wall_assembly_s']:.2f} s, "
+              f"LU {w['wall_factor_s']:.2f} s (1 thread), written to the cache")
         print(f"{'level':>5} {'nodes':>6} {'threads':>7} {'wall setup [s]':>15} {'velocity [s]':>13} "
-              f"{'caps->wall':>11} {'solve':>7} {'wall->caps':>11} {'RK2 step [s]':>13}")
+              f"{'caps->wall':>11} {'caps self':>10} {'solve':>7} {'wall->caps':>11} {'RK2 step [s]':>13} {'velocity CPU [s]':>17}")
+        ratios = []
         for level in (3, 4):
             for threads in (1, 2):
-                r = measure(level, threads, args.wall, cache, args.steps)
-                if first:
-                    print(f"      wall of {int(r['n_wall_nodes'])} nodes: assembly {r['wall_assembly_s']:.2f} s, "
-                          f"LU {r['wall_factor_s']:.2f} s (1 thread), written to the cache")
-                    first = False
+                runs, base_runs = [], []
+                for _ in range(args.repeats):
+                    runs.append(measure(PROBE, level, threads, args.wall, cache, args.steps))
+                    if args.baseline is not None:
+                        base_runs.append(measure(args.baseline, level, threads, args.wall, cache, args.steps))
+                r = fastest(runs)
                 setup = f"{r['wall_setup_s']:.2f} (cache)" if r["from_cache"] else f"{r['wall_setup_s']:.2f}"
                 print(f"{level:>5} {int(r['n_nodes']):>6} {threads:>7} {setup:>15} {r['velocity_s']:>13.3f} "
-                      f"{r['capsule_at_wall_s']:>11.3f} {r['wall_solve_s']:>7.3f} {r['wall_at_capsule_s']:>11.3f} "
-                      f"{r['rk2_step_s']:>13.3f}")
+                      f"{r['capsule_at_wall_s']:>11.3f} {r['capsule_self_near_s']:>10.3f} {r['wall_solve_s']:>7.3f} "
+                      f"{r['wall_at_capsule_s']:>11.3f} "
+                      f"{r['rk2_step_s']:>13.3f} {r['velocity_cpu_s']:>17.3f}")
+                if base_runs:
+                    b = fastest(base_runs)
+                    print(f"{'':>5} {'':>6} {'base':>7} {'':>15} {b['velocity_s']:>13.3f} {b['capsule_at_wall_s']:>11.3f} "
+                          f"{b['capsule_self_near_s']:>10.3f} {b['wall_solve_s']:>7.3f} {b['wall_at_capsule_s']:>11.3f} "
+                          f"{b['rk2_step_s']:>13.3f} {b['velocity_cpu_s']:>17.3f}")
+                    ratios.append((level, threads, {k: r[k] / b[k] for k in TIMED if b[k] > 0}))
+        print("velocity CPU: CPU seconds (all threads) of one evaluation, from runs with and without RK2 steps")
+        if ratios:
+            print("this build / baseline (same run, fastest of each):")
+            print(f"{'level':>5} {'threads':>7} {'velocity':>9} {'caps->wall':>11} {'wall->caps':>11} {'RK2 step':>9} "
+                  f"{'velocity CPU':>13}")
+            for level, threads, q in ratios:
+                print(f"{level:>5} {threads:>7} {q['velocity_s']:>9.2f} {q['capsule_at_wall_s']:>11.2f} "
+                      f"{q['wall_at_capsule_s']:>11.2f} {q['rk2_step_s']:>9.2f} {q['velocity_cpu_s']:>13.2f}")
     return 0
 
 

@@ -50,6 +50,7 @@ module tube_capsule
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use surface_diagnostics, only: area_and_volume, shear_plane_contour
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
+   use triangle_cells, only: triangle_cells_t
    use wall_single_layer, only: wall_operator_t, poiseuille_velocity, leaf_ratio, leaf_strengths, triangle_correction
    use run_options, only: run_options_t
    use case_output, only: write_surface_mesh
@@ -60,7 +61,7 @@ module tube_capsule
    use interface_equation, only: interface_equation_t, operator_term_t
    implicit none
    private
-   public :: tube_capsule_t, default_cache_dir
+   public :: tube_capsule_t, default_cache_dir, volume_gradients, remove_volume_flux
 
    !> Pre-deformation of large capsules, as in axisymmetric_tube: from a/l = 0.9 the run
    !> starts from the spheroid of equatorial radius 0.8 and the same volume; stresses are
@@ -89,6 +90,7 @@ module tube_capsule
       !> the three parts of the velocity that involve the wall (bench/bench_tube_3d.py).
       real(dp) :: wall_seconds = 0
       real(dp) :: seconds_capsule_at_wall = 0, seconds_wall_solve = 0, seconds_wall_at_capsule = 0
+      real(dp) :: seconds_self_near_field = 0
       !> Reference (stress-free) sphere of radius a.
       real(dp), allocatable :: x_ref(:, :)
       ! Work arrays allocated once by init: the time loop allocates nothing.
@@ -98,6 +100,19 @@ module tube_capsule
       !> positions and densities, 7-point points and strengths, vertex-rule strengths.
       real(dp), allocatable :: tri_centroid(:, :), tri_diameter(:), tri_x(:, :, :), tri_f(:, :, :)
       real(dp), allocatable :: quad_point(:, :, :), quad_strength(:, :, :), vertex_strength(:, :, :)
+      !> The capsule triangles by cell of their centroid, rebuilt per call of
+      !> capsule_single_layer_at: a wall node visits only the triangles around it.
+      type(triangle_cells_t) :: cells
+      !> The membrane's own single layer at its nodes: single_layer (vertex rule beyond the
+      !> second ring), plus, when self_near_field, self_corrections (the subdivided 7-point
+      !> rule on the capsule triangles within near_radius or leaf_ratio diameters of the
+      !> node). Off by default (the model of the case files); README "Tube flow (3D)" has
+      !> what it changes: the vertex rule's O(h) mid-field error is most of the 3D model's
+      !> first-order v_c/V error at a/l = 0.8 (tube3d_probe self-quadrature).
+      logical :: self_near_field = .false.
+      !> Experiment (tube3d_probe self-quadrature): remove the net flux of the capsule's single
+      !> layer through the wall from the wall data, along the node normals, before the solve.
+      logical :: wall_flux_free = .false.
       !> Viscosity ratio; the double layer, its equation and their work arrays are set up only
       !> when lambda /= 1.
       real(dp) :: lambda = 1
@@ -294,6 +309,9 @@ contains
       t0 = omp_get_wtime()
       call self%capsule_single_layer_at(x, self%wall%x, self%wall_data)
       self%wall_data = -self%wall_data
+      if (self%wall_flux_free) self%wall_data = self%wall_data - (sum(self%wall_op%flux_weight * self%wall_data) &
+                                                                  / sum(self%wall_op%flux_weight * self%wall_op%node_normal)) &
+                                                                 * self%wall_op%node_normal
       t1 = omp_get_wtime()
       call self%wall_op%solve(self%wall_data, self%wall_traction, stat, errmsg)
       if (stat /= 0) error stop 'tube_capsule: wall solve failed (the operator was initialised)'
@@ -303,6 +321,11 @@ contains
       self%seconds_capsule_at_wall = self%seconds_capsule_at_wall + (t1 - t0)
       self%seconds_wall_solve = self%seconds_wall_solve + (t2 - t1)
       self%seconds_wall_at_capsule = self%seconds_wall_at_capsule + (t3 - t2)
+      ! Uses the triangle data and cells that capsule_single_layer_at has set up for x.
+      if (self%self_near_field) then
+         call self_corrections(self, x, u)
+         self%seconds_self_near_field = self%seconds_self_near_field + (omp_get_wtime() - t3)
+      end if
       do i = 1, n
          u(:, i) = poiseuille_velocity(x(:, i)) + (u(:, i) + self%u_wall(:, i)) / self%ca
       end do
@@ -376,7 +399,7 @@ contains
       real(dp), intent(in) :: x(:, :), points(:, :)
       real(dp), intent(out) :: u(:, :)
       integer :: n, nt, k, t
-      real(dp) :: p(3), acc(3), corr(3), z_lo, z_hi, r_hi, reach, dist
+      real(dp) :: p(3), acc(3), z_lo, z_hi, r_hi, reach
 
       n = self%mesh%n_nodes
       nt = self%mesh%n_tri
@@ -393,33 +416,101 @@ contains
                              self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
       end do
       !$omp end parallel do
+      call self%cells%build(self%tri_centroid, self%tri_diameter, near_radius, leaf_ratio, &
+                            max(0.5_dp * near_radius, maxval(self%tri_diameter)))
       ! Points farther than `reach` from the capsule's bounding cylinder need no correction.
-      reach = max(near_radius, leaf_ratio * maxval(self%tri_diameter)) + maxval(self%tri_diameter)
+      reach = self%cells%max_reach + maxval(self%tri_diameter)
       z_lo = minval(x(3, 1:n)) - reach
       z_hi = maxval(x(3, 1:n)) + reach
       r_hi = sqrt(maxval(x(1, 1:n)**2 + x(2, 1:n)**2)) + reach
-      !$omp parallel do default(none) shared(self, points, u, n, nt, z_lo, z_hi, r_hi) &
-      !$omp private(k, t, p, acc, corr, dist) schedule(dynamic, 16)
+      !$omp parallel do default(none) shared(self, points, u, n, z_lo, z_hi, r_hi) &
+      !$omp private(k, p, acc) schedule(dynamic, 16)
       do k = 1, size(points, 2)
          p = points(:, k)
          acc = 0.0_dp
          call add_stokeslets(n, self%single_layer%xs, self%single_layer%ys, self%single_layer%zs, &
                              self%single_layer%qx, self%single_layer%qy, self%single_layer%qz, p, 1, n, acc)
-         corr = 0.0_dp
-         if (p(3) > z_lo .and. p(3) < z_hi .and. p(1)**2 + p(2)**2 < r_hi**2) then
-            do t = 1, nt
-               dist = norm2(p - self%tri_centroid(:, t))
-               if (dist >= near_radius .and. dist >= leaf_ratio * self%tri_diameter(t)) cycle
-               corr = corr + triangle_correction(self%near_rule, p, dist, self%tri_diameter(t), &
-                                                 self%single_layer%tri_area(t), self%tri_x(:, :, t), &
-                                                 self%tri_f(:, :, t), self%quad_point(:, :, t), self%quad_strength(:, :, t), &
-                                                 self%vertex_strength(:, :, t))
-            end do
-         end if
-         u(:, k) = (acc + corr) / (8.0_dp * pi)
+         if (p(3) > z_lo .and. p(3) < z_hi .and. p(1)**2 + p(2)**2 < r_hi**2) acc = acc + capsule_corrections(self, p)
+         u(:, k) = acc / (8.0_dp * pi)
       end do
       !$omp end parallel do
    end subroutine capsule_single_layer_at
+
+   !> u <- u + the membrane's own single layer, accurate minus single_layer's rules, at every
+   !> node: on the capsule triangles within near_radius or leaf_ratio diameters of the node
+   !> (the rule of the single layer at the wall nodes) that do not touch it, the subdivided
+   !> 7-point rule replaces the vertex rule (beyond the second ring) or the plain 7-point
+   !> rule (on the second ring, where single_layer uses it). Needs the triangle data and cells
+   !> of capsule_single_layer_at for positions x.
+   subroutine self_corrections(self, x, u)
+      class(tube_capsule_t), intent(in) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(inout) :: u(:, :)
+      integer :: i
+      !$omp parallel do default(none) shared(self, x, u) private(i) schedule(dynamic, 16)
+      do i = 1, self%mesh%n_nodes
+         u(:, i) = u(:, i) + self_correction_at(self, x(:, i), i) / (8.0_dp * pi)
+      end do
+      !$omp end parallel do
+   end subroutine self_corrections
+
+   function self_correction_at(self, p, i) result(corr)
+      class(tube_capsule_t), intent(in) :: self
+      real(dp), intent(in) :: p(3)
+      integer, intent(in) :: i
+      real(dp) :: corr(3)
+      real(dp), parameter :: forced_near = 0.0_dp, forced_leaf = huge(1.0_dp)
+      integer :: list(self%cells%n_tri), m, j, t, q, first, last
+      real(dp) :: dist(self%cells%n_tri)
+      logical :: second_ring, touching
+      call self%cells%near(p, list, dist, m)
+      first = self%single_layer%corr_start(i)
+      last = self%single_layer%corr_start(i + 1) - 1
+      corr = 0.0_dp
+      do j = 1, m
+         t = list(j)
+         touching = .false.
+         second_ring = .false.
+         do q = first, last
+            if (self%single_layer%corr_tri(q) == t) then
+               touching = self%single_layer%corr_vertex(q) > 0
+               second_ring = .not. touching
+               exit
+            end if
+         end do
+         if (touching) cycle
+         associate (d => self%tri_diameter(t), a => self%single_layer%tri_area(t), xv => self%tri_x(:, :, t), &
+                    fv => self%tri_f(:, :, t), qp => self%quad_point(:, :, t), qs => self%quad_strength(:, :, t), &
+                    vs => self%vertex_strength(:, :, t))
+            if (second_ring) then
+               if (dist(j) > leaf_ratio * d) cycle
+               corr = corr + triangle_correction(self%near_rule, p, forced_near, d, a, xv, fv, qp, qs, vs) &
+                      - triangle_correction(self%near_rule, p, forced_leaf, d, a, xv, fv, qp, qs, vs)
+            else
+               corr = corr + triangle_correction(self%near_rule, p, dist(j), d, a, xv, fv, qp, qs, vs)
+            end if
+         end associate
+      end do
+   end function self_correction_at
+
+   !> Sum of triangle_correction over the capsule triangles that need more than the vertex
+   !> rule at p (found by the cell index of capsule_single_layer_at).
+   function capsule_corrections(self, p) result(corr)
+      class(tube_capsule_t), intent(in) :: self
+      real(dp), intent(in) :: p(3)
+      real(dp) :: corr(3)
+      integer :: list(self%cells%n_tri), m, j, t
+      real(dp) :: dist(self%cells%n_tri)
+      call self%cells%near(p, list, dist, m)
+      corr = 0.0_dp
+      do j = 1, m
+         t = list(j)
+         corr = corr + triangle_correction(self%near_rule, p, dist(j), self%tri_diameter(t), &
+                                           self%single_layer%tri_area(t), self%tri_x(:, :, t), &
+                                           self%tri_f(:, :, t), self%quad_point(:, :, t), self%quad_strength(:, :, t), &
+                                           self%vertex_strength(:, :, t))
+      end do
+   end function capsule_corrections
 
    !> dV/dx_i and d(int z dV)/dx_i at every node, the volume V and the moment int z dV, from
    !> the tetrahedra (origin, triangle): V_t = p1 . (p2 x p3) / 6, z-moment V_t (z1+z2+z3)/4.

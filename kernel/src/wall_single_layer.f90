@@ -85,6 +85,7 @@ module wall_single_layer
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, duffy_rule
    use stokes_single_layer, only: triangle_areas, add_stokeslets
    use file_ops, only: replace_file
+   use triangle_cells, only: triangle_cells_t
    use tube_wall_mesh, only: tube_wall_t, wall_tag_inlet, wall_tag_outlet, wall_tag_rim, centre_half_length, &
                              grading_length
    implicit none
@@ -138,10 +139,10 @@ module wall_single_layer
       !> velocity_at: the 7-point rule replaces the vertex rule on triangles whose centroid is
       !> nearer than mid_radius (tube radii) to the point.
       real(dp) :: mid_radius = default_mid_radius
-      !> Triangles by axial slab of their centroid (CSR over slabs of width slab_width), so
-      !> that velocity_at visits only the slabs within reach of a point.
-      real(dp) :: slab_width = 0, max_diameter = 0
-      integer, allocatable :: slab_start(:), slab_tri(:)
+      !> Triangles by cell of their centroid (triangle_cells), so that velocity_at visits only
+      !> the triangles around a point; indexed for cells_radius (rebuilt when mid_radius changes).
+      real(dp) :: max_diameter = 0, cells_radius = -1
+      type(triangle_cells_t) :: cells
       !> Work arrays of the velocity evaluation (pair sums, disk-side rim values), allocated once.
       real(dp), allocatable :: xs(:), ys(:), zs(:), qx(:), qy(:), qz(:), f_disk(:, :)
       !> Per-step quadrature data of velocity_at, per triangle: corner tractions (disk side at
@@ -265,7 +266,7 @@ contains
          deallocate (self%rim_node, self%rim_index, self%area_main, self%area_mapped, self%flux_weight, self%node_normal)
          deallocate (self%tri_area, self%tri_normal, self%tri_centroid, self%tri_diameter, self%disk_tri)
          deallocate (self%xs, self%ys, self%zs, self%qx, self%qy, self%qz, self%f_disk, self%quad_point, self%quad_weight)
-         deallocate (self%slab_start, self%slab_tri, self%tri_traction, self%quad_strength, self%vertex_strength)
+         deallocate (self%tri_traction, self%quad_strength, self%vertex_strength)
          deallocate (self%tri_corner)
       end if
       if (allocated(self%lu)) deallocate (self%lu, self%ipiv, self%rim_disk)
@@ -327,41 +328,18 @@ contains
       self%xs = wall%x(1, 1:n)
       self%ys = wall%x(2, 1:n)
       self%zs = wall%x(3, 1:n)
-      call sort_into_slabs(self, wall%length)
+      self%max_diameter = maxval(self%tri_diameter)
+      self%cells_radius = -1
    end subroutine prepare
 
-   !> Counting sort of the triangles by the axial slab of their centroid.
-   subroutine sort_into_slabs(self, length)
+   !> Index the triangles for the near-field search of velocity_at at the current mid_radius:
+   !> cells of half the reach (a point then visits a few cells per direction).
+   subroutine index_triangles(self)
       class(wall_operator_t), intent(inout) :: self
-      real(dp), intent(in) :: length
-      integer :: n_slabs, t, b
-      integer, allocatable :: fill(:)
-      self%max_diameter = maxval(self%tri_diameter)
-      self%slab_width = max(0.1_dp, self%max_diameter)
-      n_slabs = max(1, ceiling(length / self%slab_width))
-      allocate (self%slab_start(n_slabs + 1), self%slab_tri(size(self%tri_area)), fill(n_slabs))
-      fill = 0
-      do t = 1, size(self%tri_area)
-         b = slab_of(self, length, self%tri_centroid(3, t))
-         fill(b) = fill(b) + 1
-      end do
-      self%slab_start(1) = 1
-      do b = 1, n_slabs
-         self%slab_start(b + 1) = self%slab_start(b) + fill(b)
-      end do
-      fill = 0
-      do t = 1, size(self%tri_area)
-         b = slab_of(self, length, self%tri_centroid(3, t))
-         self%slab_tri(self%slab_start(b) + fill(b)) = t
-         fill(b) = fill(b) + 1
-      end do
-   end subroutine sort_into_slabs
-
-   pure integer function slab_of(self, length, z)
-      class(wall_operator_t), intent(in) :: self
-      real(dp), intent(in) :: length, z
-      slab_of = min(max(floor((z + 0.5_dp * length) / self%slab_width) + 1, 1), size(self%slab_start) - 1)
-   end function slab_of
+      self%cells_radius = self%mid_radius
+      call self%cells%build(self%tri_centroid, self%tri_diameter, self%mid_radius, leaf_ratio, &
+                            max(0.5_dp * min(self%mid_radius, 10.0_dp), self%max_diameter))
+   end subroutine index_triangles
 
    !> prepare, then the factorised wall matrix: read from `cache_dir` when a file with the
    !> same signature is there, otherwise assembled, factorised and written there (to a
@@ -656,15 +634,16 @@ contains
    !> Per-step routine: no allocation (work arrays of self). The traction-dependent
    !> quadrature data (7-point and vertex strengths per triangle) are computed once per call,
    !> not once per point; points farther than the reach of any correction from the cylinder
-   !> and the disks skip the triangle search.
+   !> and the disks skip the triangle search, the others find their near triangles through
+   !> the cell index (triangle_cells; the first call, or a changed mid_radius, builds it).
    subroutine velocity_at(self, wall, f_wall, points, u, rim_jump)
       class(wall_operator_t), intent(inout) :: self
       type(tube_wall_t), intent(in) :: wall
       real(dp), intent(in) :: f_wall(:, :), points(:, :)
       real(dp), intent(out) :: u(:, :)
       real(dp), intent(in), optional :: rim_jump(:, :)
-      integer :: k, n, t, m, r, s, first, last
-      real(dp) :: acc(3), p(3), corr(3), g(3), reach, clearance, dist
+      integer :: k, n, t, m, r
+      real(dp) :: acc(3), p(3), g(3), reach, clearance
 
       n = self%n_nodes
       do r = 1, self%n_rim
@@ -691,37 +670,41 @@ contains
                              self%vertex_strength(:, :, t))
       end do
       !$omp end parallel do
+      if (self%cells_radius /= self%mid_radius) call index_triangles(self)
       ! No triangle farther than `reach` needs more than the vertex rule.
-      reach = max(self%mid_radius, leaf_ratio * self%max_diameter)
-      !$omp parallel do default(none) shared(self, wall, points, u, n, reach) &
-      !$omp private(k, t, s, first, last, acc, p, corr, clearance, dist) schedule(dynamic, 4)
+      reach = self%cells%max_reach
+      !$omp parallel do default(none) shared(self, points, u, n, reach, wall) &
+      !$omp private(k, p, acc, clearance) schedule(dynamic, 4)
       do k = 1, size(points, 2)
          p = points(:, k)
          acc = 0.0_dp
          call add_stokeslets(n, self%xs, self%ys, self%zs, self%qx, self%qy, self%qz, p, 1, n, acc)
-         corr = 0.0_dp
          ! Distance to the nearest triangle centroid is at least this (centroids lie within a
          ! diameter of the surface).
          clearance = min(1.0_dp - norm2(p(1:2)), 0.5_dp * wall%length - abs(p(3))) - self%max_diameter
-         if (clearance < reach) then
-            first = self%slab_start(slab_of(self, wall%length, p(3) - reach))
-            last = self%slab_start(slab_of(self, wall%length, p(3) + reach) + 1) - 1
-            do s = first, last
-               t = self%slab_tri(s)
-               ! The far test stays inline: most triangles in reach fail it, and a call per
-               ! triangle cost more than the corrections (level 4: 0.9 s against 0.6 s).
-               dist = norm2(p - self%tri_centroid(:, t))
-               if (dist >= self%mid_radius .and. dist >= leaf_ratio * self%tri_diameter(t)) cycle
-               corr = corr + triangle_correction(self%leaf_rule, p, dist, self%tri_diameter(t), self%tri_area(t), &
-                                                 self%tri_corner(:, :, t), &
-                                                 self%tri_traction(:, :, t), self%quad_point(:, :, t), &
-                                                 self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
-            end do
-         end if
-         u(:, k) = (acc + corr) / (8.0_dp * pi)
+         if (clearance < reach) acc = acc + near_corrections(self, p)
+         u(:, k) = acc / (8.0_dp * pi)
       end do
       !$omp end parallel do
    end subroutine velocity_at
+
+   !> Sum of triangle_correction over the wall triangles that need more than the vertex rule
+   !> at p (found by the cell index).
+   function near_corrections(self, p) result(corr)
+      class(wall_operator_t), intent(in) :: self
+      real(dp), intent(in) :: p(3)
+      real(dp) :: corr(3)
+      integer :: list(self%cells%n_tri), m, j, t
+      real(dp) :: dist(self%cells%n_tri)
+      call self%cells%near(p, list, dist, m)
+      corr = 0.0_dp
+      do j = 1, m
+         t = list(j)
+         corr = corr + triangle_correction(self%leaf_rule, p, dist(j), self%tri_diameter(t), self%tri_area(t), &
+                                           self%tri_corner(:, :, t), self%tri_traction(:, :, t), self%quad_point(:, :, t), &
+                                           self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
+      end do
+   end function near_corrections
 
    !> What replaces the vertex rule of one P1 triangle (corners xv, densities fv) at an
    !> off-surface point p at distance `dist` from its centroid, where the vertex rule is not
@@ -760,13 +743,22 @@ contains
    pure function leaf_correction(p, qp, qs, xv, vs) result(corr)
       real(dp), intent(in) :: p(3), qp(:, :), qs(:, :), xv(3, 3), vs(3, 3)
       real(dp) :: corr(3)
-      integer :: q, m
+      integer :: q
+      real(dp) :: r(3), rinv, proj
+      ! Inline Stokeslets (no call per point, no norm2 scaling): the hot loop of both
+      ! off-surface single layers once the near triangles are found by cells.
       corr = 0.0_dp
       do q = 1, size(qp, 2)
-         corr = corr + stokeslet(p - qp(:, q), qs(:, q))
+         r = p - qp(:, q)
+         rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
+         proj = (r(1) * qs(1, q) + r(2) * qs(2, q) + r(3) * qs(3, q)) * rinv**3
+         corr = corr + rinv * qs(:, q) + proj * r
       end do
-      do m = 1, 3
-         corr = corr - stokeslet(p - xv(:, m), vs(:, m))
+      do q = 1, 3
+         r = p - xv(:, q)
+         rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
+         proj = (r(1) * vs(1, q) + r(2) * vs(2, q) + r(3) * vs(3, q)) * rinv**3
+         corr = corr - (rinv * vs(:, q) + proj * r)
       end do
    end function leaf_correction
 

@@ -1,9 +1,10 @@
 !> tube3d_probe: measures the 3D tube model (tube_capsule) and prints "key value" lines;
 !> tests/kernel/test_tube_3d.py and bench/bench_tube_3d.py run it, so tolerances live there.
 !>
-!>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS
+!>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS [SELF]
 !>     wall setup (assembly + LU, or the cache load), then STEPS RK2 steps from the start shape
-!>     and one velocity evaluation after them, each part timed.
+!>     and one velocity evaluation after them, each part timed (SELF = 1: with the membrane's
+!>     near-field self correction, tube_capsule_t%self_near_field).
 !>   tube3d_probe dl-outside LEVEL A FILM NEAR_RADIUS
 !>     capsule double layer off the membrane (stokes_double_layer apply_outside) of a rigid-body
 !>     density U + Omega x y on the level-LEVEL sphere of radius A, at the points FILM outside
@@ -12,12 +13,23 @@
 !>   tube3d_probe lambda-residual LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR LAMBDA STEPS
 !>     STEPS lambda = 1 RK2 steps from the start shape, then at that shape the lambda velocity
 !>     and the residual of its boundary integral equation, evaluated afresh from the pieces.
+!>   tube3d_probe self-quadrature LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR T_END SELF
+!>     RK2 steps to t >= T_END (SELF = 1: with the model's near-field self correction, 0:
+!>     without), then v_c at that shape with the capsule's own single layer of single_layer
+!>     alone (vertex rule beyond the second ring of triangles), with the non-touching
+!>     triangles within R (and leaf_ratio diameters) integrated by the subdivided 7-point
+!>     rule, R = 0.25 ... 100, and with the model's self_near_field correction (v_c_model);
+!>     then the net flux of the capsule's single layer through the wall, v_c with it removed
+!>     from the wall data (wall_flux_free), and v_c with the 7-point rule on every wall
+!>     triangle at the membrane nodes (the tube-length experiments of README "Tube flow (3D)").
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
    use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use run_options, only: run_options_t
-   use tube_capsule, only: tube_capsule_t
+   use tube_capsule, only: tube_capsule_t, volume_gradients, remove_volume_flux
+   use wall_single_layer, only: triangle_correction
+   use capsim_kinds, only: pi
    use sphere_mesh, only: surface_mesh_t, icosphere
    use stokes_single_layer, only: single_layer_t
    use stokes_double_layer, only: double_layer_t
@@ -33,12 +45,103 @@ program tube3d_probe
       call probe_dl_outside()
    case ('lambda-residual')
       call probe_lambda_residual()
+   case ('self-quadrature')
+      call probe_self_quadrature()
    case default
       write (*, '(a)') 'usage: tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS'
       error stop 2
    end select
 
 contains
+
+   subroutine probe_self_quadrature()
+      type(run_options_t) :: opts
+      type(tube_capsule_t) :: model
+      integer :: stat, n, i, t, p, m, ir
+      character(len=:), allocatable :: errmsg
+      character(len=32) :: key
+      real(dp), parameter :: radii(5) = [0.25_dp, 0.5_dp, 0.75_dp, 1.0_dp, 100.0_dp]
+      real(dp), allocatable :: x(:, :), u(:, :), s_base(:, :), du(:, :), grad(:, :), mgrad(:, :)
+      real(dp) :: t_end, volume, moment, dvc, v_c_base, xv(3, 3), fv(3, 3), qp(3, 7), qs(3, 7), vs(3, 3), diam, corr(3)
+      real(dp), parameter :: huge_dist = 1.0e30_dp
+      logical, allocatable :: in_list(:)
+      integer, allocatable :: list_vertex(:)
+
+      call read_tube_case(opts)
+      t_end = real_arg(9)
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      model%self_near_field = int_arg(10) == 1
+      call model%reset()
+      do while (model%t < t_end)
+         call model%advance()
+      end do
+      x = model%positions
+      n = size(x, 2)
+      allocate (u(3, n), s_base(3, n), du(3, n), grad(3, n), mgrad(3, n))
+      model%self_near_field = .true.
+      call model%velocity(x, u)
+      call put('t', model%t)
+      call put('v_c_model', model%v_c)
+      model%self_near_field = .false.
+      call model%velocity(x, u)
+      call put('v_c_base', model%v_c)
+      v_c_base = model%v_c
+      ! Net flux of the capsule's single layer through the closed wall, int_B (S f) . n dS
+      ! (zero for the exact single layer: its field is divergence-free inside B), against the
+      ! tube's flow rate pi; the wall's first-kind equation has no solution for such data.
+      call put('wall_data_flux_over_flow_rate', -sum(model%wall_op%flux_weight * model%wall_data) / pi)
+      model%wall_flux_free = .true.
+      call model%velocity(x, u)
+      call put('v_c_wall_flux_free', model%v_c)
+      model%wall_flux_free = .false.
+      ! The wall's single layer at the membrane nodes with the 7-point rule on every triangle.
+      model%wall_op%mid_radius = 100.0_dp
+      call model%velocity(x, u)
+      call put('v_c_wall_all_7_point', model%v_c)
+      model%wall_op%mid_radius = 0.5_dp
+      call model%single_layer%velocity(model%mesh, x, model%density, s_base)
+      allocate (in_list(model%mesh%n_tri), list_vertex(model%mesh%n_tri))
+      call volume_gradients(model%mesh, x, grad, mgrad, volume, moment)
+      do ir = 1, size(radii)
+      du = 0.0_dp
+      do i = 1, n
+         in_list = .false.
+         do p = model%single_layer%corr_start(i), model%single_layer%corr_start(i + 1) - 1
+            in_list(model%single_layer%corr_tri(p)) = .true.
+            list_vertex(model%single_layer%corr_tri(p)) = model%single_layer%corr_vertex(p)
+         end do
+         corr = 0.0_dp
+         do t = 1, model%mesh%n_tri
+            if (in_list(t)) then
+               if (list_vertex(t) > 0) cycle
+            end if
+            xv = x(:, model%mesh%tri(:, t))
+            fv = model%density(:, model%mesh%tri(:, t))
+            diam = max(norm2(xv(:, 2) - xv(:, 1)), norm2(xv(:, 3) - xv(:, 2)), norm2(xv(:, 1) - xv(:, 3)))
+            if (norm2(x(:, i) - sum(xv, dim=2) / 3.0_dp) >= max(radii(ir), 3.0_dp * diam)) cycle
+            qp = matmul(xv, model%near_rule%bary)
+            do m = 1, 7
+               qs(:, m) = (model%single_layer%tri_area(t) * model%near_rule%weight(m)) * matmul(fv, model%near_rule%bary(:, m))
+            end do
+            vs = (model%single_layer%tri_area(t) / 3.0_dp) * fv
+            ! Subdivided 7-point rule minus the vertex rule (dist 0 forces the subdivision test) ...
+            corr = corr + triangle_correction(model%near_rule, x(:, i), 0.0_dp, diam, model%single_layer%tri_area(t), &
+                                              xv, fv, qp, qs, vs)
+            ! ... minus what the model already put there on the second ring (7-point minus vertex).
+            if (in_list(t)) corr = corr - triangle_correction(model%near_rule, x(:, i), huge_dist, diam, &
+                                                              model%single_layer%tri_area(t), xv, fv, qp, qs, vs)
+         end do
+         du(:, i) = corr / (8.0_dp * pi * model%ca)
+      end do
+      if (model%volume_correction) call remove_volume_flux(du, grad)
+      dvc = (sum(du * mgrad) - (moment / volume) * sum(du * grad)) / volume
+      write (key, '(a,f0.2)') 'v_c_refined_within_', radii(ir)
+      call put(trim(key), v_c_base + dvc)
+      write (key, '(a,f0.2)') 'max_du_within_', radii(ir)
+      call put(trim(key), maxval(norm2(du, dim=1)) / maxval(norm2(u, dim=1)))
+      end do
+   end subroutine probe_self_quadrature
 
    !> The NH 3D tube case of the command line: level, a/l, Ca_s, tube length, wall sizes and
    !> wall cache in arguments 2-8.
@@ -68,6 +171,7 @@ contains
       steps = int_arg(9)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
+      if (command_argument_count() >= 10) model%self_near_field = int_arg(10) == 1
       call put_int('threads', omp_get_max_threads())
       call put_int('n_nodes', model%mesh%n_nodes)
       call put_int('n_wall_nodes', model%wall%mesh%n_nodes)
@@ -85,6 +189,7 @@ contains
       model%seconds_capsule_at_wall = 0
       model%seconds_wall_solve = 0
       model%seconds_wall_at_capsule = 0
+      model%seconds_self_near_field = 0
       t0 = omp_get_wtime()
       call model%velocity(model%positions, model%u0)
       t_velocity = omp_get_wtime() - t0
@@ -94,6 +199,7 @@ contains
       call put('capsule_at_wall_s', model%seconds_capsule_at_wall)
       call put('wall_solve_s', model%seconds_wall_solve)
       call put('wall_at_capsule_s', model%seconds_wall_at_capsule)
+      call put('capsule_self_near_s', model%seconds_self_near_field)
       call put('v_c', model%v_c)
       call put('max_speed', maxval(norm2(model%u0, dim=1)))
    end subroutine probe_timing
@@ -196,6 +302,12 @@ contains
       call put('rigid_deviation', maxval(norm2(ul - spread(sum(ul, dim=2) / n, 2, n), dim=1)) / norm2(sum(ul, dim=2) / n))
       call put('v_c_base', base%v_c)
       call put('v_c_lambda', model%v_c)
+      ! The polyhedron's volume against the sphere of radius a/l whose nodes it carries.
+      block
+         real(dp) :: grad(3, n), mgrad(3, n), volume, moment
+         call volume_gradients(model%mesh, x, grad, mgrad, volume, moment)
+         call put('volume_ratio', volume / (4.0_dp / 3.0_dp * pi * opts%a_over_l**3))
+      end block
       call put('velocity_s_base', t_base)
       call put('velocity_s_lambda', t_lambda)
    end subroutine probe_lambda_residual
