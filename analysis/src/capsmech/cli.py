@@ -668,8 +668,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "(default: every other law of the database)")
     diag.add_argument("--effects-database", action="append", metavar="H5",
                       help="tube database of effect law groups (repeatable; default: data/databases/effects/*/tube.h5)")
-    diag.add_argument("--prestress-levels", default="0.04,0.08", metavar="A1,A2,..",
-                      help="pre-stress levels of the prestress candidate (default 0.04,0.08; empty: no candidate)")
+    diag.add_argument("--prestress-levels", default="0.04,0.06,0.08", metavar="A1,A2,..",
+                      help="pre-stress levels of the prestress candidate (default 0.04,0.06,0.08; empty: no candidate)")
     diag.add_argument("--kb-levels", default="0.0025,0.005,0.01", metavar="K1,K2,..",
                       help="bending stiffness levels of the kb candidate (default 0.0025,0.005,0.01; empty: no candidate)")
     diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "laws"),

@@ -174,7 +174,7 @@ def law_candidate(base_law: str, other_law: str) -> Candidate:
 #: Kernel effects with one scalar strength that an effect database holds at a few levels
 #: (law keys ``<base>+<effect><value>``): effect -> (parameter name, default levels).
 SCALAR_EFFECTS: dict[str, tuple[str, tuple[float, ...]]] = {
-    "prestress": ("alpha", (0.04, 0.08)),
+    "prestress": ("alpha", (0.04, 0.06, 0.08)),
     "kb": ("k_b", (0.0025, 0.005, 0.01)),
 }
 
