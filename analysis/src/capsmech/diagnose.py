@@ -589,6 +589,13 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     return result
 
 
+def rivals_of(chosen, results: Sequence) -> list:
+    """The supported results whose BIC drop is within MIN_BIC_DROP of the chosen one's."""
+    if chosen is None:
+        return []
+    return [r for r in results if r.supported and r is not chosen and chosen.bic_drop - r.bic_drop < MIN_BIC_DROP]
+
+
 @dataclass
 class Diagnosis:
     """Every candidate's result and the verdict."""
@@ -602,10 +609,7 @@ class Diagnosis:
     def rivals(self) -> list[CandidateResult]:
         """Other supported candidates the data cannot tell from the chosen one (BIC within
         MIN_BIC_DROP of it)."""
-        if self.chosen is None:
-            return []
-        return [r for r in self.results if r.supported and r is not self.chosen
-                and self.chosen.bic_drop - r.bic_drop < MIN_BIC_DROP]
+        return rivals_of(self.chosen, self.results)
 
     @property
     def verdict(self) -> str:

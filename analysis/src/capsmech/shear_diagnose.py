@@ -56,7 +56,7 @@ import numpy as np
 from scipy import stats
 from scipy.interpolate import PchipInterpolator
 
-from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP
+from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, rivals_of
 from capsmech.fitting import shear_inverter
 from capsmech.inverse import ShearInverter
 from capsmech.measurements import Capsule
@@ -254,10 +254,7 @@ class ShearDiagnosis:
     @property
     def rivals(self) -> list[ShearCandidateResult]:
         """Other supported candidates within MIN_BIC_DROP of the chosen one."""
-        if self.chosen is None:
-            return []
-        return [r for r in self.results if r.supported and r is not self.chosen
-                and self.chosen.bic_drop - r.bic_drop < MIN_BIC_DROP]
+        return rivals_of(self.chosen, self.results)
 
     @property
     def verdict(self) -> str:

@@ -127,14 +127,20 @@ def write_batch(batch: Batch, path: str | Path) -> tuple[Path, Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_tube_csv(batch.rows, path, comment="synthetic tube batch made with the kernel by capsmech.undeclared;\n"
                                              "2 % noise on lengths and velocity, contours traced to +-1 pixel")
+    return path, write_truth(batch.truth, path)
+
+
+def write_truth(truth: list[dict], path: Path) -> Path:
+    """The truth of a synthetic batch beside its measurement file ``path``: ``<stem>_truth.csv``,
+    one row per capsule, floats to 6 significant digits."""
     truth_path = path.with_name(f"{path.stem}_truth.csv")
-    columns = list(batch.truth[0])
+    columns = list(truth[0])
     with open(truth_path, "w", newline="", encoding="utf-8") as stream:
         writer = csv.writer(stream)
         writer.writerow(columns)
-        for row in batch.truth:
+        for row in truth:
             writer.writerow([f"{row[c]:.6g}" if isinstance(row[c], float) else row[c] for c in columns])
-    return path, truth_path
+    return truth_path
 
 
 def read_truth(path: str | Path) -> dict[str, float | str]:

@@ -32,6 +32,7 @@ import numpy as np
 from capsmech.grid import parse_law
 from capsmech.io import read_case
 from capsmech.paths import capsim_executable
+from capsmech.undeclared import write_truth
 
 CA_S = (0.25, 0.62)
 RADIUS_UM = (40.0, 50.0)
@@ -192,14 +193,7 @@ def write_shear_batch(batch: ShearBatch, path: str | Path) -> tuple[Path, Path]:
         writer.writerow(header)
         for row in batch.rows:
             writer.writerow([row["id"], *(f"{row[k]:.6g}" for k in columns)])
-    truth_path = path.with_name(f"{path.stem}_truth.csv")
-    columns = list(batch.truth[0])
-    with open(truth_path, "w", newline="", encoding="utf-8") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(columns)
-        for row in batch.truth:
-            writer.writerow([f"{row[c]:.6g}" if isinstance(row[c], float) else row[c] for c in columns])
-    return path, truth_path
+    return path, write_truth(batch.truth, path)
 
 
 def read_shear_truth(path: str | Path) -> dict[str, float | str]:
