@@ -32,6 +32,7 @@
 !> lambda = 1 skips all of it (the same arithmetic as before, bit for bit).
 module axisymmetric_tube
    use capsim_kinds, only: dp, pi
+   use lapack_interfaces, only: dgeev, dgesv, dgetrf, dgetrs
    use hdf5_writer, only: h5_file_t
    use membrane_law, only: make_membrane_law
    use axisymmetric_bending, only: meridian_bending_t
@@ -83,28 +84,6 @@ module axisymmetric_tube
    !> Largest lambda dt for the growing modes (Re lambda > 0) of an implicit step.
    real(dp), parameter :: growth_step_limit = 0.5_dp
 
-   interface
-      subroutine dgetrf(m, n, a, lda, ipiv, info)
-         import :: dp
-         integer, intent(in) :: m, n, lda
-         real(dp), intent(inout) :: a(lda, *)
-         integer, intent(out) :: ipiv(*), info
-      end subroutine dgetrf
-      subroutine dgesv(n, nrhs, a, lda, ipiv, b, ldb, info)
-         import :: dp
-         integer, intent(in) :: n, nrhs, lda, ldb
-         real(dp), intent(inout) :: a(lda, *), b(ldb, *)
-         integer, intent(out) :: ipiv(*), info
-      end subroutine dgesv
-      subroutine dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info)
-         import :: dp
-         character, intent(in) :: trans
-         integer, intent(in) :: n, nrhs, lda, ldb, ipiv(*)
-         real(dp), intent(in) :: a(lda, *)
-         real(dp), intent(inout) :: b(ldb, *)
-         integer, intent(out) :: info
-      end subroutine dgetrs
-   end interface
 
    !> Work arrays of velocity_jacobian (see jacobian_with_work), allocated at its first call.
    type :: jacobian_work_t
@@ -1005,16 +984,6 @@ contains
       real(dp), intent(in) :: jac(:, :)
       real(dp) :: a(size(jac, 1), size(jac, 2)), no_left(1, 1), no_right(1, 1)
       integer :: m, info
-      interface
-         subroutine dgeev(jobvl, jobvr, n, a, lda, wr, wi, vl, ldvl, vr, ldvr, work, lwork, info)
-            import :: dp
-            character, intent(in) :: jobvl, jobvr
-            integer, intent(in) :: n, lda, ldvl, ldvr, lwork
-            real(dp), intent(inout) :: a(lda, *)
-            real(dp), intent(out) :: wr(*), wi(*), vl(ldvl, *), vr(ldvr, *), work(*)
-            integer, intent(out) :: info
-         end subroutine dgeev
-      end interface
       m = size(a, 1)
       a = jac
       call dgeev('N', 'N', m, a, m, self%eig_re, self%eig_im, no_left, 1, no_right, 1, self%eig_work, &

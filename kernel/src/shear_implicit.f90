@@ -18,6 +18,7 @@
 !> the stiffness of the explicit step is in K (membrane waves of length h relax at ~ 1/(Ca h)).
 module shear_implicit
    use capsim_kinds, only: dp, pi
+   use lapack_interfaces, only: dgetrf, dgetrs
    use sphere_mesh, only: surface_mesh_t
    use stokes_single_layer, only: single_layer_t
    use triangle_quadrature, only: quadrature_rule_t
@@ -36,23 +37,6 @@ module shear_implicit
       procedure :: init => stencil_init
    end type load_stencil_t
 
-   interface
-      subroutine dgetrf(m, n, a, lda, ipiv, info)
-         import :: dp
-         integer, intent(in) :: m, n, lda
-         real(dp), intent(inout) :: a(lda, *)
-         integer, intent(out) :: ipiv(*), info
-      end subroutine dgetrf
-      subroutine dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info)
-         import :: dp
-         character, intent(in) :: trans
-         integer, intent(in) :: n, nrhs, lda, ldb
-         real(dp), intent(in) :: a(lda, *)
-         integer, intent(in) :: ipiv(*)
-         real(dp), intent(inout) :: b(ldb, *)
-         integer, intent(out) :: info
-      end subroutine dgetrs
-   end interface
 
 contains
 

@@ -81,6 +81,7 @@ module wall_single_layer
    use, intrinsic :: iso_fortran_env, only: int64
    use omp_lib, only: omp_get_wtime
    use capsim_kinds, only: dp, pi, code_version
+   use lapack_interfaces, only: dgecon, dgetrf, dgetrs
    use vector_algebra, only: cross
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, duffy_rule
    use stokes_single_layer, only: triangle_areas, add_stokeslets
@@ -163,32 +164,6 @@ module wall_single_layer
    end type wall_operator_t
 
    interface
-      subroutine dgetrf(m, n, a, lda, ipiv, info)
-         import :: dp
-         integer, intent(in) :: m, n, lda
-         real(dp), intent(inout) :: a(lda, *)
-         integer, intent(out) :: ipiv(*)
-         integer, intent(out) :: info
-      end subroutine dgetrf
-      subroutine dgetrs(trans, n, nrhs, a, lda, ipiv, b, ldb, info)
-         import :: dp
-         character, intent(in) :: trans
-         integer, intent(in) :: n, nrhs, lda, ldb
-         real(dp), intent(in) :: a(lda, *)
-         integer, intent(in) :: ipiv(*)
-         real(dp), intent(inout) :: b(ldb, *)
-         integer, intent(out) :: info
-      end subroutine dgetrs
-      subroutine dgecon(norm, n, a, lda, anorm, rcond, work, iwork, info)
-         import :: dp
-         character, intent(in) :: norm
-         integer, intent(in) :: n, lda
-         real(dp), intent(in) :: a(lda, *), anorm
-         real(dp), intent(out) :: rcond
-         real(dp), intent(out) :: work(*)
-         integer, intent(out) :: iwork(*)
-         integer, intent(out) :: info
-      end subroutine dgecon
       integer(c_int) function c_getpid() bind(c, name='getpid')
          import :: c_int
       end function c_getpid

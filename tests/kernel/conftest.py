@@ -117,3 +117,32 @@ def run_killed_and_resumed(capsim: Path, args: list[str], out: Path, timeout: fl
     assert "resumed from checkpoint" in result.stdout
     assert not checkpoint.exists()
     return result.stdout
+
+
+def uninterrupted_and_resumed(capsim: Path, args: list[str], tmp_path: Path, timeout: float = 600):
+    """Run capsim ARGS once to the end and once killed and resumed (run_killed_and_resumed);
+    return both case files read (``capsmech.io.read_case``): (uninterrupted, resumed)."""
+    from capsmech.io import read_case
+
+    reference = tmp_path / "ref.h5"
+    subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=timeout)
+    resumed = tmp_path / "resumed.h5"
+    run_killed_and_resumed(capsim, args, resumed)
+    return read_case(reference), read_case(resumed)
+
+
+def cached_capsim(capsim: Path, root: Path, *fixed: str, timeout: float = 900, env: dict | None = None):
+    """A function that runs ``capsim FIXED... ARGS... --quiet --out FILE`` once per distinct
+    ARGS (later calls return the same file) and returns the case file's path."""
+    cache: dict[tuple[str, ...], Path] = {}
+
+    def run(*args: str) -> Path:
+        key = tuple(args)
+        if key not in cache:
+            out = root / f"case{len(cache)}.h5"
+            subprocess.run([str(capsim), *fixed, *args, "--quiet", "--out", str(out)], check=True, timeout=timeout,
+                           env=env)
+            cache[key] = out
+        return cache[key]
+
+    return run

@@ -13,24 +13,13 @@ import numpy as np
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error, run_killed_and_resumed
+from conftest import assert_usage_error, cached_capsim, run_killed_and_resumed
 
 
 @pytest.fixture(scope="session")
 def run_case(capsim, tmp_path_factory):
     """Run capsim once per distinct argument list; return the case file path."""
-    cache: dict[tuple[str, ...], Path] = {}
-    root = tmp_path_factory.mktemp("shear")
-
-    def run(*args: str) -> Path:
-        key = tuple(args)
-        if key not in cache:
-            out = root / f"case{len(cache)}.h5"
-            subprocess.run([str(capsim), *args, "--quiet", "--out", str(out)], check=True, timeout=900)
-            cache[key] = out
-        return cache[key]
-
-    return run
+    return cached_capsim(capsim, tmp_path_factory.mktemp("shear"))
 
 
 def small_deformation_slope(nu_s: float) -> float:

@@ -20,7 +20,7 @@ import h5py
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error, run_killed_and_resumed
+from conftest import assert_usage_error, cached_capsim, uninterrupted_and_resumed
 
 ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 STEADY_REL_TOL = 2e-3
@@ -30,19 +30,8 @@ SHAPE = ("D12", "L1", "L2", "theta")
 @pytest.fixture(scope="module")
 def run_shear(capsim, tmp_path_factory):
     """Run capsim --flow shear once per distinct argument list (level 2, one thread); return the path."""
-    cache: dict[tuple[str, ...], Path] = {}
-    root = tmp_path_factory.mktemp("shear_implicit")
-
-    def run(*args: str) -> Path:
-        key = tuple(args)
-        if key not in cache:
-            out = root / f"case{len(cache)}.h5"
-            subprocess.run([str(capsim), "--flow", "shear", "--level", "2", *args, "--threads", "1", "--quiet",
-                            "--out", str(out)], check=True, timeout=300, env=ONE_THREAD)
-            cache[key] = out
-        return cache[key]
-
-    return run
+    return cached_capsim(capsim, tmp_path_factory.mktemp("shear_implicit"), "--flow", "shear", "--level", "2",
+                         "--threads", "1", timeout=300, env=ONE_THREAD)
 
 
 def velocity_evaluations(path: Path) -> int:
@@ -96,11 +85,7 @@ def test_implicit_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
     args = ["--flow", "shear", "--law", "NH", "--ca", "0.01", "--level", "3", "--integrator", "implicit",
             "--threads", "1", "--quiet"]
-    reference = tmp_path / "ref.h5"
-    subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=300)
-    resumed = tmp_path / "resumed.h5"
-    run_killed_and_resumed(capsim, args, resumed)
-    a, b = read_case(reference), read_case(resumed)
+    a, b = uninterrupted_and_resumed(capsim, args, tmp_path, timeout=300)
     assert a.status == b.status == "steady"
     for name in SHAPE:
         assert b.steady_value(name) == pytest.approx(a.steady_value(name), rel=STEADY_REL_TOL), name

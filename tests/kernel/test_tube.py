@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from capsmech.io import read_case
-from conftest import assert_usage_error, run_killed_and_resumed
+from conftest import assert_usage_error, run_killed_and_resumed, uninterrupted_and_resumed
 
 BAD_TUBE_INPUTS = [
     (["--a-over-l", "0"], "--a-over-l"),
@@ -112,11 +112,7 @@ def test_tube_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path):
     # recomputed at the resumed state), the steady shape does not.
     args = ["--flow", "tube", "--law", "NH", "--a-over-l", "0.9", "--ca", "0.1", "--n-meridian", "32",
             "--threads", "1", "--quiet"]
-    reference = tmp_path / "ref.h5"
-    subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=600)
-    resumed = tmp_path / "resumed.h5"
-    run_killed_and_resumed(capsim, args, resumed)
-    a, b = read_case(reference), read_case(resumed)
+    a, b = uninterrupted_and_resumed(capsim, args, tmp_path)
     assert a.status == b.status == "steady", (a.message, b.message)
     for name in ("L_z", "L_p", "v_c"):
         assert b.steady_value(name) == pytest.approx(a.steady_value(name), abs=1e-6), name
