@@ -20,7 +20,7 @@ module shear_implicit
    use capsim_kinds, only: dp, pi
    use lapack_interfaces, only: dgetrf, dgetrs
    use sphere_mesh, only: surface_mesh_t
-   use stokes_single_layer, only: single_layer_t
+   use stokes_single_layer, only: single_layer_t, stokeslet_block
    use triangle_quadrature, only: quadrature_rule_t
    implicit none
    private
@@ -134,7 +134,7 @@ contains
             if (j == i) then
                mat(ri + 1:ri + 3, 3 * j - 2:3 * j) = 0.0_dp
             else
-               mat(ri + 1:ri + 3, 3 * j - 2:3 * j) = (c * node_area(j)) * stokeslet_tensor(x(:, i) - x(:, j))
+               mat(ri + 1:ri + 3, 3 * j - 2:3 * j) = (c * node_area(j)) * stokeslet_block(x(:, i) - x(:, j))
             end if
          end do
          ! The correction triangles: their vertex-rule terms out, their accurate rule in.
@@ -146,7 +146,7 @@ contains
             do m = 1, 3
                cm = 3 * (v(m) - 1)
                if (v(m) /= i) mat(ri + 1:ri + 3, cm + 1:cm + 3) = mat(ri + 1:ri + 3, cm + 1:cm + 3) &
-                                                                 - (c * area / 3.0_dp) * stokeslet_tensor(x(:, i) - x(:, v(m)))
+                                                                 - (c * area / 3.0_dp) * stokeslet_block(x(:, i) - x(:, v(m)))
             end do
             if (corner > 0) then
                rule = sl%duffy(corner)
@@ -160,25 +160,13 @@ contains
                do m = 1, 3
                   cm = 3 * (v(m) - 1)
                   w = c * area * rule%weight(q) * rule%bary(m, q)
-                  mat(ri + 1:ri + 3, cm + 1:cm + 3) = mat(ri + 1:ri + 3, cm + 1:cm + 3) + w * stokeslet_tensor(x(:, i) - y)
+                  mat(ri + 1:ri + 3, cm + 1:cm + 3) = mat(ri + 1:ri + 3, cm + 1:cm + 3) + w * stokeslet_block(x(:, i) - y)
                end do
             end do
          end do
       end do
       !$omp end parallel do
    end subroutine single_layer_matrix
-
-   !> J(r) = I/|r| + r r^T/|r|**3.
-   pure function stokeslet_tensor(r) result(g)
-      real(dp), intent(in) :: r(3)
-      real(dp) :: g(3, 3), rinv
-      integer :: a
-      rinv = 1.0_dp / norm2(r)
-      do a = 1, 3
-         g(:, a) = r * (r(a) * rinv**3)
-         g(a, a) = g(a, a) + rinv
-      end do
-   end function stokeslet_tensor
 
    !> jac = scale * mat K, K the sparse load derivative of the stencil.
    subroutine stencil_product(mat, st, scale, jac)

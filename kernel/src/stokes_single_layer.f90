@@ -17,7 +17,7 @@ module stokes_single_layer
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, duffy_rule
    implicit none
    private
-   public :: single_layer_t, triangle_areas, node_areas, add_stokeslets
+   public :: single_layer_t, triangle_areas, node_areas, add_stokeslets, stokeslet_block
 
    type :: single_layer_t
       integer :: n_nodes = 0
@@ -252,5 +252,17 @@ contains
       rinv = 1.0_dp / norm2(r)
       w = g * rinv + r * (dot_product(r, g) * rinv**3)
    end function stokeslet
+
+   !> The Stokeslet tensor J(r) = I/|r| + r r^T/|r|**3 (a 3 x 3 block of an assembled matrix).
+   pure function stokeslet_block(r) result(blk)
+      real(dp), intent(in) :: r(3)
+      real(dp) :: blk(3, 3), rinv
+      integer :: a
+      rinv = 1.0_dp / norm2(r)
+      do a = 1, 3
+         blk(:, a) = r * (r(a) * rinv**3)
+         blk(a, a) = blk(a, a) + rinv
+      end do
+   end function stokeslet_block
 
 end module stokes_single_layer

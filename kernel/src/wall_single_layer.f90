@@ -84,7 +84,7 @@ module wall_single_layer
    use lapack_interfaces, only: dgecon, dgetrf, dgetrs
    use vector_algebra, only: cross
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, duffy_rule
-   use stokes_single_layer, only: triangle_areas, add_stokeslets
+   use stokes_single_layer, only: triangle_areas, add_stokeslets, stokeslet_block
    use file_ops, only: replace_file
    use triangle_cells, only: triangle_cells_t
    use tube_wall_mesh, only: tube_wall_t, wall_tag_inlet, wall_tag_outlet, wall_tag_rim, centre_half_length, &
@@ -574,17 +574,6 @@ contains
       rinv = 1.0_dp / sqrt(r(1)**2 + r(2)**2 + r(3)**2)
       w = rinv * g + r * ((r(1) * g(1) + r(2) * g(2) + r(3) * g(3)) * rinv**3)
    end function stokeslet
-
-   pure function stokeslet_block(r) result(blk)
-      real(dp), intent(in) :: r(3)
-      real(dp) :: blk(3, 3), rinv
-      integer :: a
-      rinv = 1.0_dp / norm2(r)
-      do a = 1, 3
-         blk(:, a) = r * (r(a) * rinv**3)
-         blk(a, a) = blk(a, a) + rinv
-      end do
-   end function stokeslet_block
 
    !> The rank-one pressure gauge (1/|B|) nhat a^T, added to the transposed matrix.
    subroutine add_pressure_gauge(self)
