@@ -53,7 +53,7 @@ program capsim
    checkpoint_path = trim(opts%out)//'.ckpt'
    call model%run(opts, checkpoint_path, summary, steady_index)
    call system_clock(clock_end)
-   summary%wall_time_s = real(clock_end - clock_start, dp) / clock_rate
+   summary%wall_time_s = summary%wall_time_before_s + real(clock_end - clock_start, dp) / clock_rate
    summary%threads = omp_get_max_threads()
 
    if (steady_index > 0) then

@@ -143,7 +143,8 @@ contains
       summary%dt = self%dt
       signature = option_signature(opts)
       allocate (state(self%state_size()))
-      call read_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, self%n_rec, resumed)
+      call read_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, self%n_rec, &
+                           summary%wall_time_before_s, resumed)
       if (resumed) then
          call self%set_state(state)
          if (.not. opts%quiet) write (*, '(a,f0.3)') 'capsim: resumed from checkpoint at t = ', self%t
@@ -184,7 +185,8 @@ contains
          call system_clock(clock_now)
          if (real(clock_now - clock_ckpt, dp) / clock_rate >= opts%checkpoint_every) then
             call write_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, &
-                                  self%n_rec, stat, errmsg)
+                                  self%n_rec, summary%wall_time_before_s + real(clock_now - clock_start, dp) / clock_rate, &
+                                  stat, errmsg)
             if (stat /= 0 .and. .not. opts%quiet) write (*, '(a)') 'capsim: warning: '//errmsg
             clock_ckpt = clock_now
          end if

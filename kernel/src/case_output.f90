@@ -15,6 +15,10 @@ module case_output
       character(len=32) :: status = 'failed'
       character(len=:), allocatable :: message
       real(dp) :: wall_time_s = 0
+      !> Wall seconds the earlier, interrupted runs of this case spent in their time loops up to
+      !> their last checkpoint (0 for a run that did not resume), so that wall_time_s is the
+      !> case's cost, not only its last segment's.
+      real(dp) :: wall_time_before_s = 0
       integer :: threads = 1
       real(dp) :: dt = 0
       real(dp) :: volume_change = 0
@@ -95,11 +99,12 @@ contains
       call replace_file(trim(opts%out)//'.tmp', trim(opts%out), stat, errmsg)
    end subroutine close_case_file
 
-   !> Binary checkpoint: signature, step, time, model state and the history so far.
-   subroutine write_checkpoint(path, signature, step, t, x, history, n_rec, stat, errmsg)
+   !> Binary checkpoint: signature, step, time, model state, the history so far and the wall
+   !> seconds spent on the case up to now.
+   subroutine write_checkpoint(path, signature, step, t, x, history, n_rec, wall_time_s, stat, errmsg)
       character(len=*), intent(in) :: path, signature
       integer, intent(in) :: step, n_rec
-      real(dp), intent(in) :: t, x(:), history(:, :)
+      real(dp), intent(in) :: t, x(:), history(:, :), wall_time_s
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
       integer :: unit
@@ -110,20 +115,23 @@ contains
          errmsg = 'cannot write checkpoint "'//path//'.tmp": '//trim(iomsg)
          return
       end if
-      write (unit) len(signature), signature, step, t, size(x), x, n_rec, history(:, 1:n_rec)
+      write (unit) len(signature), signature, step, t, size(x), x, n_rec, history(:, 1:n_rec), wall_time_s
       close (unit)
       call replace_file(path//'.tmp', path, stat, errmsg)
    end subroutine write_checkpoint
 
    !> Reads a checkpoint if one exists for the same options; `found` is false otherwise.
-   subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, found)
+   !> `wall_time_s` is 0 for a checkpoint written before it recorded the wall time.
+   subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, wall_time_s, found)
       character(len=*), intent(in) :: path, signature
       integer, intent(inout) :: step, n_rec
       real(dp), intent(inout) :: t, x(:), history(:, :)
+      real(dp), intent(out) :: wall_time_s
       logical, intent(out) :: found
       integer :: unit, ios, sig_len, n_nodes, n_rec_file
       character(len=:), allocatable :: sig_file
       found = .false.
+      wall_time_s = 0
       open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', &
             iostat=ios)
       if (ios /= 0) return
@@ -140,6 +148,8 @@ contains
                   if (ios == 0) then
                      n_rec = n_rec_file
                      found = .true.
+                     read (unit, iostat=ios) wall_time_s
+                     if (ios /= 0) wall_time_s = 0
                   end if
                end if
             end if

@@ -98,11 +98,19 @@ def assert_usage_error(capsim: Path, base: dict[str, str], override: list[str], 
 def run_killed_and_resumed(capsim: Path, args: list[str], out: Path, timeout: float = 600) -> str:
     """Start capsim ARGS --out OUT with frequent checkpoints, SIGKILL it once a checkpoint
     exists, check that nothing half-written is left, run it again and return its stdout
-    (which must report the resume). `args` ends with --quiet, dropped for the second run."""
+    (which must report the resume). `args` ends with --quiet, dropped for the second run.
+
+    Also checks the case's wall time: the checkpoint's last field is the wall time spent so
+    far (positive, at most the time the killed run lived), and the resumed file's
+    ``wall_time_s`` is that plus the second run's own, not the second run's alone."""
     import signal
+    import struct
     import time
 
+    import h5py
+
     checkpoint = Path(str(out) + ".ckpt")
+    started = time.perf_counter()
     proc = subprocess.Popen([str(capsim), *args, "--checkpoint-every", "0.2", "--out", str(out)])
     deadline = time.time() + 60
     while not checkpoint.exists() and time.time() < deadline and proc.poll() is None:
@@ -111,11 +119,19 @@ def run_killed_and_resumed(capsim: Path, args: list[str], out: Path, timeout: fl
     assert proc.poll() is None, "run finished before it could be killed: make the case longer"
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    first_lived = time.perf_counter() - started
     assert not out.exists() and checkpoint.exists()      # nothing half-written
+    (spent_before,) = struct.unpack("<d", checkpoint.read_bytes()[-8:])
+    assert 0.0 < spent_before <= first_lived
+    started = time.perf_counter()
     result = subprocess.run([str(capsim), *args[:-1], "--out", str(out)],
                             capture_output=True, text=True, check=True, timeout=timeout)
+    second_lived = time.perf_counter() - started
     assert "resumed from checkpoint" in result.stdout
     assert not checkpoint.exists()
+    with h5py.File(out, "r") as f:
+        wall_time = float(f.attrs["wall_time_s"])
+    assert spent_before < wall_time <= spent_before + second_lived
     return result.stdout
 
 
