@@ -36,6 +36,8 @@ BAD_GRIDS = [
     ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
     ("offset without the 3D model", malformed(("tube", "laws"), ["NH+offset0.2"]), "tube.laws[0]: law key 'NH+offset0.2': offset needs tube.settings.model: 3d"),
     ("offset in shear", malformed(("shear", "laws"), ["NH+offset0.2"]), "shear.laws[0]: law key 'NH+offset0.2': the kernel has offset only in tube flow"),
+    ("unknown shear integrator", malformed(("shear", "settings"), {"integrator": "newton"}), "shear.settings.integrator: 'newton' is not one of"),
+    ("implicit threshold not positive", malformed(("shear", "settings"), {"implicit_below_Ca_s": 0}), "shear.settings.implicit_below_Ca_s: 0 is less than or equal to the minimum of 0"),
 ]
 
 
@@ -117,3 +119,18 @@ def test_offset_grid_with_the_3d_model_expands_to_3d_cases() -> None:
     args = expand_cases(grid, "tube")[0].kernel_args()
     for flag, value in (("--offset", "0.2"), ("--model", "3d"), ("--level", "2"), ("--wall-h-centre", "0.14")):
         assert args[args.index(flag) + 1] == value
+
+
+def test_implicit_below_Ca_s_changes_exactly_the_cases_below_it() -> None:
+    grid = copy.deepcopy(SMOKE_GRID)
+    grid["shear"]["Ca_s"] = [0.01, 0.05, 0.07, 0.2]
+    before = expand_cases(grid, "shear")
+    grid["shear"]["settings"] = {**grid["shear"].get("settings", {}), "implicit_below_Ca_s": 0.07}
+    validate_grid(grid)
+    after = expand_cases(grid, "shear")
+    changed = [b.Ca_s for b, a in zip(before, after, strict=True) if a.kernel_args() != b.kernel_args()]
+    assert sorted(set(changed)) == [0.01, 0.05]          # 0.07 itself is not below
+    for case in after:
+        args = case.kernel_args()
+        assert "implicit_below_Ca_s" not in " ".join(args)
+        assert (args[args.index("--integrator") + 1] == "implicit") if case.Ca_s < 0.07 else "--integrator" not in args

@@ -33,8 +33,9 @@ SETTING_FLAGS = {
     "tube": {"n_meridian": "--n-meridian", "tube_length": "--tube-length",
              "integrator": "--integrator", "t_max": "--t-max", "model": "--model", "level": "--level",
              "wall_h_far": "--wall-h-far", "wall_h_centre": "--wall-h-centre"},
-    "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max"},
+    "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max", "integrator": "--integrator"},
 }
+
 
 _NUMBER = r"-?[0-9]+(?:\.[0-9]+)?"
 _LAW_KEY = re.compile(rf"^(?:NH|SK_C(?P<C>{_NUMBER})|GH_nu(?P<nu_s>{_NUMBER}))(?P<effects>(?:\+[a-z_]+{_NUMBER})*)$")
@@ -275,14 +276,28 @@ def expand_cases(grid: Mapping[str, Any], flow: str) -> list[Case]:
     if flow not in grid:
         return []
     spec = grid[flow]
-    settings = tuple(flow_settings(grid, flow).items())
     sizes = spec["a_over_l"] if flow == "tube" else [None]
     return [
-        Case(flow, parse_law(key), float(ca), None if a is None else float(a), settings)
+        Case(flow, parse_law(key), float(ca), None if a is None else float(a), case_settings(grid, flow, float(ca)))
         for key in spec["laws"]
         for a in sizes
         for ca in spec["Ca_s"]
     ]
+
+
+def case_settings(grid: Mapping[str, Any], flow: str, Ca_s: float) -> tuple[tuple[str, Any], ...]:
+    """Return the kernel settings of one case of ``flow``, sorted by name.
+
+    They are the flow's settings with its rules applied; a rule is a setting that is not a
+    kernel flag: ``shear.implicit_below_Ca_s`` gives every shear case with Ca_s below it
+    ``integrator: implicit`` (ROS2 steps, faster where the explicit step is bound by the
+    membrane stiffness). A rule changes exactly the cases it selects (their kernel arguments,
+    hence their signature), no others."""
+    settings = flow_settings(grid, flow)
+    threshold = settings.pop("implicit_below_Ca_s", None)
+    if threshold is not None and Ca_s < threshold:
+        settings["integrator"] = "implicit"
+    return tuple(sorted(settings.items()))
 
 
 def grid_json(grid: Mapping[str, Any]) -> str:
