@@ -56,7 +56,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -320,15 +320,15 @@ class BatchScore:
 
 
 @dataclass
-class CandidateResult:
-    """The outcome of one candidate on a batch."""
+class Evidence:
+    """What the criteria say about one candidate on a batch, for tube and shear diagnoses alike.
+
+    ``name`` is positional; the criteria are keyword-only (they follow any positional field a
+    subclass adds)."""
 
     name: str
-    parameter: str
-    unit: str
-    theta: float = math.nan
-    law: str = ""
-    interval: tuple[float, float] = (math.nan, math.nan)
+    _: KW_ONLY
+    capsules: int = 0
     chi2_base: float = math.nan
     chi2: float = math.nan
     bic_drop: float = math.nan
@@ -340,8 +340,18 @@ class CandidateResult:
     g_s_after: tuple[float, float] = (math.nan, math.nan)
     drift_p_before: float = math.nan
     drift_p_after: float = math.nan
-    capsules: int = 0
     note: str = ""
+
+
+@dataclass
+class CandidateResult(Evidence):
+    """The outcome of one candidate on a tube batch: its parameter, fitted value and interval."""
+
+    parameter: str = ""
+    unit: str = ""
+    theta: float = math.nan
+    law: str = ""
+    interval: tuple[float, float] = (math.nan, math.nan)
     #: The grid the workflow must run before the candidate can be assessed (see effect_grid).
     needs: dict | None = None
     after: BatchScore | None = field(default=None, repr=False)

@@ -56,7 +56,7 @@ import numpy as np
 from scipy import stats
 from scipy.interpolate import PchipInterpolator
 
-from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, rivals_of
+from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, Evidence, rivals_of
 from capsmech.fitting import shear_inverter
 from capsmech.inverse import ShearInverter
 from capsmech.measurements import Capsule
@@ -189,27 +189,13 @@ def drift_p_value(law: str, d12: np.ndarray, y: np.ndarray) -> float:
 
 
 @dataclass
-class ShearCandidateResult:
+class ShearCandidateResult(Evidence):
     """One candidate group against the base group, on the capsules both fit."""
 
-    name: str
-    law: str
-    capsules: int = 0
-    chi2_base: float = math.nan
-    chi2: float = math.nan
+    law: str = ""
     #: The inclination's part of chi2_base and chi2 (0 without theta).
     chi2_theta_base: float = math.nan
     chi2_theta: float = math.nan
-    bic_drop: float = math.nan
-    cv_gain: float = math.nan
-    cv_gain_error: float = math.nan
-    cv_p_value: float = math.nan
-    supported: bool = False
-    g_s_before: tuple[float, float] = (math.nan, math.nan)
-    g_s_after: tuple[float, float] = (math.nan, math.nan)
-    drift_p_before: float = math.nan
-    drift_p_after: float = math.nan
-    note: str = ""
     score: GroupScore | None = field(default=None, repr=False)
     used: np.ndarray | None = field(default=None, repr=False)
 
