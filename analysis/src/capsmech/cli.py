@@ -449,6 +449,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
               f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
               f"make database GRID={r.needs['name']} (grid written to {path})")
+    for capsule, why in result.excluded:
+        print(f"capsmech diagnose: left out {capsule}: {why}")
     print(f"verdict: {result.verdict}")
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):

@@ -143,6 +143,25 @@ def symmetry_axis(contour: np.ndarray) -> tuple[float, float]:
     return float(best.x), float(best.fun)
 
 
+def contour_asymmetry(contour: np.ndarray, pixel_size: float = math.nan) -> tuple[float, float, float]:
+    """How far a contour is from mirror symmetry about its best axis, and the flag's limit.
+
+    Returns
+    -------
+    (asymmetry, limit, axis_y) : tuple of float
+        The mirror distance (``symmetry_axis``) over the radius of the capsule's
+        volume-equivalent size estimated from the contour itself; the limit above which the
+        contour is flagged asymmetric (``MAX_ASYMMETRY``, or ``ASYMMETRY_PIXELS`` pixels when
+        ``pixel_size`` is known and that is larger); the axis y0.
+    """
+    axis_y, mirror_distance = symmetry_axis(contour)
+    radius = volume_radius(contour, axis_y)
+    limit = MAX_ASYMMETRY
+    if math.isfinite(pixel_size):
+        limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * pixel_size / radius)
+    return mirror_distance / radius, limit, axis_y
+
+
 def full_profile(meridian: np.ndarray) -> np.ndarray:
     """The closed profile (x = z, y = r) of a meridian (r, z) mirrored about the axis."""
     meridian = np.asarray(meridian, dtype=float)

@@ -137,6 +137,9 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
             tube = r.needs["tube"]
             lines += [f"Candidate {r.name} needs simulations: laws {', '.join(tube['laws'])} on a/l "
                       f"{tube['a_over_l']} x Ca_s {tube['Ca_s']} (`make database GRID={r.needs['name']}`).", ""]
+    if diagnosis.excluded:
+        lines += [f"Left out before the diagnosis ({len(diagnosis.excluded)}; an axisymmetric model cannot "
+                  "explain them):", ""] + [f"- {capsule}: {why}" for capsule, why in diagnosis.excluded] + [""]
     if figures:
         titles = {"residuals": "Residual profile before and after", "gs_delta": "G_s against Delta before and after",
                   "criteria": "Criterion per candidate"}

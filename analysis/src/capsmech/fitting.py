@@ -21,8 +21,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from capsmech.contours import (ASYMMETRY_PIXELS, MAX_ASYMMETRY, MAX_H_OVER_A, profile_misfit, symmetry_axis,
-                               volume_radius)
+from capsmech.contours import MAX_ASYMMETRY, MAX_H_OVER_A, contour_asymmetry, profile_misfit
 from capsmech.database import Database, ShearDatabase, TubeDatabase
 from capsmech.inverse import (FIVE_FITS, FiveFits, ShearInverter, TubeFits, TubeInverter, TubeTable,
                               profile_elongation)
@@ -96,11 +95,7 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
         # the radius of the capsule's volume-equivalent size estimated from the contour itself.
         asymmetry, asymmetry_limit, axis_y = float("nan"), MAX_ASYMMETRY, None
         if capsule.contour is not None:
-            axis_y, mirror_distance = symmetry_axis(capsule.contour)
-            radius = volume_radius(capsule.contour, axis_y)
-            asymmetry = mirror_distance / radius
-            if math.isfinite(capsule["pixel_size"]):
-                asymmetry_limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * capsule["pixel_size"] / radius)
+            asymmetry, asymmetry_limit, axis_y = contour_asymmetry(capsule.contour, capsule["pixel_size"])
         for law in laws:
             fits = FiveFits({name: five[law].row(j * len(capsules) + k)
                              for j, (name, _, _) in enumerate(FIVE_FITS)})
@@ -127,13 +122,14 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
                 row["vc_residual"], row["vc_residual_error"] = velocity_residual(
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
-            if fits.n_valid == 0:
+            # An asymmetric contour comes first: it says why every fit of it is doubtful.
+            if asymmetry > asymmetry_limit:
+                row["flag"] = (f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
+                               "1 % of a or one pixel), not an axisymmetric centred capsule")
+            elif fits.n_valid == 0:
                 row["flag"] = fits.fits["fit1"].flag or "no valid fit"
             elif not fits.fits["fit1"].ok:
                 row["flag"] = "central fit: " + fits.fits["fit1"].flag
-            elif asymmetry > asymmetry_limit:
-                row["flag"] = (f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
-                               "1 % of a or one pixel), not an axisymmetric centred capsule")
             elif row["H_over_a"] > MAX_H_OVER_A:
                 row["flag"] = (f"profile misfit: H/a = {row['H_over_a']:.3f} > {MAX_H_OVER_A} "
                                "(the fitted simulation does not have the measured shape)")

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from capsmech.grid import parse_law
@@ -38,6 +39,11 @@ class SimulatedCapsule:
     vc_over_V: float
     meridian: np.ndarray
     status: str
+    #: The whole closed section (z, x) [l] of a capsule that is not axisymmetric (off the
+    #: axis, ``simulate_offcentre_tube``), used for its contour instead of the mirrored meridian.
+    section: np.ndarray | None = None
+    #: Radial position of the centroid [l] (0 on the axis).
+    r_c: float = 0.0
 
 
 def simulate_tube(a_over_l: float, Ca_s: float, law: str, n_meridian: int = 64, threads: int = 1,
@@ -67,13 +73,55 @@ def noisy_contour(meridian: np.ndarray, pixels_per_l: float, rng: np.random.Gene
     sampled every ``spacing_px`` pixels; each coordinate is off by a uniform error in
     [-error_px, error_px] (the paper's +-1 pixel).
     """
-    from capsmech.contours import full_profile, resample_curve
+    from capsmech.contours import full_profile
 
-    profile = full_profile(meridian) * pixels_per_l
+    return traced_contour(full_profile(meridian), pixels_per_l, rng, error_px, spacing_px)
+
+
+def traced_contour(section: np.ndarray, pixels_per_l: float, rng: np.random.Generator,
+                   error_px: float = 1.0, spacing_px: float = 2.0) -> np.ndarray:
+    """A hand-traced contour [px] of a closed section (x along the flow, y across) [l]: placed,
+    sampled and traced with errors as ``noisy_contour`` says."""
+    from capsmech.contours import resample_curve
+
+    profile = np.asarray(section, dtype=float) * pixels_per_l
     length = np.sum(np.hypot(*np.diff(np.vstack([profile, profile[:1]]), axis=0).T))
     points = resample_curve(profile, n=max(int(length / spacing_px), 16), closed=True)
     origin = np.array([rng.uniform(200, 400), rng.uniform(150, 250)])
     return points + origin + rng.uniform(-error_px, error_px, points.shape)
+
+
+def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: float, law: str = "NH",
+                            level: int = 2, wall: tuple[float, float] = (0.28, 0.14), tube_length: float = 6.0,
+                            out: str | Path | None = None, capsim: str | Path | None = None) -> SimulatedCapsule:
+    """Run the 3D tube kernel for a capsule released ``offset`` [l] off the axis, to ``t_max``.
+
+    It migrates towards the axis while it deforms; what is returned is its state at the end
+    (lengths and v_c/V of the last history row, its radial position ``r_c``, and its section
+    through the tube axis and its centroid, ``capsmech.mesh_section``), whatever the run's
+    status: an off-centre capsule is a snapshot of a slow migration, not a steady state.
+    ``out``: keep the case file there (and reuse it when it exists). Minutes a case at level 2.
+    """
+    from capsmech.mesh_section import plane_section
+
+    kernel = Path(capsim) if capsim else capsim_executable()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(out) if out else Path(tmp) / "case.h5"
+        if not path.exists():
+            subprocess.run([str(kernel), "--flow", "tube", "--model", "3d", *parse_law(law).kernel_args(),
+                            "--a-over-l", repr(float(a_over_l)), "--ca", repr(float(Ca_s)), "--offset", repr(float(offset)),
+                            "--level", str(level), "--wall-h-far", repr(wall[0]), "--wall-h-centre", repr(wall[1]),
+                            "--tube-length", repr(tube_length), "--t-max", repr(float(t_max)), "--threads", "1",
+                            "--quiet", "--out", str(path)], check=True, capture_output=True, text=True)
+        case = read_case(path)
+        with h5py.File(path, "r") as f:
+            nodes, triangles = f["mesh/nodes"][()], f["mesh/triangles"][()]
+    # The capsule is offset along x and symmetric about y = 0: the section there, (z, x).
+    section = plane_section(nodes, triangles, normal_axis=1)
+    last = {name: float(case.history[name][-1]) for name in ("L_z", "L_p", "v_c", "r_c")}
+    meridian = np.column_stack([case.profile["r"], case.profile["z"]])
+    return SimulatedCapsule(float(a_over_l), float(Ca_s), law, last["L_z"], last["L_p"], last["v_c"], meridian,
+                            case.status, section=section, r_c=last["r_c"])
 
 
 def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_radius_um: float = 50.0,
@@ -90,7 +138,7 @@ def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_rad
     contour_rng = np.random.default_rng(seed + 1000)
     rows = []
     for k, capsule in enumerate(capsules):
-        if capsule.status != "steady":
+        if capsule.status != "steady" and capsule.section is None:
             continue
         scale = 1 + noise * rng.standard_normal(3)
         mean_velocity_mm_s = capsule.Ca_s * g_s / mu_pa_s * 1e3
@@ -100,7 +148,9 @@ def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_rad
             "tube_radius": tube_radius_um, "mu": mu_pa_s}
         if pixel_size_um is not None:
             row["pixel_size"] = pixel_size_um
-            row["contour"] = noisy_contour(capsule.meridian, tube_radius_um / pixel_size_um, contour_rng)
+            row["contour"] = (noisy_contour(capsule.meridian, tube_radius_um / pixel_size_um, contour_rng)
+                              if capsule.section is None else
+                              traced_contour(capsule.section, tube_radius_um / pixel_size_um, contour_rng))
         rows.append(row)
     return rows
 
