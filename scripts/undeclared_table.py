@@ -90,7 +90,8 @@ def markdown(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", action="append", help="batch name (repeatable; default all)")
+    parser.add_argument("--only", action="append",
+                        help="batch name (repeatable; default all); the other rows are kept from the last run's table.json")
     parser.add_argument("--readme", action="store_true", help="write the table into README.md between its markers")
     parser.add_argument("--reports", type=Path, default=ROOT / "results" / "undeclared", help="report folder")
     args = parser.parse_args(argv)
@@ -100,9 +101,14 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         rows.append(analyse(name, databases, args.reports))
         print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    saved = args.reports / "table.json"
+    if args.only and saved.is_file():
+        # Rows of the batches not analysed now are kept from the last run (same folder).
+        fresh = {r["batch"]: r for r in rows}
+        rows = [fresh.pop(r["batch"], r) for r in json.loads(saved.read_text())] + list(fresh.values())
     table = markdown(rows)
     print(table)
-    (args.reports / "table.json").write_text(json.dumps(rows, indent=1))
+    saved.write_text(json.dumps(rows, indent=1))
     if args.readme:
         readme = ROOT / "README.md"
         text = readme.read_text(encoding="utf-8")

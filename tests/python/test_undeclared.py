@@ -27,8 +27,9 @@ import numpy as np
 import pytest
 
 from capsmech.database import load_database
-from capsmech.diagnose import (NOT_ASSESSED, BlendedLaw, DatabaseSet, _apply_all, candidate_library, diagnose,
-                               interpolation_weights, law_candidate, prestress_candidate, write_report)
+from capsmech.diagnose import (NOT_ASSESSED, BatchScore, BlendedLaw, CandidateResult, DatabaseSet, _apply_all,
+                               candidate_library, compare_supported, diagnose, interpolation_weights, law_candidate,
+                               prestress_candidate, rivals_of, write_report)
 from capsmech.effect_grid import case_count
 from capsmech.grid import validate_grid
 from capsmech.measurements import read_measurements
@@ -241,3 +242,27 @@ def test_regenerated_batch_equals_the_shipped_one(tmp_path):
                                                    for p in (BATCHES / "batch_B_contours").iterdir())]
     match, mismatch, errors = filecmp.cmpfiles(BATCHES, tmp_path, names, shallow=False)
     assert not mismatch and not errors
+
+
+def _result(name: str, own_drop: float, after_chi2: list[float]) -> CandidateResult:
+    chi2 = np.array(after_chi2, dtype=float)
+    return CandidateResult(name, "theta", "1", supported=True, bic_drop=own_drop,
+                           after=BatchScore(chi2, np.ones_like(chi2), np.ones_like(chi2)))
+
+
+def test_supported_candidates_are_compared_on_the_capsules_all_of_them_fit():
+    # "wide" fits one capsule more and so has the larger drop of its own, but on the capsules
+    # both fit its chi2 is higher: the data prefer "narrow". (The two-effect batch, batch_F:
+    # bending 26352 own over 23 capsules, pre-stress 22451 over 21; on the common 21, chi2
+    # 1764 against 468.)
+    base = BatchScore(np.array([100.0, 100.0, 100.0, 500.0]), np.ones(4), np.ones(4))
+    wide = _result("wide", own_drop=500.0, after_chi2=[20.0, 20.0, 20.0, 20.0])
+    narrow = _result("narrow", own_drop=290.0, after_chi2=[2.0, 2.0, 2.0, np.nan])
+    assert compare_supported([wide, narrow], base) is narrow
+    n_points = 3 * 16
+    assert narrow.bic_drop_common == pytest.approx(3 * 98.0 - np.log(n_points))
+    assert wide.bic_drop_common == pytest.approx(3 * 80.0 - np.log(n_points))
+    assert rivals_of(narrow, [wide, narrow], lambda r: r.bic_drop_common) == []
+    unsupported = _result("no", own_drop=1e6, after_chi2=[0.0, 0.0, 0.0, 0.0])
+    unsupported.supported = False
+    assert compare_supported([unsupported], base) is None

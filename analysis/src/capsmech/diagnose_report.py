@@ -132,6 +132,12 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
               f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
               "standard errors. chi2: contour residuals over each capsule's tracing noise, "
               f"{PROFILE_POINTS} points a capsule.", ""]
+    compared = sorted((r for r in diagnosis.results if r.supported and math.isfinite(r.bic_drop_common)),
+                      key=lambda r: -r.bic_drop_common)
+    if len(compared) > 1:
+        lines += ["Choice between the supported candidates: BIC drop on the capsules every one of them fits "
+                  "(their own drops are over different capsules): "
+                  + ", ".join(f"{r.name} {r.bic_drop_common:.1f}" for r in compared) + ".", ""]
     for r in diagnosis.results:
         if r.needs is not None:
             tube = r.needs["tube"]
