@@ -99,3 +99,20 @@ def test_bad_offset_exits_2_naming_the_field(capsim, tmp_path, override, field):
     base = {"--flow": "tube", "--model": "3d", "--law": "NH", "--ca": "0.05", "--a-over-l": str(SIZE),
             "--wall-cache": str(tmp_path), "--out": str(out)}
     assert_usage_error(capsim, base, override, field, out)
+
+
+@pytest.mark.validate
+def test_a_confined_capsule_released_off_the_axis_centres_within_a_few_tube_radii(capsim, tmp_path):
+    # a/l = 0.85, Ca_s = 0.05, released at b = 0.05 l (level 2, the coarse wall; ~5 min on one
+    # core). Measured: r_c 0.05 -> 0.016 (t = 2.6) -> 5e-4 (t = 6.5), an e-folding time of 1.73
+    # l/V (2.1 l of travel; at a/l 0.7 it is 6.7 l/V, at 0.6 17 l/V). Deformable capsules migrate
+    # to the axis of Poiseuille flow; the narrower the gap to the wall, the faster.
+    out = tmp_path / "confined.h5"
+    run_capsim(capsim, ["--flow", "tube", "--model", "3d", "--law", "NH", "--a-over-l", "0.85", "--ca", "0.05",
+                        "--offset", "0.05", "--level", "2", *COARSE_WALL, "--wall-cache", str(tmp_path),
+                        "--threads", "1", "--quiet", "--t-max", "6.5", "--out", str(out)])
+    h = read_case(out).history
+    window = (h["r_c"] < 0.7 * 0.05) & (h["r_c"] > 0.1 * 0.05)
+    e_folding = -1.0 / np.polyfit(h["t"][window], np.log(h["r_c"][window]), 1)[0]
+    assert e_folding < 2.5
+    assert h["r_c"][-1] < 0.05 * 0.05
