@@ -125,6 +125,9 @@ module tube_capsule
       !> Experiment (tube3d_probe self-quadrature): remove the net flux of the capsule's single
       !> layer through the wall from the wall data, along the node normals, before the solve.
       logical :: wall_flux_free = .false.
+      !> Experiment (tube3d_probe self-rules): the radius within which the capsule's single
+      !> layer at the wall nodes replaces the vertex rule (near_radius in the model).
+      real(dp) :: wall_near_radius = near_radius
       !> Viscosity ratio; the double layer, its equation and their work arrays are set up only
       !> when lambda /= 1.
       real(dp) :: lambda = 1
@@ -444,8 +447,8 @@ contains
                              self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
       end do
       !$omp end parallel do
-      call self%cells%build(self%tri_centroid, self%tri_diameter, near_radius, leaf_ratio, &
-                            max(0.5_dp * near_radius, maxval(self%tri_diameter)))
+      call self%cells%build(self%tri_centroid, self%tri_diameter, self%wall_near_radius, leaf_ratio, &
+                            max(0.5_dp * self%wall_near_radius, maxval(self%tri_diameter)))
       ! Points farther than `reach` from the capsule's bounding cylinder need no correction.
       reach = self%cells%max_reach + maxval(self%tri_diameter)
       z_lo = minval(x(3, 1:n)) - reach

@@ -32,13 +32,16 @@
 !>     with self_single_layer at far rules (FAR: 7 the 7-point rule, 3 the interior 3-point
 !>     rule, 1 the edge-midpoint rule) and near/subdivision ratios (v_c_FAR_NEAR_SUB,
 !>     self_s_FAR_NEAR_SUB, and the largest difference of the membrane velocity from the
-!>     reference's over its largest speed, max_du_FAR_NEAR_SUB); 7_6.0_6.0 is the reference.
+!>     reference's over its largest speed, max_du_FAR_NEAR_SUB); 7_6.0_6.0 is the reference;
+!>     then v_c with the 7-point rule on every capsule triangle at the wall nodes too, with
+!>     the full and the vertex self quadrature.
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
    use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use run_options, only: run_options_t
    use tube_capsule, only: tube_capsule_t, volume_gradients, remove_volume_flux
+   use self_single_layer, only: far_edge
    use wall_single_layer, only: triangle_correction
    use capsim_kinds, only: pi
    use sphere_mesh, only: surface_mesh_t, icosphere
@@ -206,6 +209,15 @@ contains
          if (k == 1) u_ref = u
          call put('max_du_'//trim(key), maxval(norm2(u - u_ref, dim=1)) / maxval(norm2(u_ref, dim=1)))
       end do
+      ! The model's own rules, with the 7-point rule on every capsule triangle at the wall
+      ! nodes as well (the vertex rule beyond near_radius there is the next suspect).
+      call model%self_layer%init(model%mesh, 4, far_edge, 3.0_dp, 2.0_dp)
+      model%wall_near_radius = 100.0_dp
+      call model%velocity(x, u)
+      call put('v_c_full_capsule_at_wall_all_7_point', model%v_c)
+      model%self_full = .false.
+      call model%velocity(x, u)
+      call put('v_c_vertex_capsule_at_wall_all_7_point', model%v_c)
    end subroutine probe_self_rules
 
    !> The membrane's own single layer from argument `iarg`: 0 the vertex rule, 1 with the
