@@ -136,6 +136,7 @@ BAD_3D_INPUTS = [
     (["--model", "2d"], "--model"),
     (["--self-quadrature", "exact"], "--self-quadrature"),
     (["--model", "axi", "--self-quadrature", "full"], "--self-quadrature"),
+    (["--flow", "shear", "--self-quadrature", "full"], "--self-quadrature"),
 ]
 
 
