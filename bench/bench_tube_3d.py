@@ -1,13 +1,20 @@
 """Time the 3D tube model (`--model 3d`): the wall's assembly and LU factorisation, the load
 of the cached LU, one membrane velocity evaluation and one RK2 step, at capsule levels 3 and
-4 on 1 and 2 OpenMP threads, and where a velocity evaluation spends its time (capsule single
-layer at the wall nodes, the membrane's near-field self correction, wall solve, wall single
-layer at the membrane nodes).
+4 on 1 and 2 OpenMP threads, and where a velocity evaluation spends its time (the membrane's
+own single layer, capsule single layer at the wall nodes, the membrane's near-field self
+correction, wall solve, wall single layer at the membrane nodes).
 
 Run through `make bench` or directly after `make build`:
 
     .venv/bin/python bench/bench_tube_3d.py [--wall H_FAR H_CENTRE LENGTH] [--steps N]
-        [--repeats N] [--baseline OTHER/bin/tube3d_probe]
+        [--repeats N] [--baseline OTHER/bin/tube3d_probe] [--self vertex near full ...]
+        [--threads 1 2 ...]
+
+`--self` times the membrane's own single layer's rules in the same run (vertex: the vertex
+rule beyond the second ring, `--self-quadrature vertex`; near: that plus the near-field
+self correction within 0.5 l, `tube_capsule_t%self_near_field`; full: the 7-point rule on
+every triangle, `--self-quadrature full`, the default), alternating case by case, and prints
+each rule's time over the vertex rule's when vertex is among them.
 
 `--baseline` times a second build (e.g. a worktree of an earlier commit) in the same run,
 alternating the two binaries case by case, and prints this build's time over the
@@ -33,14 +40,19 @@ PROBE = REPO / "bin" / "tube3d_probe"
 SIZE_RATIO, CA = 0.8, 0.05
 
 
-TIMED = ("velocity_s", "capsule_at_wall_s", "capsule_self_near_s", "wall_solve_s", "wall_at_capsule_s", "rk2_step_s",
+SELF_MODES = {"vertex": 0, "near": 1, "full": 2}
+TIMED = ("velocity_s", "capsule_self_s", "capsule_at_wall_s", "capsule_self_near_s", "wall_solve_s", "wall_at_capsule_s", "rk2_step_s",
          "velocity_cpu_s")
 
 
-def run_probe(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
-    """One probe run; its CPU time (user + system, all threads) as cpu_s."""
+def run_probe(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int,
+              mode: str | None = None) -> dict[str, float]:
+    """One probe run (`mode`: the self quadrature, None for the probe's default); its CPU
+    time (user + system, all threads) as cpu_s."""
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), OMP_PROC_BIND="close")
     args = [str(probe), "timing", str(level), str(SIZE_RATIO), str(CA), wall[2], wall[0], wall[1], str(cache), str(steps)]
+    if mode is not None:
+        args.append(str(SELF_MODES[mode]))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -49,12 +61,13 @@ def run_probe(probe: Path, level: int, threads: int, wall: list[str], cache: Pat
     return r
 
 
-def measure(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int) -> dict[str, float]:
+def measure(probe: Path, level: int, threads: int, wall: list[str], cache: Path, steps: int,
+            mode: str | None = None) -> dict[str, float]:
     """The probe's wall-clock figures, and the CPU time of one velocity evaluation: the CPU
     time of a run with `steps` RK2 steps less that of a run with none, over 2 x steps
     evaluations. CPU time is what a loaded machine disturbs least (no waiting for a core)."""
-    r = run_probe(probe, level, threads, wall, cache, steps)
-    r["velocity_cpu_s"] = (r["cpu_s"] - run_probe(probe, level, threads, wall, cache, 0)["cpu_s"]) / (2 * steps)
+    r = run_probe(probe, level, threads, wall, cache, steps, mode)
+    r["velocity_cpu_s"] = (r["cpu_s"] - run_probe(probe, level, threads, wall, cache, 0, mode)["cpu_s"]) / (2 * steps)
     return r
 
 
@@ -73,6 +86,9 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=3, help="RK2 steps timed per case (at least 1)")
     parser.add_argument("--repeats", type=int, default=1, help="runs per case; the fastest is reported")
     parser.add_argument("--baseline", type=Path, help="a tube3d_probe of another build, timed alternately")
+    parser.add_argument("--self", nargs="+", choices=sorted(SELF_MODES), default=None,
+                        help="self quadratures to time in this run (default: the model's default only)")
+    parser.add_argument("--threads", nargs="+", type=int, default=[1, 2], help="OpenMP thread counts")
     args = parser.parse_args()
     if not PROBE.exists():
         print(f"{PROBE} is missing: run `make build` first", file=sys.stderr)
@@ -88,29 +104,49 @@ def main() -> int:
         w = run_probe(PROBE, 3, 1, args.wall, cache, 0)
         print(f"wall of {int(w['n_wall_nodes'])} nodes: assembly {w['wall_assembly_s']:.2f} s, "
               f"LU {w['wall_factor_s']:.2f} s (1 thread), written to the cache")
-        print(f"{'level':>5} {'nodes':>6} {'threads':>7} {'wall setup [s]':>15} {'velocity [s]':>13} "
-              f"{'caps->wall':>11} {'caps self':>10} {'solve':>7} {'wall->caps':>11} {'RK2 step [s]':>13} {'velocity CPU [s]':>17}")
-        ratios = []
+        modes = args.self if args.self is not None else [None]
+        print(f"{'level':>5} {'nodes':>6} {'threads':>7} {'self':>6} {'wall setup [s]':>15} {'velocity [s]':>13} "
+              f"{'own SL':>7} {'caps->wall':>11} {'caps self':>10} {'solve':>7} {'wall->caps':>11} {'RK2 step [s]':>13} "
+              f"{'velocity CPU [s]':>17}")
+        ratios, mode_ratios = [], []
         for level in (3, 4):
-            for threads in (1, 2):
-                runs, base_runs = [], []
+            for threads in args.threads:
+                mode_runs: dict[str | None, list[dict[str, float]]] = {m: [] for m in modes}
+                base_runs = []
                 for _ in range(args.repeats):
-                    runs.append(measure(PROBE, level, threads, args.wall, cache, args.steps))
+                    for m in modes:
+                        mode_runs[m].append(measure(PROBE, level, threads, args.wall, cache, args.steps, m))
                     if args.baseline is not None:
                         base_runs.append(measure(args.baseline, level, threads, args.wall, cache, args.steps))
-                r = fastest(runs)
-                setup = f"{r['wall_setup_s']:.2f} (cache)" if r["from_cache"] else f"{r['wall_setup_s']:.2f}"
-                print(f"{level:>5} {int(r['n_nodes']):>6} {threads:>7} {setup:>15} {r['velocity_s']:>13.3f} "
-                      f"{r['capsule_at_wall_s']:>11.3f} {r['capsule_self_near_s']:>10.3f} {r['wall_solve_s']:>7.3f} "
-                      f"{r['wall_at_capsule_s']:>11.3f} "
-                      f"{r['rk2_step_s']:>13.3f} {r['velocity_cpu_s']:>17.3f}")
+                best = {m: fastest(runs) for m, runs in mode_runs.items()}
+                for m, r in best.items():
+                    setup = f"{r['wall_setup_s']:.2f} (cache)" if r["from_cache"] else f"{r['wall_setup_s']:.2f}"
+                    print(f"{level:>5} {int(r['n_nodes']):>6} {threads:>7} {m or 'dflt':>6} {setup:>15} "
+                          f"{r['velocity_s']:>13.3f} {r['capsule_self_s']:>7.3f} "
+                          f"{r['capsule_at_wall_s']:>11.3f} {r['capsule_self_near_s']:>10.3f} {r['wall_solve_s']:>7.3f} "
+                          f"{r['wall_at_capsule_s']:>11.3f} "
+                          f"{r['rk2_step_s']:>13.3f} {r['velocity_cpu_s']:>17.3f}")
+                if "vertex" in best:
+                    v = best["vertex"]
+                    for m, r in best.items():
+                        if m != "vertex":
+                            mode_ratios.append((level, threads, m, {k: r[k] / v[k] for k in TIMED if v[k] > 0}))
+                r = best[modes[0]]
                 if base_runs:
                     b = fastest(base_runs)
-                    print(f"{'':>5} {'':>6} {'base':>7} {'':>15} {b['velocity_s']:>13.3f} {b['capsule_at_wall_s']:>11.3f} "
+                    print(f"{'':>5} {'':>6} {'base':>7} {'':>6} {'':>15} {b['velocity_s']:>13.3f} "
+                          f"{b.get('capsule_self_s', 0.0):>7.3f} {b['capsule_at_wall_s']:>11.3f} "
                           f"{b['capsule_self_near_s']:>10.3f} {b['wall_solve_s']:>7.3f} {b['wall_at_capsule_s']:>11.3f} "
                           f"{b['rk2_step_s']:>13.3f} {b['velocity_cpu_s']:>17.3f}")
                     ratios.append((level, threads, {k: r[k] / b[k] for k in TIMED if b[k] > 0}))
-        print("velocity CPU: CPU seconds (all threads) of one evaluation, from runs with and without RK2 steps")
+        print("velocity CPU: CPU seconds (all threads) of one evaluation, from runs with and without RK2 steps; "
+              "own SL: the membrane's own single layer (vertex, near: single_layer; full: self_single_layer)")
+        if mode_ratios:
+            print("self quadrature / vertex rule (same run, fastest of each):")
+            print(f"{'level':>5} {'threads':>7} {'self':>6} {'velocity':>9} {'RK2 step':>9} {'velocity CPU':>13}")
+            for level, threads, m, q in mode_ratios:
+                print(f"{level:>5} {threads:>7} {m:>6} {q['velocity_s']:>9.2f} {q['rk2_step_s']:>9.2f} "
+                      f"{q['velocity_cpu_s']:>13.2f}")
         if ratios:
             print("this build / baseline (same run, fastest of each):")
             print(f"{'level':>5} {'threads':>7} {'velocity':>9} {'caps->wall':>11} {'wall->caps':>11} {'RK2 step':>9} "

@@ -31,6 +31,10 @@ module run_options
       real(dp) :: wall_h_far = 0.14_dp
       real(dp) :: wall_h_centre = 0.07_dp
       character(len=path_len) :: wall_cache = ''
+      !> 3D tube model: quadrature of the membrane's own single layer ('full': the 7-point rule
+      !> on every triangle; 'vertex': one Stokeslet per node beyond the second ring, the model
+      !> before it). '' = the model's default, full.
+      character(len=16) :: self_quadrature = ''
       !> Newton converges when the largest membrane velocity in the capsule frame is below this [V].
       real(dp) :: newton_tol = 1.0e-8_dp
       real(dp) :: nu_s = 0.5_dp
@@ -72,7 +76,7 @@ module run_options
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
       ' [--prestress ALPHA] [--kb X] [--offset X] [--level N] [--dt X]'// &
-      ' [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none]'// &
+      ' [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none] [--self-quadrature vertex|full]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
       '  (or --namelist FILE with group &capsim)'
@@ -162,6 +166,8 @@ contains
          case ('--wall-cache')
             opts%wall_cache = value
             if (len_trim(value) == 0) call fail(trim(key), 'empty directory name (use none to disable the cache)')
+         case ('--self-quadrature')
+            opts%self_quadrature = value(:len(opts%self_quadrature))
          case ('--n-meridian')
             call read_int(key, value, opts%n_meridian)
          case ('--out')
@@ -321,6 +327,9 @@ contains
          if (opts%offset /= 0.0_dp) then
             errmsg = '--offset: only for --flow tube --model 3d, got '//real_text(opts%offset)
             return
+         else if (len_trim(opts%self_quadrature) > 0) then
+            errmsg = '--self-quadrature: only for --flow tube --model 3d, got "'//trim(opts%self_quadrature)//'"'
+            return
          else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'implicit', 'rk2'])) then
             errmsg = '--integrator: the shear flow steps with rk2 (auto) or implicit, got "'//trim(opts%integrator)//'"'
             return
@@ -356,6 +365,13 @@ contains
                errmsg = '--wall-cache: cannot write in "'//trim(opts%wall_cache)//'": '//trim(iomsg)
             else
                close (unit, status='delete')
+            end if
+         end if
+         if (len(errmsg) == 0 .and. len_trim(opts%self_quadrature) > 0) then
+            if (trim(opts%model) /= '3d') then
+               errmsg = '--self-quadrature: only for --model 3d, got "'//trim(opts%self_quadrature)//'"'
+            else if (all(trim(opts%self_quadrature) /= [character(len=6) :: 'vertex', 'full'])) then
+               errmsg = '--self-quadrature: unknown rule "'//trim(opts%self_quadrature)//'" (expected vertex or full)'
             end if
          end if
          if (len(errmsg) == 0 .and. opts%offset /= 0.0_dp) then
@@ -458,6 +474,10 @@ contains
       call append_effect(sig, 'lambda', opts%lambda, 1.0_dp)
       call append_effect(sig, 'kb', opts%kb, 0.0_dp)
       call append_effect(sig, 'offset', opts%offset, 0.0_dp)
+      ! The 3D model's full self quadrature (its default) is a different model from the vertex
+      ! rule: old 3D checkpoints (vertex) resume only with --self-quadrature vertex.
+      if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d' .and. trim(opts%self_quadrature) /= 'vertex') &
+         sig = sig//' self_quadrature full'
    end function option_signature
 
    !> Append " name value" to a signature when the effect is away from its neutral value.

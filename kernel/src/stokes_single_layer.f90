@@ -17,7 +17,7 @@ module stokes_single_layer
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, duffy_rule
    implicit none
    private
-   public :: single_layer_t, triangle_areas, node_areas, add_stokeslets, stokeslet_block
+   public :: single_layer_t, triangle_areas, node_areas, add_stokeslets, stokeslet_block, rule_integral
 
    type :: single_layer_t
       integer :: n_nodes = 0

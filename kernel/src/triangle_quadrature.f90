@@ -10,7 +10,7 @@ module triangle_quadrature
    use capsim_kinds, only: dp
    implicit none
    private
-   public :: quadrature_rule_t, dunavant7_rule, duffy_rule, gauss_legendre_01
+   public :: quadrature_rule_t, dunavant7_rule, interior3_rule, edge3_rule, duffy_rule, gauss_legendre_01
 
    type :: quadrature_rule_t
       !> Barycentric coordinates (3, n) and weights (n), sum(weight) = 1.
@@ -74,6 +74,24 @@ contains
          b(1) = 1.0_dp - b(2) - b(3)
       end function lift
    end function dunavant7_rule
+
+   !> The interior 3-point rule of degree 2 (points (2/3, 1/6, 1/6) and permutations, weights
+   !> 1/3): a degree more than the vertex rule at three points per triangle.
+   pure function interior3_rule() result(rule)
+      type(quadrature_rule_t) :: rule
+      real(dp), parameter :: a = 2.0_dp / 3.0_dp, b = 1.0_dp / 6.0_dp
+      rule%bary = reshape([a, b, b, b, a, b, b, b, a], [3, 3])
+      rule%weight = [1.0_dp, 1.0_dp, 1.0_dp] / 3.0_dp
+   end function interior3_rule
+
+   !> The edge-midpoint rule of degree 2 (point k at the midpoint of edge k, from corner k to
+   !> corner k+1, weights 1/3): on a conforming mesh two triangles share each point, so a
+   !> surface sum has one point per edge, half the interior rule's.
+   pure function edge3_rule() result(rule)
+      type(quadrature_rule_t) :: rule
+      rule%bary = reshape([0.5_dp, 0.5_dp, 0.0_dp, 0.0_dp, 0.5_dp, 0.5_dp, 0.5_dp, 0.0_dp, 0.5_dp], [3, 3])
+      rule%weight = [1.0_dp, 1.0_dp, 1.0_dp] / 3.0_dp
+   end function edge3_rule
 
    !> Duffy rule with n x n Gauss-Legendre points for a 1/r singularity at vertex `corner`.
    pure function duffy_rule(n, corner) result(rule)

@@ -47,6 +47,7 @@ module tube_capsule
    use membrane_forces, only: membrane_reference_t, membrane_nodal_forces, principal_stretches
    use membrane_bending, only: bending_t
    use stokes_single_layer, only: single_layer_t, add_stokeslets, triangle_areas, node_areas
+   use self_single_layer, only: self_single_layer_t, far_edge
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use surface_diagnostics, only: area_and_volume, shear_plane_contour
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
@@ -72,6 +73,10 @@ module tube_capsule
    !> near_radius (tube radii), or than leaf_ratio of their diameters: the wall's own
    !> velocity_at criterion (wall_single_layer, default_mid_radius).
    real(dp), parameter :: near_radius = 0.5_dp
+   !> --self-quadrature full (self_single_layer): the far rule's points per triangle, and
+   !> the near and subdivision ratios (diameters); tube3d_probe self-rules measured them.
+   integer, parameter :: self_far_kind = far_edge
+   real(dp), parameter :: self_near_ratio = 3.0_dp, self_sub_ratio = 2.0_dp
 
    type, extends(capsule_model_t) :: tube_capsule_t
       type(surface_mesh_t) :: mesh
@@ -110,9 +115,19 @@ module tube_capsule
       !> what it changes: the vertex rule's O(h) mid-field error is most of the 3D model's
       !> first-order v_c/V error at a/l = 0.8 (tube3d_probe self-quadrature).
       logical :: self_near_field = .false.
+      !> --self-quadrature: 'full' (default) takes the membrane's own single layer from
+      !> self_layer (7-point rule on every triangle, subdivided within leaf_ratio diameters,
+      !> Duffy on the touching ones); 'vertex' from single_layer (and self_near_field), the
+      !> model before it. README "Tube flow (3D)" has what it changes.
+      logical :: self_full = .true.
+      type(self_single_layer_t) :: self_layer
+      real(dp) :: seconds_self = 0
       !> Experiment (tube3d_probe self-quadrature): remove the net flux of the capsule's single
       !> layer through the wall from the wall data, along the node normals, before the solve.
       logical :: wall_flux_free = .false.
+      !> Experiment (tube3d_probe self-rules): the radius within which the capsule's single
+      !> layer at the wall nodes replaces the vertex rule (near_radius in the model).
+      real(dp) :: wall_near_radius = near_radius
       !> Viscosity ratio; the double layer, its equation and their work arrays are set up only
       !> when lambda /= 1.
       real(dp) :: lambda = 1
@@ -186,6 +201,9 @@ contains
       if (opts%kb > 0.0_dp) call self%bending%init(self%mesh, self%x_ref, opts%kb * self%a**2)
       ! As capsule_dynamics: Duffy 4x4 on touching triangles, 7-point rule on the next ring.
       call self%single_layer%init(self%mesh, 4, 0)
+      self%self_full = trim(opts%self_quadrature) /= 'vertex'
+      ! Also for 'vertex': tube3d_probe compares both rules at one shape.
+      call self%self_layer%init(self%mesh, 4, self_far_kind, self_near_ratio, self_sub_ratio)
       self%near_rule = dunavant7_rule(0)
       self%h_min = huge(1.0_dp)
       do t = 1, nt
@@ -305,7 +323,20 @@ contains
       do i = 1, n
          self%density(:, i) = self%force(:, i) / self%single_layer%node_area(i)
       end do
-      call self%single_layer%velocity(self%mesh, x, self%density, u)
+      t0 = omp_get_wtime()
+      if (self%self_full) then
+         ! capsule_single_layer_at needs single_layer's node Stokeslets, not its pair sum.
+         self%single_layer%xs = x(1, 1:n)
+         self%single_layer%ys = x(2, 1:n)
+         self%single_layer%zs = x(3, 1:n)
+         self%single_layer%qx = self%density(1, 1:n) * self%single_layer%node_area
+         self%single_layer%qy = self%density(2, 1:n) * self%single_layer%node_area
+         self%single_layer%qz = self%density(3, 1:n) * self%single_layer%node_area
+         call self%self_layer%velocity(self%mesh, x, self%density, self%single_layer%tri_area, u)
+      else
+         call self%single_layer%velocity(self%mesh, x, self%density, u)
+      end if
+      self%seconds_self = self%seconds_self + (omp_get_wtime() - t0)
       t0 = omp_get_wtime()
       call self%capsule_single_layer_at(x, self%wall%x, self%wall_data)
       self%wall_data = -self%wall_data
@@ -322,7 +353,7 @@ contains
       self%seconds_wall_solve = self%seconds_wall_solve + (t2 - t1)
       self%seconds_wall_at_capsule = self%seconds_wall_at_capsule + (t3 - t2)
       ! Uses the triangle data and cells that capsule_single_layer_at has set up for x.
-      if (self%self_near_field) then
+      if (self%self_near_field .and. .not. self%self_full) then
          call self_corrections(self, x, u)
          self%seconds_self_near_field = self%seconds_self_near_field + (omp_get_wtime() - t3)
       end if
@@ -416,8 +447,8 @@ contains
                              self%quad_strength(:, :, t), self%vertex_strength(:, :, t))
       end do
       !$omp end parallel do
-      call self%cells%build(self%tri_centroid, self%tri_diameter, near_radius, leaf_ratio, &
-                            max(0.5_dp * near_radius, maxval(self%tri_diameter)))
+      call self%cells%build(self%tri_centroid, self%tri_diameter, self%wall_near_radius, leaf_ratio, &
+                            max(0.5_dp * self%wall_near_radius, maxval(self%tri_diameter)))
       ! Points farther than `reach` from the capsule's bounding cylinder need no correction.
       reach = self%cells%max_reach + maxval(self%tri_diameter)
       z_lo = minval(x(3, 1:n)) - reach
@@ -683,6 +714,7 @@ contains
       if (stat == 0) call f%write_attr('/', 'tube_length', self%wall%length, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_h_far', self%wall%h_far, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_h_centre', self%wall%h_centre, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'self_quadrature', trim(merge('full  ', 'vertex', self%self_full)), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'n_wall_nodes', self%wall%mesh%n_nodes, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_from_cache', merge(1, 0, self%wall_op%from_cache), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_setup_s', self%wall_seconds, stat, errmsg)

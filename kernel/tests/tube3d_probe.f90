@@ -3,8 +3,10 @@
 !>
 !>   tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS [SELF]
 !>     wall setup (assembly + LU, or the cache load), then STEPS RK2 steps from the start shape
-!>     and one velocity evaluation after them, each part timed (SELF = 1: with the membrane's
-!>     near-field self correction, tube_capsule_t%self_near_field).
+!>     and one velocity evaluation after them, each part timed (SELF, the membrane's own single
+!>     layer: 0 the vertex rule, 1 the vertex rule with the near-field self correction
+!>     tube_capsule_t%self_near_field, 2 the full 7-point rule, --self-quadrature full; absent:
+!>     the model's default, full).
 !>   tube3d_probe dl-outside LEVEL A FILM NEAR_RADIUS
 !>     capsule double layer off the membrane (stokes_double_layer apply_outside) of a rigid-body
 !>     density U + Omega x y on the level-LEVEL sphere of radius A, at the points FILM outside
@@ -14,20 +16,32 @@
 !>     STEPS lambda = 1 RK2 steps from the start shape, then at that shape the lambda velocity
 !>     and the residual of its boundary integral equation, evaluated afresh from the pieces.
 !>   tube3d_probe self-quadrature LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR T_END SELF
-!>     RK2 steps to t >= T_END (SELF = 1: with the model's near-field self correction, 0:
-!>     without), then v_c at that shape with the capsule's own single layer of single_layer
+!>     RK2 steps to t >= T_END (SELF as for timing: 0 vertex rule, 1 with the near-field self
+!>     correction, 2 full), then v_c at that shape with the full self quadrature (v_c_full,
+!>     and the seconds of its self term, self_full_s, against single_layer's, self_vertex_s),
+!>     and with the capsule's own single layer of single_layer
 !>     alone (vertex rule beyond the second ring of triangles), with the non-touching
 !>     triangles within R (and leaf_ratio diameters) integrated by the subdivided 7-point
 !>     rule, R = 0.25 ... 100, and with the model's self_near_field correction (v_c_model);
 !>     then the net flux of the capsule's single layer through the wall, v_c with it removed
 !>     from the wall data (wall_flux_free), and v_c with the 7-point rule on every wall
 !>     triangle at the membrane nodes (the tube-length experiments of README "Tube flow (3D)").
+!>   tube3d_probe self-rules LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR T_END SELF
+!>     RK2 steps to t >= T_END (SELF as for timing), then at that shape v_c and the seconds of
+!>     the membrane's own single layer with the vertex rule (v_c_vertex, self_s_vertex) and
+!>     with self_single_layer at far rules (FAR: 7 the 7-point rule, 3 the interior 3-point
+!>     rule, 1 the edge-midpoint rule) and near/subdivision ratios (v_c_FAR_NEAR_SUB,
+!>     self_s_FAR_NEAR_SUB, and the largest difference of the membrane velocity from the
+!>     reference's over its largest speed, max_du_FAR_NEAR_SUB); 7_6.0_6.0 is the reference;
+!>     then v_c with the 7-point rule on every capsule triangle at the wall nodes too, with
+!>     the full and the vertex self quadrature.
 program tube3d_probe
    use omp_lib, only: omp_get_wtime, omp_get_max_threads
    use capsim_kinds, only: dp
    use command_args, only: int_arg, real_arg, string_arg, put, put_int
    use run_options, only: run_options_t
    use tube_capsule, only: tube_capsule_t, volume_gradients, remove_volume_flux
+   use self_single_layer, only: far_edge
    use wall_single_layer, only: triangle_correction
    use capsim_kinds, only: pi
    use sphere_mesh, only: surface_mesh_t, icosphere
@@ -47,6 +61,8 @@ program tube3d_probe
       call probe_lambda_residual()
    case ('self-quadrature')
       call probe_self_quadrature()
+   case ('self-rules')
+      call probe_self_rules()
    case default
       write (*, '(a)') 'usage: tube3d_probe timing LEVEL A_OVER_L CA TUBE_LENGTH H_FAR H_CENTRE CACHE_DIR STEPS'
       error stop 2
@@ -69,9 +85,10 @@ contains
 
       call read_tube_case(opts)
       t_end = real_arg(9)
+      call set_self_rule(opts, model, 10)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
-      model%self_near_field = int_arg(10) == 1
+      call set_self_rule(opts, model, 10)
       call model%reset()
       do while (model%t < t_end)
          call model%advance()
@@ -79,9 +96,18 @@ contains
       x = model%positions
       n = size(x, 2)
       allocate (u(3, n), s_base(3, n), du(3, n), grad(3, n), mgrad(3, n))
+      call put('t', model%t)
+      model%self_full = .true.
+      model%seconds_self = 0
+      call model%velocity(x, u)
+      call put('v_c_full', model%v_c)
+      call put('self_full_s', model%seconds_self)
+      model%self_full = .false.
+      model%seconds_self = 0
+      call model%velocity(x, u)
+      call put('self_vertex_s', model%seconds_self)
       model%self_near_field = .true.
       call model%velocity(x, u)
-      call put('t', model%t)
       call put('v_c_model', model%v_c)
       model%self_near_field = .false.
       call model%velocity(x, u)
@@ -143,6 +169,71 @@ contains
       end do
    end subroutine probe_self_quadrature
 
+   subroutine probe_self_rules()
+      type(run_options_t) :: opts
+      type(tube_capsule_t) :: model
+      integer :: stat, k
+      character(len=:), allocatable :: errmsg
+      character(len=32) :: key
+      real(dp), allocatable :: x(:, :), u(:, :), u_ref(:, :)
+      integer, parameter :: far(*) = [7, 7, 3, 3, 1, 1, 1, 1]
+      real(dp), parameter :: near(*) = [6.0_dp, 3.0_dp, 3.0_dp, 3.0_dp, 3.0_dp, 3.0_dp, 4.0_dp, 2.0_dp]
+      real(dp), parameter :: sub(*) = [6.0_dp, 3.0_dp, 3.0_dp, 2.0_dp, 3.0_dp, 2.0_dp, 2.0_dp, 1.5_dp]
+
+      call read_tube_case(opts)
+      call set_self_rule(opts, model, 10)
+      call model%init(opts, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      call set_self_rule(opts, model, 10)
+      call model%reset()
+      do while (model%t < real_arg(9))
+         call model%advance()
+      end do
+      x = model%positions
+      allocate (u(3, size(x, 2)))
+      call put('t', model%t)
+      model%self_near_field = .false.
+      model%self_full = .false.
+      model%seconds_self = 0
+      call model%velocity(x, u)
+      call put('v_c_vertex', model%v_c)
+      call put('self_s_vertex', model%seconds_self)
+      model%self_full = .true.
+      do k = 1, size(far)
+         call model%self_layer%init(model%mesh, 4, far(k), near(k), sub(k))
+         model%seconds_self = 0
+         call model%velocity(x, u)
+         write (key, '(i0,a,f0.1,a,f0.1)') far(k), '_', near(k), '_', sub(k)
+         call put('v_c_'//trim(key), model%v_c)
+         call put('self_s_'//trim(key), model%seconds_self)
+         if (k == 1) u_ref = u
+         call put('max_du_'//trim(key), maxval(norm2(u - u_ref, dim=1)) / maxval(norm2(u_ref, dim=1)))
+      end do
+      ! The model's own rules, with the 7-point rule on every capsule triangle at the wall
+      ! nodes as well (the vertex rule beyond near_radius there is the next suspect).
+      call model%self_layer%init(model%mesh, 4, far_edge, 3.0_dp, 2.0_dp)
+      model%wall_near_radius = 100.0_dp
+      call model%velocity(x, u)
+      call put('v_c_full_capsule_at_wall_all_7_point', model%v_c)
+      model%self_full = .false.
+      call model%velocity(x, u)
+      call put('v_c_vertex_capsule_at_wall_all_7_point', model%v_c)
+   end subroutine probe_self_rules
+
+   !> The membrane's own single layer from argument `iarg`: 0 the vertex rule, 1 with the
+   !> near-field self correction, 2 the full 7-point rule (before init: the option; after:
+   !> the switches).
+   subroutine set_self_rule(opts, model, iarg)
+      type(run_options_t), intent(inout) :: opts
+      type(tube_capsule_t), intent(inout) :: model
+      integer, intent(in) :: iarg
+      integer :: mode
+      mode = int_arg(iarg)
+      opts%self_quadrature = trim(merge('full  ', 'vertex', mode == 2))
+      model%self_full = mode == 2
+      model%self_near_field = mode == 1
+   end subroutine set_self_rule
+
    !> The NH 3D tube case of the command line: level, a/l, Ca_s, tube length, wall sizes and
    !> wall cache in arguments 2-8.
    subroutine read_tube_case(opts)
@@ -169,9 +260,10 @@ contains
 
       call read_tube_case(opts)
       steps = int_arg(9)
+      if (command_argument_count() >= 10) call set_self_rule(opts, model, 10)
       call model%init(opts, stat, errmsg)
       if (stat /= 0) error stop errmsg
-      if (command_argument_count() >= 10) model%self_near_field = int_arg(10) == 1
+      if (command_argument_count() >= 10) call set_self_rule(opts, model, 10)
       call put_int('threads', omp_get_max_threads())
       call put_int('n_nodes', model%mesh%n_nodes)
       call put_int('n_wall_nodes', model%wall%mesh%n_nodes)
@@ -190,6 +282,7 @@ contains
       model%seconds_wall_solve = 0
       model%seconds_wall_at_capsule = 0
       model%seconds_self_near_field = 0
+      model%seconds_self = 0
       t0 = omp_get_wtime()
       call model%velocity(model%positions, model%u0)
       t_velocity = omp_get_wtime() - t0
@@ -200,6 +293,7 @@ contains
       call put('wall_solve_s', model%seconds_wall_solve)
       call put('wall_at_capsule_s', model%seconds_wall_at_capsule)
       call put('capsule_self_near_s', model%seconds_self_near_field)
+      call put('capsule_self_s', model%seconds_self)
       call put('v_c', model%v_c)
       call put('max_speed', maxval(norm2(model%u0, dim=1)))
    end subroutine probe_timing

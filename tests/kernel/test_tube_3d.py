@@ -94,6 +94,10 @@ def test_case_file_has_mesh_and_meridian_profile(coarse_run):
     # Section y = 0, x > 0, front first: starts near the front on the axis, ends at the rear.
     assert (r >= 0).all() and r.max() == pytest.approx(case.steady_value("r_max"), rel=0.05)
     assert z[0] == pytest.approx(z.max(), abs=1e-3) and z[-1] < 0 < z[0]
+    # The membrane's own single layer of the run: the default, the full 7-point quadrature.
+    with h5py.File(coarse_run["path"]) as f:
+        value = f.attrs["self_quadrature"]
+        assert (value.decode() if isinstance(value, bytes) else value) == "full"
 
 
 @pytest.mark.slow
@@ -130,6 +134,9 @@ BAD_3D_INPUTS = [
     (["--wall-cache", "/nonexistent/capsmech-cache"], "--wall-cache"),
     (["--tube-length", "2"], "--tube-length"),
     (["--model", "2d"], "--model"),
+    (["--self-quadrature", "exact"], "--self-quadrature"),
+    (["--model", "axi", "--self-quadrature", "full"], "--self-quadrature"),
+    (["--flow", "shear", "--self-quadrature", "full"], "--self-quadrature"),
 ]
 
 
