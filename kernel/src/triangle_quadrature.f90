@@ -80,6 +80,7 @@ contains
    pure function interior3_rule() result(rule)
       type(quadrature_rule_t) :: rule
       real(dp), parameter :: a = 2.0_dp / 3.0_dp, b = 1.0_dp / 6.0_dp
+      allocate (rule%bary(3, 3), rule%weight(3))
       rule%bary = reshape([a, b, b, b, a, b, b, b, a], [3, 3])
       rule%weight = [1.0_dp, 1.0_dp, 1.0_dp] / 3.0_dp
    end function interior3_rule
@@ -89,6 +90,7 @@ contains
    !> surface sum has one point per edge, half the interior rule's.
    pure function edge3_rule() result(rule)
       type(quadrature_rule_t) :: rule
+      allocate (rule%bary(3, 3), rule%weight(3))
       rule%bary = reshape([0.5_dp, 0.5_dp, 0.0_dp, 0.0_dp, 0.5_dp, 0.5_dp, 0.5_dp, 0.0_dp, 0.5_dp], [3, 3])
       rule%weight = [1.0_dp, 1.0_dp, 1.0_dp] / 3.0_dp
    end function edge3_rule
