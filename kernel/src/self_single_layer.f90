@@ -24,6 +24,7 @@ module self_single_layer
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, interior3_rule, edge3_rule, duffy_rule
    use triangle_cells, only: triangle_cells_t
    use stokes_single_layer, only: add_stokeslets, rule_integral
+   use wall_single_layer, only: subdivided_single_layer
    implicit none
    private
    public :: self_single_layer_t, far_edge, far_interior3, far_dunavant7
@@ -31,10 +32,6 @@ module self_single_layer
    !> Far rules (the value is the number of the rule's points per triangle, but far_edge's
    !> points are shared: one per edge).
    integer, parameter :: far_edge = 1, far_interior3 = 3, far_dunavant7 = 7
-
-   !> Deepest subdivision of a near triangle (4**max_depth pieces; never reached in practice:
-   !> the nodes are vertices, not interior points, of the triangles subdivided).
-   integer, parameter :: max_depth = 10
 
    type :: self_single_layer_t
       integer :: n_tri = 0, n_points = 0
@@ -187,8 +184,8 @@ contains
       do j = 1, m
          t = list(j)
          if (any(mesh%tri(:, t) == i)) cycle
-         corr = corr + subdivided_rule(self%rule7, p, self%tri_x(:, :, t), self%tri_f(:, :, t), tri_area(t), self%sub_ratio) &
-                - point_sum(p, self%qp(:, :, t), self%qs(:, :, t))
+         corr = corr + subdivided_single_layer(self%rule7, p, self%tri_x(:, :, t), self%tri_f(:, :, t), tri_area(t), &
+                                               self%sub_ratio) - point_sum(p, self%qp(:, :, t), self%qs(:, :, t))
       end do
    end function near_correction
 
@@ -243,53 +240,5 @@ contains
       end do
    end function point_sum
 
-   !> int over the triangle (corners xv, P1 densities fv, area) of J(p - y) . f(y) dS by the
-   !> 7-point rule on recursive subdivisions into 4 until each piece's centroid lies `ratio`
-   !> of its diameters from p (depth first, on an explicit stack), without 1/(8 pi).
-   pure function subdivided_rule(rule, p, xv, fv, area, ratio) result(acc)
-      type(quadrature_rule_t), intent(in) :: rule
-      real(dp), intent(in) :: p(3), xv(3, 3), fv(3, 3), area, ratio
-      real(dp) :: acc(3)
-      integer, parameter :: stack_size = 3 * max_depth + 1
-      real(dp) :: sx(3, 3, stack_size), sf(3, 3, stack_size), c(3, 3), g(3, 3), mx(3, 3), mf(3, 3)
-      real(dp) :: diam, w, r(3), fq(3), rinv
-      integer :: depth(stack_size), top, d, q, m
-      acc = 0.0_dp
-      top = 1
-      sx(:, :, 1) = xv
-      sf(:, :, 1) = fv
-      depth(1) = 0
-      do while (top > 0)
-         c = sx(:, :, top)
-         g = sf(:, :, top)
-         d = depth(top)
-         top = top - 1
-         diam = max(norm2(c(:, 2) - c(:, 1)), norm2(c(:, 3) - c(:, 2)), norm2(c(:, 1) - c(:, 3)))
-         if (d >= max_depth .or. norm2(p - (c(:, 1) + c(:, 2) + c(:, 3)) / 3.0_dp) > ratio * diam) then
-            w = area / 4.0_dp**d
-            do q = 1, size(rule%weight)
-               r = p - (rule%bary(1, q) * c(:, 1) + rule%bary(2, q) * c(:, 2) + rule%bary(3, q) * c(:, 3))
-               fq = rule%bary(1, q) * g(:, 1) + rule%bary(2, q) * g(:, 2) + rule%bary(3, q) * g(:, 3)
-               rinv = 1.0_dp / sqrt(r(1)**2 + r(2)**2 + r(3)**2)
-               acc = acc + (w * rule%weight(q) * rinv) * (fq + r * ((r(1) * fq(1) + r(2) * fq(2) + r(3) * fq(3)) * rinv**2))
-            end do
-         else
-            do m = 1, 3
-               mx(:, m) = 0.5_dp * (c(:, m) + c(:, mod(m, 3) + 1))
-               mf(:, m) = 0.5_dp * (g(:, m) + g(:, mod(m, 3) + 1))
-            end do
-            sx(:, :, top + 1) = reshape([c(:, 1), mx(:, 1), mx(:, 3)], [3, 3])
-            sf(:, :, top + 1) = reshape([g(:, 1), mf(:, 1), mf(:, 3)], [3, 3])
-            sx(:, :, top + 2) = reshape([mx(:, 1), c(:, 2), mx(:, 2)], [3, 3])
-            sf(:, :, top + 2) = reshape([mf(:, 1), g(:, 2), mf(:, 2)], [3, 3])
-            sx(:, :, top + 3) = reshape([mx(:, 3), mx(:, 2), c(:, 3)], [3, 3])
-            sf(:, :, top + 3) = reshape([mf(:, 3), mf(:, 2), g(:, 3)], [3, 3])
-            sx(:, :, top + 4) = mx
-            sf(:, :, top + 4) = mf
-            depth(top + 1:top + 4) = d + 1
-            top = top + 4
-         end if
-      end do
-   end function subdivided_rule
 
 end module self_single_layer

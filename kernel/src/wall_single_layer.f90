@@ -92,7 +92,7 @@ module wall_single_layer
    implicit none
    private
    public :: wall_operator_t, poiseuille_velocity, poiseuille_rim_jump, corner_map
-   public :: default_duffy_order, default_mid_radius, leaf_ratio, leaf_strengths, triangle_correction
+   public :: default_duffy_order, default_mid_radius, leaf_ratio, leaf_strengths, triangle_correction, subdivided_single_layer
 
    integer, parameter :: default_duffy_order = 4
    real(dp), parameter :: default_mid_radius = 0.5_dp
@@ -735,6 +735,20 @@ contains
       type(quadrature_rule_t), intent(in) :: rule
       real(dp), intent(in) :: p(3), xv(3, 3), fv(3, 3), area
       real(dp) :: corr(3)
+      integer :: m
+      corr = subdivided_single_layer(rule, p, xv, fv, area, leaf_ratio)
+      do m = 1, 3
+         corr = corr - (area / 3.0_dp) * stokeslet(p - xv(:, m), fv(:, m))
+      end do
+   end function near_triangle_correction
+
+   !> int over the triangle (corners xv, P1 densities fv, area) of J(p - y) . f(y) dS by
+   !> `rule` on subdivisions into 4 until each piece's centroid lies `ratio` of its diameters
+   !> from p (or max_depth is reached); without 1/(8 pi).
+   pure function subdivided_single_layer(rule, p, xv, fv, area, ratio) result(corr)
+      type(quadrature_rule_t), intent(in) :: rule
+      real(dp), intent(in) :: p(3), xv(3, 3), fv(3, 3), area, ratio
+      real(dp) :: corr(3)
       ! adaptive_integral's subdivision for the single layer, iterative on an explicit stack of
       ! sub-triangles held by their corners and corner densities (depth first: at most 3
       ! siblings wait per level): the recursive version, with its barycentric matrix
@@ -754,7 +768,7 @@ contains
          d = depth(top)
          top = top - 1
          diam = max(norm2(c(:, 2) - c(:, 1)), norm2(c(:, 3) - c(:, 2)), norm2(c(:, 1) - c(:, 3)))
-         if (d >= max_depth .or. norm2(p - (c(:, 1) + c(:, 2) + c(:, 3)) / 3.0_dp) > leaf_ratio * diam) then
+         if (d >= max_depth .or. norm2(p - (c(:, 1) + c(:, 2) + c(:, 3)) / 3.0_dp) > ratio * diam) then
             w = area / 4.0_dp**d
             do q = 1, size(rule%weight)
                r = p - (rule%bary(1, q) * c(:, 1) + rule%bary(2, q) * c(:, 2) + rule%bary(3, q) * c(:, 3))
@@ -780,10 +794,7 @@ contains
             top = top + 4
          end if
       end do
-      do m = 1, 3
-         corr = corr - (area / 3.0_dp) * stokeslet(p - xv(:, m), fv(:, m))
-      end do
-   end function near_triangle_correction
+   end function subdivided_single_layer
 
    pure function identity_corners() result(b)
       real(dp) :: b(3, 3)
