@@ -93,13 +93,15 @@ def traced_contour(section: np.ndarray, pixels_per_l: float, rng: np.random.Gene
 
 def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: float, law: str = "NH",
                             level: int = 2, wall: tuple[float, float] = (0.28, 0.14), tube_length: float = 6.0,
-                            out: str | Path | None = None, capsim: str | Path | None = None) -> SimulatedCapsule:
+                            self_quadrature: str = "full", out: str | Path | None = None,
+                            capsim: str | Path | None = None) -> SimulatedCapsule:
     """Run the 3D tube kernel for a capsule released ``offset`` [l] off the axis, to ``t_max``.
 
     It migrates towards the axis while it deforms; what is returned is its state at the end
     (lengths and v_c/V of the last history row, its radial position ``r_c``, and its section
     through the tube axis and its centroid, ``capsmech.mesh_section``), whatever the run's
     status: an off-centre capsule is a snapshot of a slow migration, not a steady state.
+    ``self_quadrature``: the 3D kernel's membrane self term (``full`` or ``vertex``).
     ``out``: keep the case file there (and reuse it when it exists). Minutes a case at level 2.
     """
     from capsmech.mesh_section import plane_section
@@ -111,7 +113,8 @@ def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: 
             subprocess.run([str(kernel), "--flow", "tube", "--model", "3d", *parse_law(law).kernel_args(),
                             "--a-over-l", repr(float(a_over_l)), "--ca", repr(float(Ca_s)), "--offset", repr(float(offset)),
                             "--level", str(level), "--wall-h-far", repr(wall[0]), "--wall-h-centre", repr(wall[1]),
-                            "--tube-length", repr(tube_length), "--t-max", repr(float(t_max)), "--threads", "1",
+                            "--tube-length", repr(tube_length), "--t-max", repr(float(t_max)),
+                            "--self-quadrature", self_quadrature, "--threads", "1",
                             "--quiet", "--out", str(path)], check=True, capture_output=True, text=True)
         case = read_case(path)
         with h5py.File(path, "r") as f:
