@@ -24,7 +24,7 @@ module self_single_layer
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule, interior3_rule, edge3_rule, duffy_rule
    use triangle_cells, only: triangle_cells_t
    use stokes_single_layer, only: add_stokeslets, rule_integral
-   use wall_single_layer, only: subdivided_single_layer
+   use wall_single_layer, only: point_sum, subdivided_single_layer
    implicit none
    private
    public :: self_single_layer_t, far_edge, far_interior3, far_dunavant7
@@ -226,19 +226,6 @@ contains
       if (n_edges /= size(edge_tri, 2) .or. any(tri_edge == 0)) error stop 'self_single_layer: the mesh is not closed'
    end subroutine find_edges
 
-   !> Stokeslets of strengths qs at points qp, summed at p, without 1/(8 pi).
-   pure function point_sum(p, qp, qs) result(acc)
-      real(dp), intent(in) :: p(3), qp(:, :), qs(:, :)
-      real(dp) :: acc(3), r(3), rinv, proj
-      integer :: q
-      acc = 0.0_dp
-      do q = 1, size(qp, 2)
-         r = p - qp(:, q)
-         rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
-         proj = (r(1) * qs(1, q) + r(2) * qs(2, q) + r(3) * qs(3, q)) * rinv**3
-         acc = acc + rinv * qs(:, q) + proj * r
-      end do
-   end function point_sum
 
 
 end module self_single_layer

@@ -92,7 +92,8 @@ module wall_single_layer
    implicit none
    private
    public :: wall_operator_t, poiseuille_velocity, poiseuille_rim_jump, corner_map
-   public :: default_duffy_order, default_mid_radius, leaf_ratio, leaf_strengths, triangle_correction, subdivided_single_layer
+   public :: default_duffy_order, default_mid_radius, leaf_ratio, leaf_strengths, triangle_correction, subdivided_single_layer, &
+             point_sum
 
    integer, parameter :: default_duffy_order = 4
    real(dp), parameter :: default_mid_radius = 0.5_dp
@@ -701,6 +702,22 @@ contains
       vs = (area / 3.0_dp) * fv
    end subroutine leaf_strengths
 
+   !> Stokeslets of strengths qs at points qp, summed at p, without 1/(8 pi). Inline (no call
+   !> per point, no norm2 scaling): the hot loop of the off-surface single layers and of the
+   !> membrane's near self term once the near triangles are found by cells.
+   pure function point_sum(p, qp, qs) result(acc)
+      real(dp), intent(in) :: p(3), qp(:, :), qs(:, :)
+      real(dp) :: acc(3), r(3), rinv, proj
+      integer :: q
+      acc = 0.0_dp
+      do q = 1, size(qp, 2)
+         r = p - qp(:, q)
+         rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
+         proj = (r(1) * qs(1, q) + r(2) * qs(2, q) + r(3) * qs(3, q)) * rinv**3
+         acc = acc + rinv * qs(:, q) + proj * r
+      end do
+   end function point_sum
+
    !> One triangle's 7-point rule (points qp, strengths qs) minus its vertex rule (corners xv,
    !> strengths vs) at p, without 1/(8 pi): added to the one-Stokeslet-per-node sum, it
    !> replaces the vertex rule by the 7-point rule on a triangle beyond leaf_ratio diameters.
@@ -709,15 +726,7 @@ contains
       real(dp) :: corr(3)
       integer :: q
       real(dp) :: r(3), rinv, proj
-      ! Inline Stokeslets (no call per point, no norm2 scaling): the hot loop of both
-      ! off-surface single layers once the near triangles are found by cells.
-      corr = 0.0_dp
-      do q = 1, size(qp, 2)
-         r = p - qp(:, q)
-         rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
-         proj = (r(1) * qs(1, q) + r(2) * qs(2, q) + r(3) * qs(3, q)) * rinv**3
-         corr = corr + rinv * qs(:, q) + proj * r
-      end do
+      corr = point_sum(p, qp, qs)
       do q = 1, 3
          r = p - xv(:, q)
          rinv = 1.0_dp / sqrt(r(1) * r(1) + r(2) * r(2) + r(3) * r(3))
