@@ -66,6 +66,13 @@ def analyse(name: str, databases: DatabaseSet, reports: Path) -> dict:
                error_after=(sequence.g_s[-1][0] - g_s) / g_s,
                chi2_before=chosen.chi2_base, chi2_after=chosen.chi2, bic_drop=chosen.bic_drop,
                rivals=[r.name for r in result.rivals])
+    joint = sequence.joint
+    if joint is not None:
+        # Both strengths fitted together: the row shows them, and chi2 after is the pair's.
+        (lo, hi), (lo_2, hi_2) = joint.intervals
+        row.update(found=f"{chosen.name}: {chosen.parameter} = {joint.values[0]:.3g} (with the second, jointly)",
+                   interval=[lo, hi], second=f"{joint.names[1]}: {joint.values[1]:.3g} [{lo_2:.3g}, {hi_2:.3g}]",
+                   chi2_after=joint.chi2, joint_capsules=joint.capsules)
     return row
 
 

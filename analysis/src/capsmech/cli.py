@@ -454,7 +454,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(f"verdict: {result.verdict}")
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):
-            fixed = ", ".join(f"{name} = {theta:.3g}" for name, theta in sequence.effects[:k - 1])
+            # The values each round was run with (the effects list holds the final ones).
+            fixed = ", ".join(f"{r.chosen.name} = {r.chosen.theta:.3g}" for r in sequence.rounds[:k - 1])
             print(f"with {fixed} fixed: {later.verdict}")
         print(f"effects found: {sequence.verdict}; G_s {sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
     if args.out:
