@@ -250,7 +250,7 @@ def test_two_effects_fitted_together_leave_the_coordinate_descent_valley():
     """batch_F from where the sequential diagnosis stops (pre-stress 0.0364, then a 0.14 px
     contour offset; truth 0.05 and 1.5 px): fitted together, both strengths move towards the
     truth, the batch's chi2 falls, and so does the error of its G_s (measured: alpha 0.045,
-    1.09 px, chi2 495 -> 330, G_s +24 % -> +7 %)."""
+    1.09 px, chi2 495 -> 330, G_s +24 % -> +8 %)."""
     truth = read_truth(BATCHES / "batch_F_truth.csv")
     capsules, _ = screen_asymmetric([c for c in batch("batch_F") if c.contour is not None])
     laws = list(databases().databases[0].laws)
