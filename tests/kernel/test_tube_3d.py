@@ -149,29 +149,29 @@ def test_bad_3d_tube_input_exits_2_naming_the_field(capsim, tmp_path, override, 
 
 
 # ---------------------------------------------------------------------------------------
-# make validate: 3D against the axisymmetric model at the points, levels 3 and 4.
-# Level 3 runs on a wall of 0.2 / 0.1 l (against 0.28 / 0.14 l at level 2: v_c/V changes by
-# 2e-5, L_z by 0.1 %); level 4 on the paper's wall, 0.14 / 0.07 l (7138 nodes, LU 3.7 GB,
-# factorised once, then cached). Both over 10 l: 6 l moved v_c/V and L_z by 0.17 % and 0.15 %
-# (level 2, a/l 0.8, Ca_s 0.05), more than the 0.1 % a shorter tube may cost.
+# make validate: 3D against the axisymmetric model at the points, within 1 % at level 4.
+# Level 3 does not resolve the parachute to 1 % (L_p +4.7 % at (0.8, 0.05), +16 % at
+# (0.9, 0.1)); its convergence towards the axisymmetric model is the next test's. The wall is
+# the one the measured runs used, 0.2 / 0.1 l over 6 l: refining it to the paper's 0.14 / 0.07
+# l moved level 3 at (0.9, 0.1) by -0.13 % (v_c/V), +0.8 % (L_p), -0.12 % (L_z) at t = 2.8,
+# and 10 l against 6 l moved level 2 by -0.17 %, +0.07 %, -0.15 % (README). The reference is
+# the converged axisymmetric model (192 meridian elements; the default 64 is 0.6 % high on L_p
+# at a/l 0.9). Measured: (0.8, 0.05) +0.17 %, +0.92 %, +0.17 % (2611 s); (0.9, 0.1) +0.66 %,
+# -0.40 %, -0.06 % (v_c/V, L_p, L_z; 4542 s, steady at t = 10.4), on one loaded core.
 # ---------------------------------------------------------------------------------------
 
-VALIDATE_WALLS = {
-    3: ["--wall-h-far", "0.2", "--wall-h-centre", "0.1", "--tube-length", "10"],
-    4: ["--wall-h-far", "0.14", "--wall-h-centre", "0.07", "--tube-length", "10"],
-}
+VALIDATE_WALL = ["--wall-h-far", "0.2", "--wall-h-centre", "0.1", "--tube-length", "6"]
 
 
 @pytest.mark.validate
-@pytest.mark.parametrize("level", [3, 4])
 @pytest.mark.parametrize("size,ca", [(0.8, 0.05), (0.9, 0.1)])
-def test_3d_matches_axisymmetric_at_the_paper_points(capsim, tmp_path, size, ca, level):
+def test_3d_matches_axisymmetric_at_the_paper_points(capsim, tmp_path, size, ca):
     axi_out = tmp_path / "axi.h5"
-    run_capsim(capsim, ["--flow", "tube", "--law", "NH", "--a-over-l", str(size), "--ca", str(ca),
+    run_capsim(capsim, ["--flow", "tube", "--law", "NH", "--a-over-l", str(size), "--ca", str(ca), "--n-meridian", "192",
                         "--threads", "1", "--quiet", "--out", str(axi_out)], timeout=3600)
     axi = read_case(axi_out)
     out = tmp_path / "3d.h5"
-    run_capsim(capsim, tube_3d_args(size, ca, level, VALIDATE_WALLS[level], None, out) + ["--t-max", "15", "--quiet"],
+    run_capsim(capsim, tube_3d_args(size, ca, 4, VALIDATE_WALL, None, out) + ["--t-max", "15", "--quiet"],
                timeout=6 * 3600)
     case = read_case(out)
     assert case.status == "steady" and axi.status == "steady", case.message
