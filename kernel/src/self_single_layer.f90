@@ -226,6 +226,4 @@ contains
       if (n_edges /= size(edge_tri, 2) .or. any(tri_edge == 0)) error stop 'self_single_layer: the mesh is not closed'
    end subroutine find_edges
 
-
-
 end module self_single_layer

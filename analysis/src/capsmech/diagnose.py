@@ -60,9 +60,9 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Sequence
-from typing import Any
 from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -675,7 +675,7 @@ class Diagnosis:
 
 def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
              candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None,
-             refine_evaluations: int = REFINE_EVALUATIONS) -> Diagnosis:
+             refine_evaluations: int = REFINE_EVALUATIONS, screen: bool = True) -> Diagnosis:
     """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
 
     ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
@@ -683,12 +683,18 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     carries the grid to run (``needs``, see ``capsmech.effect_grid``). ``sigma``: the
     capsules' tracing-noise levels when already measured (``noise_levels``), so that the chi2
     of successive diagnoses of one batch share their scale. ``refine_evaluations``: refits of
-    the batch on each side of a continuous candidate's best grid value (0: the grid only)."""
+    the batch on each side of a continuous candidate's best grid value (0: the grid only).
+    ``screen``: leave out asymmetric contours first (``screen_asymmetric``); False when the
+    caller has screened the batch already (``diagnose_sequential``: once, so that every round
+    sees the same capsules)."""
     from capsmech.effect_grid import needed_grid
 
     if candidates is None:
         candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
-    with_contours, excluded = screen_asymmetric([c for c in capsules if c.contour is not None])
+    with_contours: list[Capsule] = [c for c in capsules if c.contour is not None]
+    excluded: list[tuple[str, str]] = []
+    if screen:
+        with_contours, excluded = screen_asymmetric(with_contours)
     if len(with_contours) < 3:
         raise ValueError(f"diagnose needs contours of at least 3 capsules, the batch has {len(with_contours)}"
                          + (f" ({len(excluded)} more left out as asymmetric)" if excluded else ""))
@@ -868,7 +874,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
     measured once, on the base fit."""
     with_contours, excluded = screen_asymmetric([c for c in capsules if c.contour is not None])
     sigma = noise_levels(with_contours, database, base_law)
-    rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma)]
+    rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma, screen=False)]
     rounds[0].excluded = excluded
     fixed: list[tuple[Candidate, float]] = []
     note = ""
@@ -883,14 +889,14 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         rest = [c for c in library(law) if c.name not in names and not (model_fixed and c.acts_on == "law")]
         if not rest:
             break
-        rounds.append(diagnose(state, database, law, rest, sigma))
+        rounds.append(diagnose(state, database, law, rest, sigma, screen=False))
         if model_fixed and rounds[-1].chosen is None:
             note = "model effects on top of a model effect not assessed (no database holds both)"
     if len(fixed) == 2:
         (first, _), (second, theta_2) = fixed
         state, law = _apply_all(with_contours, base_law, [(second, theta_2)], library)
         rebuilt = [c for c in library(law) if c.name == first.name]
-        refit = diagnose(state, database, law, rebuilt, sigma)
+        refit = diagnose(state, database, law, rebuilt, sigma, screen=False)
         result = refit.results[0]
         if math.isfinite(result.theta):
             fixed[0] = (first, result.theta)

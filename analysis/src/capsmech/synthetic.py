@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from capsmech.grid import parse_law
@@ -117,10 +116,8 @@ def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: 
                             "--self-quadrature", self_quadrature, "--threads", "1",
                             "--quiet", "--out", str(path)], check=True, capture_output=True, text=True)
         case = read_case(path)
-        with h5py.File(path, "r") as f:
-            nodes, triangles = f["mesh/nodes"][()], f["mesh/triangles"][()]
     # The capsule is offset along x and symmetric about y = 0: the section there, (z, x).
-    section = plane_section(nodes, triangles, normal_axis=1)
+    section = plane_section(case.mesh["nodes"], case.mesh["triangles"], normal_axis=1)
     last = {name: float(case.history[name][-1]) for name in ("L_z", "L_p", "v_c", "r_c")}
     meridian = np.column_stack([case.profile["r"], case.profile["z"]])
     return SimulatedCapsule(float(a_over_l), float(Ca_s), law, last["L_z"], last["L_p"], last["v_c"], meridian,
