@@ -58,6 +58,7 @@ contains
       if (stat == 0) call f%write_attr('/', 'lambda', opts%lambda, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'k_b', opts%kb, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'offset', opts%offset, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'offset_mode', trim(opts%offset_mode), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'mesh_level', opts%level, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'dt', summary%dt, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'status', trim(summary%status), stat, errmsg)

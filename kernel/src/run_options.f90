@@ -46,6 +46,10 @@ module run_options
       !> 3D tube: initial radial position of the capsule's centroid over l (along x); the
       !> capsule is then re-centred axially only and drifts radially as the flow moves it.
       real(dp) :: offset = 0.0_dp
+      !> 'drift' (the capsule migrates from --offset) or 'held' (its centroid is put back to
+      !> x = offset after every step: the quasi-steady shape at a fixed radial position, for
+      !> capsules whose migration is slow against their shape's relaxation).
+      character(len=8) :: offset_mode = 'drift'
       real(dp) :: c = 1.0_dp
       !> Viscosity ratio lambda = inner / outer viscosity (shear and both tube models; 1 = the base model).
       real(dp) :: lambda = 1.0_dp
@@ -75,7 +79,7 @@ module run_options
    character(len=*), parameter :: usage_text = &
       'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
       ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
-      ' [--prestress ALPHA] [--kb X] [--offset X] [--level N] [--dt X]'// &
+      ' [--prestress ALPHA] [--kb X] [--offset X] [--offset-mode drift|held] [--level N] [--dt X]'// &
       ' [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none] [--self-quadrature vertex|full]'// &
       ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
       ' --out FILE.h5'// &
@@ -213,6 +217,8 @@ contains
             call read_real(key, value, opts%kb)
          case ('--offset')
             call read_real(key, value, opts%offset)
+         case ('--offset-mode')
+            opts%offset_mode = value
          case ('--threads')
             call read_int(key, value, opts%threads)
          case default
@@ -374,6 +380,11 @@ contains
                errmsg = '--self-quadrature: unknown rule "'//trim(opts%self_quadrature)//'" (expected vertex or full)'
             end if
          end if
+         if (len(errmsg) == 0 .and. all(trim(opts%offset_mode) /= [character(len=5) :: 'drift', 'held'])) then
+            errmsg = '--offset-mode: unknown mode "'//trim(opts%offset_mode)//'" (expected drift or held)'
+         else if (len(errmsg) == 0 .and. trim(opts%offset_mode) == 'held' .and. opts%offset == 0.0_dp) then
+            errmsg = '--offset-mode: held needs --offset > 0 (a centred capsule has nothing to hold)'
+         end if
          if (len(errmsg) == 0 .and. opts%offset /= 0.0_dp) then
             if (trim(opts%model) /= '3d') then
                errmsg = '--offset: an off-centre capsule needs --model 3d (the axisymmetric model is centred), got '// &
@@ -474,6 +485,7 @@ contains
       call append_effect(sig, 'lambda', opts%lambda, 1.0_dp)
       call append_effect(sig, 'kb', opts%kb, 0.0_dp)
       call append_effect(sig, 'offset', opts%offset, 0.0_dp)
+      if (trim(opts%offset_mode) == 'held') sig = sig//' offset_mode held'
       ! The 3D model's full self quadrature (its default) is a different model from the vertex
       ! rule: old 3D checkpoints (vertex) resume only with --self-quadrature vertex.
       if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d' .and. trim(opts%self_quadrature) /= 'vertex') &

@@ -90,6 +90,8 @@ module tube_capsule
       real(dp) :: a = 0, ca = 0, h_min = 0, energy = 0, v_c = 0
       !> Initial radial position of the centroid (l); 0: centred, re-centred in all directions.
       real(dp) :: offset = 0
+      !> Put the centroid back to (offset, 0) after every step instead of letting it drift.
+      logical :: hold_offset = .false.
       logical :: volume_correction = .true.
       !> Wall setup time (assembly and LU, or the cache load) [s], and the time spent so far in
       !> the three parts of the velocity that involve the wall (bench/bench_tube_3d.py).
@@ -193,6 +195,7 @@ contains
          self%start_positions(3, :) = (c_axis / self%a) * self%x_ref(3, :)
       end if
       self%offset = opts%offset
+      self%hold_offset = trim(opts%offset_mode) == 'held'
       self%start_positions(1, :) = self%start_positions(1, :) + self%offset
       self%positions = self%start_positions
       ! Strains are measured from the stress-free sphere of radius a/(1 + alpha).
@@ -589,21 +592,27 @@ contains
       self%x_pred = self%positions + self%dt * self%u0
       call self%velocity(self%x_pred, self%u1)
       self%positions = self%positions + 0.5_dp * self%dt * (self%u0 + self%u1)
-      call recentre(self%mesh, self%positions, axial_only=self%offset /= 0.0_dp)
+      if (self%hold_offset) then
+         call recentre(self%mesh, self%positions, axial_only=.false., target=[self%offset, 0.0_dp, 0.0_dp])
+      else
+         call recentre(self%mesh, self%positions, axial_only=self%offset /= 0.0_dp)
+      end if
       self%t = self%t + self%dt
       self%step = self%step + 1
    end subroutine rk2_step
 
    !> Translate x so that its volume centroid is at the origin (on the axis, mid-tube), or
-   !> only to mid-tube (z = 0) when `axial_only`.
-   pure subroutine recentre(mesh, x, axial_only)
+   !> only to mid-tube (z = 0) when `axial_only`, or to `target` when given.
+   pure subroutine recentre(mesh, x, axial_only, target)
       type(surface_mesh_t), intent(in) :: mesh
       real(dp), intent(inout) :: x(:, :)
       logical, intent(in) :: axial_only
+      real(dp), intent(in), optional :: target(3)
       real(dp) :: c(3)
       integer :: k
       c = volume_centroid(mesh, x)
       if (axial_only) c(1:2) = 0.0_dp
+      if (present(target)) c = c - target
       do k = 1, size(x, 2)
          x(:, k) = x(:, k) - c
       end do

@@ -24,14 +24,15 @@ from test_tube_3d import COARSE_WALL, run_capsim
 SIZE, OFFSET = 0.2, 0.3
 
 
-def offset_case(capsim, root, ca, offset, t_max):
-    """Run NH a/l = 0.2 at Ca_s ``ca`` off the axis by ``offset`` (None: no flag) to t_max."""
-    out = root / f"ca{ca}_off{offset}.h5"
+def offset_case(capsim, root, ca, offset, t_max, mode="drift"):
+    """Run NH a/l = 0.2 at Ca_s ``ca`` off the axis by ``offset`` (None: no flag) to t_max,
+    drifting or held there (``mode``)."""
+    out = root / f"ca{ca}_off{offset}_{mode}.h5"
     args = ["--flow", "tube", "--model", "3d", "--law", "NH", "--a-over-l", str(SIZE), "--ca", str(ca),
             "--level", "2", *COARSE_WALL, "--wall-cache", str(root), "--threads", "1", "--quiet",
             "--t-max", str(t_max), "--out", str(out)]
     if offset is not None:
-        args += ["--offset", str(offset)]
+        args += ["--offset", str(offset), "--offset-mode", mode]
     run_capsim(capsim, args)
     return read_case(out)
 
@@ -42,6 +43,7 @@ def runs(capsim, tmp_path_factory):
     return {
         "stiff": offset_case(capsim, root, 0.05, OFFSET, 0.5),
         "soft": offset_case(capsim, root, 0.1, OFFSET, 0.5),
+        "soft held": offset_case(capsim, root, 0.1, OFFSET, 0.5, mode="held"),
     }
 
 
@@ -65,12 +67,28 @@ def test_a_deformable_capsule_migrates_towards_the_axis_faster_at_larger_ca(runs
     # Radial velocity of the centroid over t = 0.25-0.5, after the start-up: measured
     # -6.8e-4 (Ca_s 0.05) and -1.27e-3 (Ca_s 0.1) V, about proportional to Ca_s.
     drift = {}
-    for name, case in runs.items():
+    for name in ("stiff", "soft"):
+        case = runs[name]
         h = case.history
         late = h["t"] > 0.25
         assert np.all(np.diff(h["r_c"][late]) < 0), name           # monotonically inwards
         drift[name] = np.polyfit(h["t"][late], h["r_c"][late], 1)[0]
     assert drift["soft"] < drift["stiff"] < 0
+
+
+def test_a_held_capsule_stays_at_its_offset_and_moves_as_the_drifting_one(runs):
+    # --offset-mode held puts the centroid back to x = b after every step (the quasi-steady
+    # shape at a fixed radial position). The drift it removes is slow (1.3e-3 V here), so the
+    # held capsule must move along the axis as the drifting one does at the same r_c, i.e. at
+    # Faxen's velocity for its r_c. Measured: r_c = 0.3 to 3e-16; v_c within 6e-6 of the
+    # drifting capsule's (r_c 0.2995 at t = 0.5) once corrected by Faxen for its smaller r_c.
+    held, free = runs["soft held"], runs["soft"]
+    np.testing.assert_allclose(held.history["r_c"], OFFSET, atol=1e-12)
+    assert held.effects["offset"] == OFFSET
+    late = held.history["t"] > 0.25
+    expected = free.history["v_c"][late] + np.array(
+        [faxen_velocity(OFFSET, SIZE) - faxen_velocity(b, SIZE) for b in free.history["r_c"][late]])
+    np.testing.assert_allclose(held.history["v_c"][late], expected, rtol=1e-3)
 
 
 def test_a_tiny_offset_changes_nothing_measurable(capsim, tmp_path):
@@ -90,6 +108,8 @@ BAD_OFFSETS = [
     (["--offset", "0.75"], "--offset"),            # 0.75 + a/l 0.2 > 0.9: touches the wall
     (["--offset", "0.3", "--flow", "shear"], "--offset"),
     (["--offset", "near"], "--offset"),
+    (["--offset-mode", "held"], "--offset-mode"),                       # held, but at no offset
+    (["--offset", "0.3", "--offset-mode", "fixed"], "--offset-mode"),
 ]
 
 
