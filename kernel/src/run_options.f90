@@ -370,7 +370,8 @@ contains
             if (ios /= 0) then
                errmsg = '--wall-cache: cannot write in "'//trim(opts%wall_cache)//'": '//trim(iomsg)
             else
-               close (unit, status='delete')
+               ! Runs started together share the probe's name: another may have deleted it first.
+               close (unit, status='delete', iostat=ios)
             end if
          end if
          if (len(errmsg) == 0 .and. len_trim(opts%self_quadrature) > 0) then
