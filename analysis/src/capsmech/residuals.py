@@ -66,19 +66,26 @@ class PreparedContour:
         self.axis_y, _ = symmetry_axis(contour)
         measured = resample_curve(contour, closed=True)
         rho = measured[:, 1] - self.axis_y
-        self.halves = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]
-        if min(len(h) for h in self.halves) < 2:
+        self.halves_points = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]
+        if min(len(h) for h in self.halves_points) < 2:
             raise ValueError("contour has no points on one side of its axis")
-        self.trees = [cKDTree(h) for h in self.halves]
+        self.trees = [cKDTree(h) for h in self.halves_points]
         self.front = float(measured[:, 0].max())
 
     def residual(self, meridian: np.ndarray, points: int = PROFILE_POINTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(s, distance, error) along the meridian (r, z) [contour units]: measured minus
-        simulated along the outward normal, mean and half difference of the halves.
+        simulated along the outward normal, mean and half difference of the halves
+        (``halves``)."""
+        s, upper, lower = self.halves(meridian, points)
+        return s, 0.5 * (upper + lower), 0.5 * np.abs(upper - lower)
+
+    def halves(self, meridian: np.ndarray, points: int = PROFILE_POINTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, upper, lower): each half's signed distance from the meridian (r, z) along its
+        outward normal [contour units], the upper half being the one at larger image y.
 
         The contour's axial position, which the image does not fix, is the one that leaves no
         residual along the axial-shift mode: the least-squares shift, i.e. the weighted mean of
-        the residual's component along n_z vanishes. (The Hausdorff distance cannot fix it: a
+        the halves' mean residual along n_z vanishes. (The Hausdorff distance cannot fix it: a
         uniform outward offset has the same mean distance for every small shift.)"""
         simulated = resample_curve(np.column_stack([meridian[:, 1], meridian[:, 0]]), n=points)
         normals = _meridian_normals(simulated)
@@ -88,7 +95,7 @@ class PreparedContour:
         for _ in range(6):
             placed = simulated + [shift, 0.0]
             estimates = [np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
-                         for half, tree in zip(self.halves, self.trees)]
+                         for half, tree in zip(self.halves_points, self.trees)]
             mean = 0.5 * (estimates[0] + estimates[1])
             correction = np.sum(weight * mean * normals[:, 0]) / np.sum(weight * normals[:, 0] ** 2)
             # Moving the simulated meridian by +dz changes the residual by -n_z dz to first order.
@@ -97,9 +104,9 @@ class PreparedContour:
                 break
         placed = simulated + [shift, 0.0]
         upper, lower = (np.sum((half[tree.query(placed)[1]] - placed) * normals, axis=1)
-                        for half, tree in zip(self.halves, self.trees))
+                        for half, tree in zip(self.halves_points, self.trees))
         arclength = np.concatenate([[0.0], np.cumsum(step)])
-        return arclength / arclength[-1], 0.5 * (upper + lower), 0.5 * np.abs(upper - lower)
+        return arclength / arclength[-1], upper, lower
 
 
 def profile_residual(contour: np.ndarray, meridian: np.ndarray, points: int = PROFILE_POINTS) -> ProfileResidual:
