@@ -388,6 +388,22 @@ def _effect_databases(paths: Sequence[str] | None) -> list[str]:
     return sorted(str(p) for p in Path("data/databases/effects").glob("*/tube.h5"))
 
 
+DEFAULT_OFFCENTRE_TABLE = "data/databases/effects/offcentre/table.h5"
+
+
+def _offcentre_table(path: str | None):
+    """The off-centre table diagnose fits screened capsules with: the one named, else the
+    shipped one when present; None for 'none'."""
+    from capsmech.offcentre import OffcentreError, OffcentreTable
+
+    if path == "none" or (path is None and not Path(DEFAULT_OFFCENTRE_TABLE).is_file()):
+        return None
+    try:
+        return OffcentreTable.read(path or DEFAULT_OFFCENTRE_TABLE)
+    except OffcentreError as err:
+        raise DatabaseError(f"--offcentre-table: {err}") from None
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
     from capsmech.database import load_database
@@ -425,10 +441,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                       or ("laws" in args.candidate and c.name.startswith("law "))]
     if args.max_effects < 1:
         raise MeasurementError(f"--max-effects: must be at least 1, got {args.max_effects}")
+    offcentre_table = _offcentre_table(args.offcentre_table)
     try:
         if args.max_effects == 1:
             sequence = None
-            result = diagnose(capsules, databases, args.law, candidates)
+            result = diagnose(capsules, databases, args.law, candidates, offcentre_table=offcentre_table)
         else:
             names = {c.name for c in candidates}
             sequence = diagnose_sequential(
@@ -436,7 +453,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 lambda law: [c for c in candidate_library(law, list(database.laws), levels["prestress_levels"],
                                                           args.other_law, kb_levels=levels["kb_levels"])
                              if c.name in names],
-                max_effects=args.max_effects)
+                max_effects=args.max_effects, offcentre_table=offcentre_table)
             result = sequence.rounds[0]
     except ValueError as err:
         raise MeasurementError(f"{args.measurements}: {err}") from None
@@ -451,6 +468,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
               f"make database GRID={r.needs['name']} (grid written to {path})")
     for capsule, why in result.excluded:
         print(f"capsmech diagnose: left out {capsule}: {why}")
+    for fit in result.offcentre:
+        print(f"capsmech diagnose: off-centre {fit.summary}")
     print(f"verdict: {result.verdict}")
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):
@@ -679,6 +698,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="test only these candidates (repeatable; default all: the effect library)")
     diag.add_argument("--max-effects", type=int, default=2, metavar="N",
                       help="effects to look for one after another, each fixed before the next (default 2; 1: one)")
+    diag.add_argument("--offcentre-table", metavar="H5",
+                      help="antisymmetric modes to fit the offset of capsules screened out as asymmetric "
+                           f"(default: {DEFAULT_OFFCENTRE_TABLE} when present; none: leave them out unfitted)")
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")

@@ -43,15 +43,16 @@ one discrete parameter.
   kernel reproduces the lambda = 1 shape to 6e-8 at lambda 0.2 and 5); it acts on the shear
   method (``capsmech.shear_diagnose``: ``capsmech diagnose-shear``). ``NOT_ASSESSED``
   says so in every report.
-- ``off-centre position`` is screened, not fitted (``screen_asymmetric``): its first-order
-  signature, an up-down asymmetric contour, is what the inversion flags, and such capsules
-  are left out of the diagnosis (listed in the report). Measured with the 3D tube kernel
-  (``scripts/make_offcentre.py``): 0.04-0.07 a of asymmetry at 0.02-0.07 l off the axis,
-  far above the flag's 1 % of a. What stays below the flag changes the shape and v_c only at
-  second order in the offset b (the flow is symmetric under b -> -b; Faxen: v_c/V - 2 b^2),
-  and a capsule released off the axis centres itself: by a factor e every 2-3 l of travel at
-  a/l 0.85, 9 l at 0.7, 26 l at 0.6 (confinement drives it). A fitted offset would need a 3D
-  database per (a/l, Ca_s, b) and non-axisymmetric contour fits, minutes to hours a case.
+- ``off-centre position`` is not a batch effect: each capsule has its own offset b. Its
+  first-order signature, an up-down asymmetric contour, is what the inversion flags; such
+  capsules are left out of the batch's diagnosis (``screen_asymmetric``) and, given an
+  off-centre table (``capsmech.offcentre``: the 3D kernel's antisymmetric mode over a/l
+  0.7-0.8), each is fitted with its own b (linear least squares of its contour's
+  antisymmetric part), its lengths corrected by the second-order elongation c b**2 before
+  (a/l, Ca_s) and G_s are refitted (``fit_offcentre``; reported apart from the batch's
+  candidates). A capsule released off the axis centres itself (by a factor e every 2-3 l of
+  travel at a/l 0.75-0.85, 9 l at 0.7, 26 l at 0.6), so the capsules the method is made for
+  (a/l >~ 0.85) are mostly centred where they are imaged.
 A candidate whose law groups the databases lack is not guessed: it is reported as "not
 assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
@@ -82,12 +83,12 @@ NOT_ASSESSED: dict[str, str] = {
     "viscosity ratio": "not identifiable: a steady capsule moves as a rigid body with its inner fluid, so lambda "
                        "leaves its shape and velocity unchanged (kernel: lambda 0.2 and 5 reproduce lambda = 1 to "
                        "6e-8); it acts on the shear method: capsmech diagnose-shear tests it on Couette batches",
-    "off-centre position": "screened, not fitted: an off-centre capsule's contour is up-down asymmetric (3D kernel: "
-                           "0.04-0.07 a at 0.02-0.07 l off the axis), which no axisymmetric model explains, so such "
-                           "capsules are left out (screen_asymmetric); below the flag (about 0.01 l) the shape and "
-                           "velocity change only at second order in the offset (symmetry b -> -b), and a released "
-                           "capsule centres itself by a factor e every 2-3 l of travel at a/l 0.85, 9 l at 0.7, "
-                           "26 l at 0.6",
+    "off-centre position": "not a batch effect (each capsule has its own): an off-centre capsule's contour is up-down "
+                           "asymmetric (3D kernel: 0.04-0.07 a at 0.02-0.07 l off the axis), so such capsules are "
+                           "screened out of the batch (screen_asymmetric) and, with the off-centre table "
+                           "(capsmech.offcentre, a/l 0.7-0.8), each is fitted with its own offset b from its "
+                           "contour's antisymmetric part, its lengths corrected by the offset's second-order "
+                           "elongation before G_s",
 }
 #: Points of each capsule's residual profile in the score.
 PROFILE_POINTS = 16
@@ -650,6 +651,11 @@ class Diagnosis:
     base: BatchScore | None = field(default=None, repr=False)
     #: Capsules left out before the diagnosis, as (id, reason) (``screen_asymmetric``).
     excluded: list[tuple[str, str]] = field(default_factory=list)
+    #: The left-out capsules fitted with their own offset (``capsmech.offcentre``), when an
+    #: off-centre table was given.
+    offcentre: list = field(default_factory=list)
+    #: Why no candidate was assessed, when none was.
+    note: str = ""
 
     @property
     def rivals(self) -> list[CandidateResult]:
@@ -659,6 +665,8 @@ class Diagnosis:
 
     @property
     def verdict(self) -> str:
+        if self.note and not self.results:
+            return self.note
         if self.chosen is None:
             return "no candidate effect is supported: the residual is within noise"
         c = self.chosen
@@ -675,7 +683,8 @@ class Diagnosis:
 
 def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
              candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None,
-             refine_evaluations: int = REFINE_EVALUATIONS, screen: bool = True) -> Diagnosis:
+             refine_evaluations: int = REFINE_EVALUATIONS, screen: bool = True,
+             offcentre_table=None) -> Diagnosis:
     """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
 
     ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
@@ -686,7 +695,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     the batch on each side of a continuous candidate's best grid value (0: the grid only).
     ``screen``: leave out asymmetric contours first (``screen_asymmetric``); False when the
     caller has screened the batch already (``diagnose_sequential``: once, so that every round
-    sees the same capsules)."""
+    sees the same capsules). ``offcentre_table``: an ``capsmech.offcentre.OffcentreTable``;
+    the capsules screened out are then fitted with their own offset (``fit_offcentre``)."""
     from capsmech.effect_grid import needed_grid
 
     if candidates is None:
@@ -695,6 +705,13 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     excluded: list[tuple[str, str]] = []
     if screen:
         with_contours, excluded = screen_asymmetric(with_contours)
+    if len(with_contours) < 3 and offcentre_table is not None and excluded:
+        # A batch caught off the axis: no batch effect can be tested, the offsets still can.
+        base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
+        return Diagnosis(base_law, [], None, None, excluded,
+                         fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table),
+                         note=f"no candidate assessed: {len(with_contours)} centred capsules with contours, "
+                              "diagnose needs at least 3")
     if len(with_contours) < 3:
         raise ValueError(f"diagnose needs contours of at least 3 capsules, the batch has {len(with_contours)}"
                          + (f" ({len(excluded)} more left out as asymmetric)" if excluded else ""))
@@ -716,7 +733,21 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
         result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
         results.append(result)
     chosen = compare_supported(results, base)
-    return Diagnosis(base_law, results, chosen, base, excluded)
+    offcentre = (fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
+                 if offcentre_table is not None else [])
+    return Diagnosis(base_law, results, chosen, base, excluded, offcentre)
+
+
+def fit_offcentre(capsules: Sequence[Capsule], excluded: Sequence[tuple[str, str]], database: TubeDatabase,
+                  base_law: str | BlendedLaw, table) -> list:
+    """Fit every screened-out capsule with its own offset (``capsmech.offcentre``)."""
+    from capsmech.offcentre import fit_offcentre_capsule
+
+    if not isinstance(base_law, str) or not excluded:
+        return []
+    left_out = {capsule for capsule, _ in excluded}
+    inverter = tube_inverter(database, base_law)
+    return [fit_offcentre_capsule(c, inverter, table) for c in capsules if c.id in left_out]
 
 
 def screen_asymmetric(capsules: Sequence[Capsule]) -> tuple[list[Capsule], list[tuple[str, str]]]:
@@ -859,7 +890,7 @@ def joint_refine(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
 
 def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
                         library: Callable[[str | BlendedLaw], Sequence[Candidate]],
-                        max_effects: int = 2) -> SequentialDiagnosis:
+                        max_effects: int = 2, offcentre_table=None) -> SequentialDiagnosis:
     """A second effect after fixing the first: diagnose the batch; if a candidate is
     supported, switch it on at its fitted value and diagnose again with the other candidates
     that compose with it (any measurement effect; a model effect only on top of a measurement
@@ -871,11 +902,17 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
 
     ``library(law)`` builds the candidate list on a law (a key or a ``BlendedLaw``), e.g.
     ``lambda law: candidate_library(law, laws)`` for the base key. The noise levels are
-    measured once, on the base fit."""
+    measured once, on the base fit. ``offcentre_table``: as in ``diagnose``."""
     with_contours, excluded = screen_asymmetric([c for c in capsules if c.contour is not None])
+    if len(with_contours) < 3 and offcentre_table is not None and excluded:
+        only = diagnose(capsules, database, base_law, [], offcentre_table=offcentre_table)
+        return SequentialDiagnosis([only], [], [(math.nan, math.nan)], only.note, None)
     sigma = noise_levels(with_contours, database, base_law)
     rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma, screen=False)]
     rounds[0].excluded = excluded
+    if offcentre_table is not None:
+        base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
+        rounds[0].offcentre = fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
     fixed: list[tuple[Candidate, float]] = []
     note = ""
     while rounds[-1].chosen is not None:

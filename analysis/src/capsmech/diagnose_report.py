@@ -146,6 +146,10 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     if diagnosis.excluded:
         lines += [f"Left out before the diagnosis ({len(diagnosis.excluded)}; an axisymmetric model cannot "
                   "explain them):", ""] + [f"- {capsule}: {why}" for capsule, why in diagnosis.excluded] + [""]
+    if diagnosis.offcentre:
+        lines += ["Their own offsets (off-centre table: the 3D kernel's antisymmetric mode; b > 0 towards the "
+                  "contour's upper side, interval two standard errors with the mode's 20 % uncertainty):", ""]
+        lines += [f"- {fit.summary}" for fit in diagnosis.offcentre] + [""]
     if figures:
         titles = {"residuals": "Residual profile before and after", "gs_delta": "G_s against Delta before and after",
                   "criteria": "Criterion per candidate"}

@@ -62,8 +62,9 @@ class PreparedContour:
     """A measured contour folded about its axis into its two halves (z, r), with a k-d tree per
     half, so that residuals against many trial meridians cost two tree queries each."""
 
-    def __init__(self, contour: np.ndarray) -> None:
-        self.axis_y, _ = symmetry_axis(contour)
+    def __init__(self, contour: np.ndarray, axis_y: float | None = None) -> None:
+        # The axis of best mirror symmetry unless the caller knows the capsule's own axis.
+        self.axis_y = symmetry_axis(contour)[0] if axis_y is None else float(axis_y)
         measured = resample_curve(contour, closed=True)
         rho = measured[:, 1] - self.axis_y
         self.halves_points = [np.column_stack([measured[side, 0], np.abs(rho[side])]) for side in (rho >= 0, rho < 0)]

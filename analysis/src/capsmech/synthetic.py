@@ -90,6 +90,30 @@ def traced_contour(section: np.ndarray, pixels_per_l: float, rng: np.random.Gene
     return points + origin + rng.uniform(-error_px, error_px, points.shape)
 
 
+def run_tube_3d(a_over_l: float, Ca_s: float, out: str | Path, t_max: float, law: str = "NH",
+                offset: float = 0.0, offset_mode: str = "drift", level: int = 2,
+                wall: tuple[float, float] = (0.28, 0.14), tube_length: float = 6.0, self_quadrature: str = "full",
+                wall_cache: str | Path | None = None, capsim: str | Path | None = None) -> Path:
+    """Run the 3D tube kernel for one capsule (centred, or ``offset`` [l] off the axis,
+    drifting or held) to ``t_max`` or its steady state, unless ``out`` exists already (then it is
+    reused: the kernel's runs take minutes). Returns ``out``."""
+    path = Path(out)
+    if path.exists():
+        return path
+    kernel = Path(capsim) if capsim else capsim_executable()
+    args = [str(kernel), "--flow", "tube", "--model", "3d", *parse_law(law).kernel_args(),
+            "--a-over-l", repr(float(a_over_l)), "--ca", repr(float(Ca_s)), "--level", str(level),
+            "--wall-h-far", repr(wall[0]), "--wall-h-centre", repr(wall[1]), "--tube-length", repr(tube_length),
+            "--t-max", repr(float(t_max)), "--self-quadrature", self_quadrature, "--threads", "1", "--quiet",
+            "--out", str(path)]
+    if offset:
+        args += ["--offset", repr(float(offset)), "--offset-mode", offset_mode]
+    if wall_cache is not None:
+        args += ["--wall-cache", str(wall_cache)]
+    subprocess.run(args, check=True, capture_output=True, text=True)
+    return path
+
+
 def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: float, law: str = "NH",
                             level: int = 2, wall: tuple[float, float] = (0.28, 0.14), tube_length: float = 6.0,
                             self_quadrature: str = "full", out: str | Path | None = None,
@@ -105,16 +129,10 @@ def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: 
     """
     from capsmech.mesh_section import plane_section
 
-    kernel = Path(capsim) if capsim else capsim_executable()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(out) if out else Path(tmp) / "case.h5"
-        if not path.exists():
-            subprocess.run([str(kernel), "--flow", "tube", "--model", "3d", *parse_law(law).kernel_args(),
-                            "--a-over-l", repr(float(a_over_l)), "--ca", repr(float(Ca_s)), "--offset", repr(float(offset)),
-                            "--level", str(level), "--wall-h-far", repr(wall[0]), "--wall-h-centre", repr(wall[1]),
-                            "--tube-length", repr(tube_length), "--t-max", repr(float(t_max)),
-                            "--self-quadrature", self_quadrature, "--threads", "1",
-                            "--quiet", "--out", str(path)], check=True, capture_output=True, text=True)
+        run_tube_3d(a_over_l, Ca_s, path, t_max, law=law, offset=offset, level=level, wall=wall,
+                    tube_length=tube_length, self_quadrature=self_quadrature, capsim=capsim)
         case = read_case(path)
     # The capsule is offset along x and symmetric about y = 0: the section there, (z, x).
     section = plane_section(case.mesh["nodes"], case.mesh["triangles"], normal_axis=1)
@@ -122,6 +140,49 @@ def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: 
     meridian = np.column_stack([case.profile["r"], case.profile["z"]])
     return SimulatedCapsule(float(a_over_l), float(Ca_s), law, last["L_z"], last["L_p"], last["v_c"], meridian,
                             case.status, section=section, r_c=last["r_c"])
+
+
+def offcentre_hybrid(axisymmetric: SimulatedCapsule, off_axis: str | Path, centred: str | Path,
+                     points: int = 400) -> SimulatedCapsule:
+    """A capsule off the axis made of the 3D kernel's off-centre capsule, corrected to the
+    axisymmetric model.
+
+    ``off_axis`` and ``centred`` are 3D tube case files at the same (a/l, Ca_s) and mesh, one
+    off the axis (drifting or held) and one centred; ``axisymmetric`` is the axisymmetric
+    model's capsule at that (a/l, Ca_s) (``simulate_tube``). The result is the off-axis
+    capsule plus the difference between the two models' centred capsules, i.e. the
+    axisymmetric model plus the 3D off-centre increment, so that the 3D mesh's own errors
+    (common to both runs) cancel:
+    - lengths and v_c/V: axisymmetric + (off-axis - centred), last history rows;
+    - section: each point of the off-axis section (through the tube axis and the centroid),
+      folded about the capsule's own axis x = r_c, is moved by the difference between the
+      axisymmetric and the centred 3D meridians at the nearest point of the centred meridian
+      (both at equal normalised arclength), on its own side of the axis. Where the two
+      capsules coincide this gives the axisymmetric profile exactly, and the up-down
+      asymmetry is the 3D kernel's, untouched.
+    ``r_c`` is the off-axis capsule's radial position at the end, its side towards the wall
+    being the section's upper one (larger y).
+    """
+    from scipy.spatial import cKDTree
+
+    from capsmech.contours import resample_curve
+    from capsmech.mesh_section import plane_section
+
+    moved, still = read_case(off_axis), read_case(centred)
+    r_c = float(moved.history["r_c"][-1])
+    section = plane_section(moved.mesh["nodes"], moved.mesh["triangles"], normal_axis=1)   # (z, x)
+    meridian_3d = resample_curve(np.column_stack([still.profile["z"], still.profile["r"]]), n=points)
+    meridian_axi = resample_curve(axisymmetric.meridian[:, ::-1], n=points)                 # (z, r)
+    side = np.where(section[:, 1] >= r_c, 1.0, -1.0)
+    folded = np.column_stack([section[:, 0], np.abs(section[:, 1] - r_c)])
+    nearest = cKDTree(meridian_3d).query(folded)[1]
+    moved_folded = folded + (meridian_axi - meridian_3d)[nearest]
+    hybrid = np.column_stack([moved_folded[:, 0], side * moved_folded[:, 1]])
+    increment = {name: float(moved.history[name][-1]) - float(still.history[name][-1]) for name in ("L_z", "L_p", "v_c")}
+    return SimulatedCapsule(axisymmetric.a_over_l, axisymmetric.Ca_s, axisymmetric.law,
+                            axisymmetric.L_z + increment["L_z"], axisymmetric.L_p + increment["L_p"],
+                            axisymmetric.vc_over_V + increment["v_c"], axisymmetric.meridian, "steady",
+                            section=hybrid, r_c=r_c)
 
 
 def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_radius_um: float = 50.0,

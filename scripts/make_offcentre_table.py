@@ -1,0 +1,69 @@
+"""Make data/databases/effects/offcentre/table.h5: the antisymmetric mode of an off-centre
+capsule over (a/l, Ca_s) (issue 7, the fitted off-centre position; ``capsmech.offcentre``).
+
+NH, a/l 0.7/0.75/0.8 x Ca_s 0.035/0.05/0.075/0.1/0.14; at each point a capsule held b0 = 0.025 l off the
+axis (``--offset-mode held``) and a centred one, 3D tube, level 3, wall 0.28/0.14 l over 6 l,
+to t = 6 or their steady state; 2-3 minutes a case on one core. Case files are kept in
+--cases and reused when present.
+
+    PYTHONPATH=analysis/src .venv/bin/python scripts/make_offcentre_table.py [--cases DIR] [--jobs N]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from capsmech.io import read_case
+from capsmech.offcentre import build_table
+from capsmech.synthetic import run_tube_3d
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "data" / "databases" / "effects" / "offcentre" / "table.h5"
+A_OVER_L, CA_S, B0 = (0.7, 0.75, 0.8), (0.035, 0.05, 0.075, 0.1, 0.14), 0.025
+#: The 3D runs' settings, shared with scripts/make_offcentre_batch.py.
+SETTINGS = {"level": 3, "wall": (0.28, 0.14), "tube_length": 6.0, "t_max": 6.0}
+
+
+def case_path(cases: Path, a: float, ca: float, b: float, mode: str = "held", t: float | None = None) -> Path:
+    tail = "" if t is None else f"_t{t:g}"
+    return cases / (f"a{a:g}_ca{ca:g}_b0.h5" if b == 0 else f"a{a:g}_ca{ca:g}_b{b:g}_{mode}{tail}.h5")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", type=Path, default=ROOT / "results" / "offcentre_table", help="kernel case files")
+    parser.add_argument("--jobs", type=int, default=2, help="kernel runs at once (one core each)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    args.cases.mkdir(parents=True, exist_ok=True)
+    runs = [(a, ca, b) for a in A_OVER_L for ca in CA_S for b in (0.0, B0)]
+
+    def run(job: tuple[float, float, float]) -> Path:
+        a, ca, b = job
+        path = run_tube_3d(a, ca, case_path(args.cases, a, ca, b), SETTINGS["t_max"], offset=b, offset_mode="held",
+                           level=SETTINGS["level"], wall=SETTINGS["wall"], tube_length=SETTINGS["tube_length"],
+                           wall_cache=args.cases)
+        print(f"{path.name}", flush=True)
+        return path
+
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        list(pool.map(run, runs))
+    pairs = [(read_case(case_path(args.cases, a, ca, B0)), read_case(case_path(args.cases, a, ca, 0.0)))
+             for a in A_OVER_L for ca in CA_S]
+    source = (f"capsim 3D tube, NH, level {SETTINGS['level']}, wall {SETTINGS['wall'][0]}/{SETTINGS['wall'][1]} l over "
+              f"{SETTINGS['tube_length']:g} l, held at b0 = {B0} l and centred, to t = {SETTINGS['t_max']:g} or steady "
+              "(scripts/make_offcentre_table.py)")
+    table = build_table(pairs, source)
+    table.write(args.out)
+    print(f"wrote {args.out}")
+    for i, a in enumerate(table.a_over_l):
+        for j, ca in enumerate(table.Ca_s):
+            print(f"a/l {a:g} Ca_s {ca:g}: peak m {table.mode[i, j].max():.2f}, per b^2: "
+                  + ", ".join(f"{k} {v[i, j]:+.1f}" for k, v in table.second_order.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
