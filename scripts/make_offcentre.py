@@ -40,9 +40,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{out.name} ...", flush=True)
         # The shipped capsules were made before the accurate self term became the default.
         capsules.append(simulate_offcentre_tube(a, ca, b, t, self_quadrature="vertex", out=out))
-    rows = tube_batch(capsules, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM)
-    for row in rows:
-        row["id"] = "o" + str(row["id"])[1:]
+    rows = tube_batch(capsules, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM,
+                      id_prefix="o")
     path = write_tube_csv(rows, args.out / "offcentre.csv",
                           comment="off-centre capsules made with the 3D tube kernel by scripts/make_offcentre.py;\n"
                                   "2 % noise on lengths and velocity, contours traced to +-1 pixel")

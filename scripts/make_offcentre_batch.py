@@ -15,7 +15,6 @@ minutes a run on one core; case files are kept in --cases and reused.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -24,7 +23,7 @@ from capsmech.synthetic import offcentre_hybrid, run_tube_3d, simulate_tube, tub
 from capsmech.undeclared import PIXEL_SIZE_UM, TUBE_RADIUS_UM, write_truth
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_offcentre_table import SETTINGS, case_path  # noqa: E402
+from make_offcentre_table import SETTINGS, case_path, parse_run_args  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "examples" / "undeclared"
@@ -36,12 +35,7 @@ G_S, SEED = 0.04, 23
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", type=Path, default=ROOT / "results" / "offcentre_batch", help="kernel case files")
-    parser.add_argument("--jobs", type=int, default=2, help="kernel runs at once (one core each)")
-    parser.add_argument("--out", type=Path, default=OUT)
-    args = parser.parse_args(argv)
-    args.cases.mkdir(parents=True, exist_ok=True)
+    args = parse_run_args(__doc__, "offcentre_batch", OUT, argv)
     args.out.mkdir(parents=True, exist_ok=True)
     common = {"level": SETTINGS["level"], "wall": SETTINGS["wall"], "tube_length": SETTINGS["tube_length"],
               "wall_cache": args.cases}
@@ -60,10 +54,9 @@ def main(argv: list[str] | None = None) -> int:
         paths = list(pool.map(run, runs))
     capsules = [offcentre_hybrid(simulate_tube(a, ca, "NH"), paths[2 * k], paths[2 * k + 1])
                 for k, (a, ca, _, _) in enumerate(CAPSULES)]
-    rows = tube_batch(capsules, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM)
-    for row in rows:
-        # "m" for migrating: the ids stay apart from batch_A's when the two are mixed.
-        row["id"] = "m" + str(row["id"])[1:]
+    # "m" for migrating, "c" for centred: the ids stay apart from batch_A's when they are mixed.
+    rows = tube_batch(capsules, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM,
+                      id_prefix="m")
     path = write_tube_csv(rows, args.out / "batch_O.csv",
                           comment="capsules caught off the axis (3D tube kernel increments on the axisymmetric model) "
                                   "by scripts/make_offcentre_batch.py;\n2 % noise on lengths and velocity, contours "
@@ -75,9 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     # The same capsules centred (the axisymmetric model alone, the same noise): a control
     # whose offsets must come out as zero.
     centred = [simulate_tube(a, ca, "NH") for a, ca, _, _ in CAPSULES]
-    rows = tube_batch(centred, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM)
-    for row in rows:
-        row["id"] = "c" + str(row["id"])[1:]
+    rows = tube_batch(centred, g_s=G_S, tube_radius_um=TUBE_RADIUS_UM, seed=SEED, pixel_size_um=PIXEL_SIZE_UM,
+                      id_prefix="c")
     control = write_tube_csv(rows, args.out / "batch_O0.csv",
                              comment="batch_O's capsules centred (axisymmetric model), the same noise, by "
                                      "scripts/make_offcentre_batch.py")

@@ -31,13 +31,19 @@ def case_path(cases: Path, a: float, ca: float, b: float, mode: str = "held", t:
     return cases / (f"a{a:g}_ca{ca:g}_b0.h5" if b == 0 else f"a{a:g}_ca{ca:g}_b{b:g}_{mode}{tail}.h5")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", type=Path, default=ROOT / "results" / "offcentre_table", help="kernel case files")
+def parse_run_args(doc: str, cases: str, out: Path, argv: list[str] | None) -> argparse.Namespace:
+    """--cases (kernel case files, kept and reused), --jobs (runs at once), --out; folders made."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--cases", type=Path, default=ROOT / "results" / cases, help="kernel case files")
     parser.add_argument("--jobs", type=int, default=2, help="kernel runs at once (one core each)")
-    parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--out", type=Path, default=out)
     args = parser.parse_args(argv)
     args.cases.mkdir(parents=True, exist_ok=True)
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_run_args(__doc__, "offcentre_table", OUT, argv)
     runs = [(a, ca, b) for a in A_OVER_L for ca in CA_S for b in (0.0, B0)]
 
     def run(job: tuple[float, float, float]) -> Path:

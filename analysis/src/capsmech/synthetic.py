@@ -186,14 +186,15 @@ def offcentre_hybrid(axisymmetric: SimulatedCapsule, off_axis: str | Path, centr
 
 
 def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_radius_um: float = 50.0,
-               mu_pa_s: float = 1.0, noise: float = 0.02, seed: int = 0, pixel_size_um: float | None = None
-               ) -> list[dict[str, float | str | np.ndarray]]:
+               mu_pa_s: float = 1.0, noise: float = 0.02, seed: int = 0, pixel_size_um: float | None = None,
+               id_prefix: str = "s") -> list[dict[str, float | str | np.ndarray]]:
     """Measurement rows (L_z, L_p [um], v_c [mm/s], tube_radius [um], mu [Pa s]) with noise,
     and with ``pixel_size_um`` given, a traced contour [px] (``noisy_contour``) per capsule.
 
     The batch is one material: every capsule has the modulus g_s [N/m], and its Ca_s was
     reached by its flow rate, V = Ca_s g_s / mu (so v_c = (v_c/V) V). The contours' errors
     come from a generator of their own, so that adding contours leaves the lengths unchanged.
+    Ids are ``id_prefix`` and the capsule's number (``s001`` ...).
     """
     rng = np.random.default_rng(seed)
     contour_rng = np.random.default_rng(seed + 1000)
@@ -204,7 +205,7 @@ def tube_batch(capsules: Sequence[SimulatedCapsule], g_s: float = 0.04, tube_rad
         scale = 1 + noise * rng.standard_normal(3)
         mean_velocity_mm_s = capsule.Ca_s * g_s / mu_pa_s * 1e3
         row: dict[str, float | str | np.ndarray] = {
-            "id": f"s{k + 1:03d}", "L_z": capsule.L_z * tube_radius_um * scale[0],
+            "id": f"{id_prefix}{k + 1:03d}", "L_z": capsule.L_z * tube_radius_um * scale[0],
             "L_p": capsule.L_p * tube_radius_um * scale[1], "v_c": capsule.vc_over_V * mean_velocity_mm_s * scale[2],
             "tube_radius": tube_radius_um, "mu": mu_pa_s}
         if pixel_size_um is not None:
