@@ -162,3 +162,26 @@ def test_a_batch_all_off_the_axis_still_gets_its_offsets(table):
     assert result.results == [] and result.chosen is None
     assert "no candidate assessed" in result.verdict
     assert len(result.offcentre) == len(capsules)
+
+
+@pytest.mark.validate
+def test_the_shipped_table_is_reproduced_by_the_kernel(table, tmp_path):
+    # One grid point (a/l 0.7, Ca_s 0.05) run again, held and centred, as
+    # scripts/make_offcentre_table.py ran it (level 3; about 5 min on one core).
+    import sys
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from make_offcentre_table import B0, SETTINGS
+
+    from capsmech.io import read_case
+    from capsmech.offcentre import mode_from_cases
+    from capsmech.synthetic import run_tube_3d
+
+    runs = {b: run_tube_3d(0.7, 0.05, tmp_path / f"b{b}.h5", SETTINGS["t_max"], offset=b, offset_mode="held",
+                           level=SETTINGS["level"], wall=SETTINGS["wall"], tube_length=SETTINGS["tube_length"],
+                           wall_cache=tmp_path) for b in (0.0, B0)}
+    _, mode, second = mode_from_cases(read_case(runs[B0]), read_case(runs[0.0]))
+    i, j = list(np.round(table.a_over_l, 6)).index(0.7), list(np.round(table.Ca_s, 6)).index(0.05)
+    np.testing.assert_allclose(mode, table.mode[i, j], atol=1e-6)
+    for name, value in second.items():
+        assert value == pytest.approx(table.second_order[name][i, j], rel=1e-6, abs=1e-6)
