@@ -1,7 +1,7 @@
 """Make data/databases/effects/offcentre/table.h5: the antisymmetric mode of an off-centre
 capsule over (a/l, Ca_s) (issue 7, the fitted off-centre position; ``capsmech.offcentre``).
 
-NH, a/l 0.7/0.75/0.8 x Ca_s 0.035/0.05/0.075/0.1/0.14; at each point a capsule held b0 = 0.025 l off the
+NH, a/l 0.7/0.75/0.8/0.85 x Ca_s 0.035/0.05/0.075/0.1/0.14; at each point a capsule held b0 = 0.025 l off the
 axis (``--offset-mode held``) and a centred one, 3D tube, level 3, wall 0.28/0.14 l over 6 l,
 to t = 6 or their steady state; 2-3 minutes a case on one core. Case files are kept in
 --cases and reused when present.
@@ -21,7 +21,7 @@ from capsmech.synthetic import run_tube_3d
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "databases" / "effects" / "offcentre" / "table.h5"
-A_OVER_L, CA_S, B0 = (0.7, 0.75, 0.8), (0.035, 0.05, 0.075, 0.1, 0.14), 0.025
+A_OVER_L, CA_S, B0 = (0.7, 0.75, 0.8, 0.85), (0.035, 0.05, 0.075, 0.1, 0.14), 0.025
 #: The 3D runs' settings, shared with scripts/make_offcentre_batch.py.
 SETTINGS = {"level": 3, "wall": (0.28, 0.14), "tube_length": 6.0, "t_max": 6.0}
 

@@ -47,7 +47,7 @@ one discrete parameter.
   first-order signature, an up-down asymmetric contour, is what the inversion flags; such
   capsules are left out of the batch's diagnosis (``screen_asymmetric``) and, given an
   off-centre table (``capsmech.offcentre``: the 3D kernel's antisymmetric mode over a/l
-  0.7-0.8), each is fitted with its own b (linear least squares of its contour's
+  0.7-0.85), each is fitted with its own b (linear least squares of its contour's
   antisymmetric part), its lengths corrected by the second-order elongation c b**2 before
   (a/l, Ca_s) and G_s are refitted (``fit_offcentre``; reported apart from the batch's
   candidates). A capsule released off the axis centres itself (by a factor e every 2-3 l of
@@ -86,7 +86,7 @@ NOT_ASSESSED: dict[str, str] = {
     "off-centre position": "not a batch effect (each capsule has its own): an off-centre capsule's contour is up-down "
                            "asymmetric (3D kernel: 0.04-0.07 a at 0.02-0.07 l off the axis), so such capsules are "
                            "screened out of the batch (screen_asymmetric) and, with the off-centre table "
-                           "(capsmech.offcentre, a/l 0.7-0.8), each is fitted with its own offset b from its "
+                           "(capsmech.offcentre, a/l 0.7-0.85), each is fitted with its own offset b from its "
                            "contour's antisymmetric part, its lengths corrected by the offset's second-order "
                            "elongation before G_s",
 }
