@@ -707,9 +707,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
         with_contours, excluded = screen_asymmetric(with_contours)
     if len(with_contours) < 3 and offcentre_table is not None and excluded:
         # A batch caught off the axis: no batch effect can be tested, the offsets still can.
-        base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
         return Diagnosis(base_law, [], None, None, excluded,
-                         fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table),
+                         fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table),
                          note=f"no candidate assessed: {len(with_contours)} centred capsules with contours, "
                               "diagnose needs at least 3")
     if len(with_contours) < 3:
@@ -719,7 +718,7 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
         sigma = noise_levels(with_contours, database, base_law)
     prepared = [PreparedContour(c.contour) for c in with_contours]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
-    base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
+    base_database = _base_database(database)
     results = []
     for candidate in candidates:
         missing = [key for key in candidate.laws if key not in database.laws]
@@ -736,6 +735,11 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     offcentre = (fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
                  if offcentre_table is not None else [])
     return Diagnosis(base_law, results, chosen, base, excluded, offcentre)
+
+
+def _base_database(database: TubeDatabase | DatabaseSet) -> TubeDatabase:
+    """The base law's database: the first of a set."""
+    return database.databases[0] if isinstance(database, DatabaseSet) else database
 
 
 def fit_offcentre(capsules: Sequence[Capsule], excluded: Sequence[tuple[str, str]], database: TubeDatabase,
@@ -911,8 +915,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
     rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma, screen=False)]
     rounds[0].excluded = excluded
     if offcentre_table is not None:
-        base_database = database.databases[0] if isinstance(database, DatabaseSet) else database
-        rounds[0].offcentre = fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
+        rounds[0].offcentre = fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table)
     fixed: list[tuple[Candidate, float]] = []
     note = ""
     while rounds[-1].chosen is not None:

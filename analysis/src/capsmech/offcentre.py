@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import h5py
@@ -74,9 +75,21 @@ class OffcentreTable:
     b0: float
     source: str
 
-    def _interpolator(self, values: np.ndarray) -> RegularGridInterpolator:
-        return RegularGridInterpolator((self.a_over_l, np.log(self.Ca_s)), values, bounds_error=False,
-                                       fill_value=np.nan)
+    @cached_property
+    def _interpolators(self) -> dict[str, RegularGridInterpolator]:
+        """Bilinear interpolators in (a/l, log Ca_s) of the mode and of each coefficient, built
+        once per table (a capsule's fit asks for them several times)."""
+        axes = (self.a_over_l, np.log(self.Ca_s))
+        values = {"mode": self.mode, **self.second_order}
+        return {name: RegularGridInterpolator(axes, v, bounds_error=False, fill_value=np.nan)
+                for name, v in values.items()}
+
+    def outside(self, a_over_l: float, Ca_s: float) -> str:
+        """Why (a/l, Ca_s) cannot be taken from the table ('' when it can)."""
+        if self.contains(a_over_l, Ca_s):
+            return ""
+        return (f"outside the off-centre table: a/l = {a_over_l:.3f}, Ca_s = {Ca_s:.3g} (table: a/l "
+                f"{self.a_over_l[0]:g}-{self.a_over_l[-1]:g}, Ca_s {self.Ca_s[0]:g}-{self.Ca_s[-1]:g})")
 
     def contains(self, a_over_l: float, Ca_s: float) -> bool:
         """Whether (a/l, Ca_s) lies within the grid (the table never extrapolates)."""
@@ -91,14 +104,14 @@ class OffcentreTable:
         """m(s) at (a/l, Ca_s), bilinear in (a/l, log Ca_s); None outside the grid."""
         if not self.contains(a_over_l, Ca_s):
             return None
-        return self._interpolator(self.mode)([[a_over_l, math.log(Ca_s)]])[0]
+        return self._interpolators["mode"]([[a_over_l, math.log(Ca_s)]])[0]
 
     def second_order_at(self, a_over_l: float, Ca_s: float) -> dict[str, float] | None:
         """Changes of L_z, L_p and v_c/V per b**2 at (a/l, Ca_s); None outside the grid."""
         if not self.contains(a_over_l, Ca_s):
             return None
         point = [[a_over_l, math.log(Ca_s)]]
-        return {name: float(self._interpolator(values)(point)[0]) for name, values in self.second_order.items()}
+        return {name: float(self._interpolators[name](point)[0]) for name in self.second_order}
 
     def write(self, path: str | Path) -> Path:
         """Write the table to HDF5, whole or not at all (temporary name, then rename)."""
@@ -129,17 +142,18 @@ class OffcentreTable:
                        b0=float(f.attrs["b0"]), source=str(f.attrs["source"]))
 
 
-def section_halves(section: np.ndarray, meridian: np.ndarray, points: int = MODE_POINTS
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(s, antisymmetric, symmetric) displacement of a closed section against a meridian.
+def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarray, points: int = MODE_POINTS
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(s, A): the antisymmetric displacement of a closed section against a meridian.
 
     The section is folded about its axis of best mirror symmetry, as a measured contour is
-    (``capsmech.residuals.PreparedContour``); each half's signed normal distance from the
-    meridian gives the antisymmetric part (upper - lower) / 2 and the symmetric part
-    (upper + lower) / 2, in the units of the inputs.
+    (``capsmech.residuals.PreparedContour``; pass one to fold it once for many meridians);
+    A = (upper - lower) / 2 of the halves' signed normal distances from the meridian, in the
+    units of the inputs.
     """
-    s, upper, lower = PreparedContour(section).halves(meridian, points)
-    return s, 0.5 * (upper - lower), 0.5 * (upper + lower)
+    prepared = section if isinstance(section, PreparedContour) else PreparedContour(section)
+    s, upper, lower = prepared.halves(meridian, points)
+    return s, 0.5 * (upper - lower)
 
 
 def mode_from_cases(held: object, centred: object, points: int = MODE_POINTS) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
@@ -157,7 +171,7 @@ def mode_from_cases(held: object, centred: object, points: int = MODE_POINTS) ->
                              f"{centred.effects.get('offset')}")
     section = plane_section(held.mesh["nodes"], held.mesh["triangles"], normal_axis=1)
     meridian = np.column_stack([centred.profile["r"], centred.profile["z"]])
-    s, antisymmetric, _ = section_halves(section, meridian, points)
+    s, antisymmetric = antisymmetric_part(section, meridian, points)
     second = {name: (float(held.history[column][-1]) - float(centred.history[column][-1])) / b0**2
               for name, column in SECOND_ORDER.items()}
     return s, antisymmetric / b0, second
@@ -195,28 +209,24 @@ class OffsetFit:
     offset, error : float
         b [l] (positive towards the contour's upper half) and its standard error; NaN with a
         flag when it cannot be fitted.
-    chi2_centred, chi2_fitted : float
-        Sum of squares of the antisymmetric residual over the noise variance, with b = 0 and
-        with the fitted b (``MODE_POINTS`` points).
     flag : str
         Why there is no fit ('' when there is one).
     """
 
     offset: float
     error: float
-    chi2_centred: float = math.nan
-    chi2_fitted: float = math.nan
     flag: str = ""
 
 
-def fit_offset(contour: np.ndarray, meridian: np.ndarray, tube_radius: float, table: OffcentreTable,
-               a_over_l: float, Ca_s: float) -> OffsetFit:
+def fit_offset(contour: np.ndarray | PreparedContour, meridian: np.ndarray, tube_radius: float,
+               table: OffcentreTable, a_over_l: float, Ca_s: float) -> OffsetFit:
     """Fit one capsule's offset b from the antisymmetric part of its contour.
 
     Parameters
     ----------
-    contour : np.ndarray
-        Measured contour (n, 2), x along the flow, in the units of ``tube_radius``.
+    contour : np.ndarray or PreparedContour
+        Measured contour (n, 2), x along the flow, in the units of ``tube_radius`` (or it
+        prepared once, when it is fitted against several meridians).
     meridian : np.ndarray
         The fitted centred meridian (r, z) in the same units.
     tube_radius : float
@@ -235,17 +245,14 @@ def fit_offset(contour: np.ndarray, meridian: np.ndarray, tube_radius: float, ta
     """
     mode = table.mode_at(a_over_l, Ca_s)
     if mode is None:
-        return OffsetFit(math.nan, math.nan, flag=(f"outside the off-centre table: a/l = {a_over_l:.3f}, Ca_s = "
-                                                     f"{Ca_s:.3g} (table: a/l {table.a_over_l[0]:g}-{table.a_over_l[-1]:g}, "
-                                                     f"Ca_s {table.Ca_s[0]:g}-{table.Ca_s[-1]:g})"))
-    _, antisymmetric, _ = section_halves(contour, meridian, len(table.s))
+        return OffsetFit(math.nan, math.nan, flag=table.outside(a_over_l, Ca_s))
+    _, antisymmetric = antisymmetric_part(contour, meridian, len(table.s))
     basis = tube_radius * mode
     norm = float(np.sum(basis**2))
     offset = float(np.sum(antisymmetric * basis) / norm)
     left = antisymmetric - offset * basis
     variance = float(np.sum(left**2) / (len(left) - 1))
-    return OffsetFit(offset=offset, error=math.sqrt(variance / norm),
-                     chi2_centred=float(np.sum(antisymmetric**2) / variance), chi2_fitted=float(np.sum(left**2) / variance))
+    return OffsetFit(offset=offset, error=math.sqrt(variance / norm))
 
 
 #: Relative uncertainty of the antisymmetric mode, added to the statistical error of b:
@@ -259,7 +266,8 @@ MODE_RELATIVE_ERROR = 0.2
 class OffcentreCapsuleFit:
     """One capsule fitted as centred and with its fitted offset.
 
-    ``offset`` is the offset fit at the final (a/l, Ca_s); ``interval`` is b +- two standard
+    ``offset`` is the offset fitted in the last round (at the (a/l, Ca_s) the round before
+    gave); ``interval`` is b +- two standard
     errors, the statistical one and ``MODE_RELATIVE_ERROR`` b combined; the centred
     and corrected fits give (a/l, Ca_s, G_s) before and after.
     """
@@ -318,6 +326,8 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
         centred = nan3
         a_over_l, ca = float(np.median(table.a_over_l)), float(np.exp(np.median(np.log(table.Ca_s))))
     offset = OffsetFit(math.nan, math.nan)
+    # Folded once (its symmetry axis is a search): every round fits it against a new meridian.
+    prepared = PreparedContour(capsule.contour)
     for _ in range(iterations):
         meridian = inverter.profile(a_over_l, ca)
         if meridian is None:
@@ -328,18 +338,16 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
         # nearest grid point until the corrected fit, which must lie inside, is known.
         inside = table.clamp(a_over_l, ca)
         coefficients = table.second_order_at(*inside)
-        offset = fit_offset(capsule.contour, meridian * l, l, table, *inside)
+        offset = fit_offset(prepared, meridian * l, l, table, *inside)
         b2 = offset.offset**2
         refit = inverter.fit(L_z - coefficients["L_z"] * b2, L_p - coefficients["L_p"] * b2)
         if not refit.ok:
             return OffcentreCapsuleFit(capsule.id, offset, (math.nan, math.nan), centred, nan3,
                                        f"refit with the offset's length changes: {refit.flag}")
         a_over_l, ca = refit.a_over_l, refit.Ca_s
-    if not table.contains(a_over_l, ca):
+    if table.outside(a_over_l, ca):
         return OffcentreCapsuleFit(capsule.id, offset, (math.nan, math.nan), centred, nan3,
-                                   f"outside the off-centre table: a/l = {a_over_l:.3f}, Ca_s = {ca:.3g} with the "
-                                   f"offset (table: a/l {table.a_over_l[0]:g}-{table.a_over_l[-1]:g}, Ca_s "
-                                   f"{table.Ca_s[0]:g}-{table.Ca_s[-1]:g})")
+                                   table.outside(a_over_l, ca) + " with the offset")
     velocity = inverter.velocity_ratio(a_over_l, ca) + table.second_order_at(a_over_l, ca)["vc_over_V"] * b2
     g_s = mu * v_c / (ca * velocity) if math.isfinite(v_c) and math.isfinite(mu) else math.nan
     half_width = 2.0 * math.hypot(offset.error, MODE_RELATIVE_ERROR * offset.offset)
