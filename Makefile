@@ -74,11 +74,11 @@ test: setup
 	$(PY) -m pytest
 
 demo: setup
-	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
-	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
-	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database data/databases/tube.h5 \
+	$(PY) -m capsmech.cli.main simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
+	$(PY) -m capsmech.cli.main show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
+	$(PY) -m capsmech.cli.main fit-tube data/examples/tube_batch_NH.csv --database data/databases/tube.h5 \
 	    --law NH --law GH_nu0.5 --out demo/fit_tube_batch_NH.csv
-	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
+	$(PY) -m capsmech.cli.main population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
 
 bench: system-deps venv
 	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'
@@ -100,12 +100,12 @@ SNAKEMAKE := $(VENV)/bin/snakemake -s workflow/Snakefile --configfile config/$(G
              --profile workflow/profiles/$(PROFILE)
 
 database: setup
-	$(PY) -m capsmech.cli unlock-stale .
+	$(PY) -m capsmech.cli.main unlock-stale .
 	$(SNAKEMAKE)
 
 # Redraw the figures from the grid's databases as they are (no case is run).
 figures: venv
-	$(PY) -m capsmech.cli figures --grid config/$(GRID).yaml
+	$(PY) -m capsmech.cli.main figures --grid config/$(GRID).yaml
 
 clean-kernel:
 	rm -rf build $(BIN)

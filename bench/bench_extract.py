@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.cli import main
-from capsmech.database import load_database
-from capsmech.microscopy import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
+from capsmech.cli.main import main
+from capsmech.io.database import load_database
+from capsmech.imaging.rendering import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -63,8 +63,8 @@ def run(n_frames: int) -> None:
 
 def accuracy(radius_px: float = 60.0, n_frames: int = 6) -> None:
     """Print the mean L_z and L_p error (px) per database profile, and their maximum and rms."""
-    from capsmech.extraction import FrameStack, extract
-    from capsmech.microscopy import drawn_lengths, render_stack
+    from capsmech.imaging.extraction import FrameStack, extract
+    from capsmech.imaging.rendering import drawn_lengths, render_stack
 
     database = load_database(REPO / "data" / "databases" / "tube.h5")
     errors = []

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 
-from capsmech.database import load_database
-from capsmech.fitting import tube_inverter
-from capsmech.inverse import TubeInverter
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.inversion.inverters import TubeInverter
 
 REPO = Path(__file__).resolve().parents[1]
 DATABASE = REPO / "data" / "databases" / "tube.h5"

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import h5py
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 
 REPO = Path(__file__).resolve().parents[1]
 ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}

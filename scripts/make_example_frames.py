@@ -1,7 +1,7 @@
 """Make the example frame stack data/examples/frames/capsule_NH.tif and its overlay picture.
 
 A kernel capsule off the database grid (NH, a/l = 0.93, Ca_s = 0.07, axisymmetric tube model)
-of a material with G_s = 0.04 N/m in a liquid of mu = 1 Pa s, rendered by capsmech.microscopy
+of a material with G_s = 0.04 N/m in a liquid of mu = 1 Pa s, rendered by capsmech.imaging.rendering
 as a 1500 frames/s bright-field film with 0.6 um pixels in a 60 um capillary (l = 50 px):
 two frames entering at the left border, then 18 measurable frames, one of them out of focus.
 The truth goes to data/examples/frames/truth.csv. Then ``capsmech extract`` runs on it and
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.cli import main as capsmech
-from capsmech.microscopy import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
+from capsmech.cli.main import main as capsmech
+from capsmech.imaging.rendering import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
                                  write_tiff_stack)
-from capsmech.synthetic import simulate_tube
+from capsmech.diagnosis.synthetic import simulate_tube
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "data" / "examples" / "frames"

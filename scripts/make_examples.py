@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.synthetic import simulate_tube, tube_batch, write_tube_csv
+from capsmech.diagnosis.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "examples"
 BATCHES = {"NH": 0, "GH_nu0.5": 1}

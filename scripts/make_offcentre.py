@@ -5,7 +5,7 @@ Five NH capsules of the undeclared batches' material (G_s = 0.04 N/m, mu = 1 Pa 
 0.5 um a pixel), small enough to have room off the axis (a/l 0.7-0.8), released at b = 0.08-0.1
 l in the 3D tube (level 2, wall 0.28/0.14 l over 6 l, the vertex self rule) and caught while they migrate back
 (r_c 0.009-0.07 l): lengths and velocity of the last history row, contour traced on the
-section through the tube axis and the centroid (``capsmech.synthetic.simulate_offcentre_tube``).
+section through the tube axis and the centroid (``capsmech.diagnosis.synthetic.simulate_offcentre_tube``).
 Tests add them to batch_A: ``diagnose`` must leave them out. 3-10 minutes a capsule on one
 core; case files are kept in --cases (and reused when present).
 
@@ -17,8 +17,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from capsmech.synthetic import simulate_offcentre_tube, tube_batch, write_tube_csv
-from capsmech.undeclared import PIXEL_SIZE_UM, TUBE_RADIUS_UM, write_truth
+from capsmech.diagnosis.synthetic import simulate_offcentre_tube, tube_batch, write_tube_csv
+from capsmech.diagnosis.undeclared_tube import PIXEL_SIZE_UM, TUBE_RADIUS_UM, write_truth
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "undeclared"
 #: (a/l, Ca_s, released at b [l], caught at t [l/V]).

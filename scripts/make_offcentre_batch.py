@@ -6,7 +6,7 @@ Each capsule (NH, batch_A's material: G_s = 0.04 N/m, mu = 1 Pa s, l = 50 um, 0.
 is released b_r = 0.05-0.1 l off the axis in the 3D tube (level 3, wall 0.28/0.14 l over 6 l,
 as the off-centre table) and caught at t = 1.5-3 l/V, by then r_c ~ 0.01-0.06 l; a centred
 capsule is run to the same t. What is written is the axisymmetric model's steady capsule plus
-the 3D off-centre increment (``capsmech.synthetic.offcentre_hybrid``: the 3D mesh's errors
+the 3D off-centre increment (``capsmech.diagnosis.synthetic.offcentre_hybrid``: the 3D mesh's errors
 and the start-up, common to both runs, cancel), with batch_A's noise (2 % on lengths and
 velocity, contours traced to +-1 px). The truth (``batch_O_truth.csv``) has r_c. One to three
 minutes a run on one core; case files are kept in --cases and reused.
@@ -19,8 +19,8 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from capsmech.synthetic import offcentre_hybrid, run_tube_3d, simulate_tube, tube_batch, write_tube_csv
-from capsmech.undeclared import PIXEL_SIZE_UM, TUBE_RADIUS_UM, write_truth
+from capsmech.diagnosis.synthetic import offcentre_hybrid, run_tube_3d, simulate_tube, tube_batch, write_tube_csv
+from capsmech.diagnosis.undeclared_tube import PIXEL_SIZE_UM, TUBE_RADIUS_UM, write_truth
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from make_offcentre_table import SETTINGS, case_path, parse_run_args  # noqa: E402

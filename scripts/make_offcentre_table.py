@@ -1,5 +1,5 @@
 """Make data/databases/effects/offcentre/table.h5: the antisymmetric mode of an off-centre
-capsule over (a/l, Ca_s) (issue 7, the fitted off-centre position; ``capsmech.offcentre``).
+capsule over (a/l, Ca_s) (issue 7, the fitted off-centre position; ``capsmech.diagnosis.offcentre``).
 
 NH, a/l 0.7/0.75/0.8/0.85 x Ca_s 0.035/0.05/0.075/0.1/0.14; at each point a capsule held b0 = 0.025 l off the
 axis (``--offset-mode held``) and a centred one, 3D tube, level 3, wall 0.28/0.14 l over 6 l,
@@ -15,9 +15,9 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from capsmech.io import read_case
-from capsmech.offcentre import build_table
-from capsmech.synthetic import run_tube_3d
+from capsmech.io.case import read_case
+from capsmech.diagnosis.offcentre import build_table
+from capsmech.diagnosis.synthetic import run_tube_3d
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "databases" / "effects" / "offcentre" / "table.h5"

@@ -14,8 +14,8 @@ import sys
 import threading
 from pathlib import Path
 
-from capsmech.synthetic import SimulatedCapsule, simulate_tube
-from capsmech.undeclared import make_batch, write_batch
+from capsmech.diagnosis.synthetic import SimulatedCapsule, simulate_tube
+from capsmech.diagnosis.undeclared_tube import make_batch, write_batch
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "undeclared"
 #: name -> (effects, noise seed). The capsules' draw seed is DRAW_SEED for all. The names say

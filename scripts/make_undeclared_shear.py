@@ -1,7 +1,7 @@
 """Make the synthetic shear batches with an undeclared viscosity ratio in data/examples/undeclared/.
 
 Both batches have the same capsules (one NH material, G_s = 0.04 N/m, Ca_s and radius drawn at
-random, see capsmech.undeclared_shear) and differ in lambda and in the noise: shear_batch_A is
+random, see capsmech.diagnosis.undeclared_shear) and differ in lambda and in the noise: shear_batch_A is
 simulated at lambda = 1 (the databases' base: no effect), shear_batch_L at lambda = 0.001 (the
 paper's Couette cell). Every capsule is one kernel run at level 3, one at a time (lambda = 1:
 seconds each; lambda = 0.001: 1-5 minutes each). Runs are kept in --cache, so an interrupted
@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from capsmech.undeclared_shear import THETA_ERROR_DEG, cached_simulator, make_shear_batch, write_shear_batch
+from capsmech.diagnosis.undeclared_shear import THETA_ERROR_DEG, cached_simulator, make_shear_batch, write_shear_batch
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "undeclared"
 #: name -> (viscosity ratio, noise seed, measured theta); the capsules' draw seed is DRAW_SEED

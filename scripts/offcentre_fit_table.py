@@ -1,5 +1,5 @@
 """Fit the offsets of batch_O (capsules caught off the axis) and of its centred control
-batch_O0, and print the README's per-capsule table (``capsmech.offcentre``).
+batch_O0, and print the README's per-capsule table (``capsmech.diagnosis.offcentre``).
 
     PYTHONPATH=analysis/src .venv/bin/python scripts/offcentre_fit_table.py
 """
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.database import load_database
-from capsmech.fitting import tube_inverter
-from capsmech.measurements import read_measurements
-from capsmech.offcentre import OffcentreTable, fit_offcentre_capsule
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.io.measurements import read_measurements
+from capsmech.diagnosis.offcentre import OffcentreTable, fit_offcentre_capsule
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

@@ -20,10 +20,12 @@ import sys
 import time
 from pathlib import Path
 
-from capsmech.database import load_database
-from capsmech.diagnose import DatabaseSet, candidate_library, diagnose_sequential, write_report
-from capsmech.measurements import read_measurements
-from capsmech.undeclared import expected_candidates, read_truth
+from capsmech.io.database import load_database
+from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
+from capsmech.diagnosis.sequential import diagnose_sequential
+from capsmech.diagnosis.report import write_report
+from capsmech.io.measurements import read_measurements
+from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

@@ -137,8 +137,8 @@ def run_killed_and_resumed(capsim: Path, args: list[str], out: Path, timeout: fl
 
 def uninterrupted_and_resumed(capsim: Path, args: list[str], tmp_path: Path, timeout: float = 600):
     """Run capsim ARGS once to the end and once killed and resumed (run_killed_and_resumed);
-    return both case files read (``capsmech.io.read_case``): (uninterrupted, resumed)."""
-    from capsmech.io import read_case
+    return both case files read (``capsmech.io.case.read_case``): (uninterrupted, resumed)."""
+    from capsmech.io.case import read_case
 
     reference = tmp_path / "ref.h5"
     subprocess.run([str(capsim), *args, "--out", str(reference)], check=True, timeout=timeout)

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import math
 import subprocess
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import assert_usage_error, cached_capsim, run_killed_and_resumed
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.io import read_case
-from conftest import assert_usage_error, run_killed_and_resumed, uninterrupted_and_resumed
+from capsmech.io.case import read_case
+from conftest import assert_usage_error, uninterrupted_and_resumed
 
 BAD_TUBE_INPUTS = [
     (["--a-over-l", "0"], "--a-over-l"),

@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import REPO
 from test_tube import haberman_sayre_velocity
 

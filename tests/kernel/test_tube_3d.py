@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import assert_usage_error
 from test_tube import haberman_sayre_velocity
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import assert_usage_error, axi
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import assert_usage_error
 from test_tube_3d import COARSE_WALL, run_capsim
 

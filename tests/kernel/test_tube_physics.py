@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from capsmech.io import read_case
+from capsmech.io.case import read_case
 from conftest import REPO, assert_usage_error, run_killed_and_resumed
 
 PROBE = REPO / "bin" / "double_layer_probe"

@@ -1,4 +1,4 @@
-"""Measured contours (capsmech.contours) and their use in the tube fit: the numerical facts.
+"""Measured contours (capsmech.io.contours) and their use in the tube fit: the numerical facts.
 
 - The modified Hausdorff distance between concentric circles is the difference of radii.
 - The axis of symmetry of a shifted ellipse is found to 1e-4 of its size; a contour whose
@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.contours import (ContourError, full_profile, modified_hausdorff, profile_misfit, read_contour,
+from capsmech.io.contours import (ContourError, full_profile, modified_hausdorff, profile_misfit, read_contour,
                                symmetry_axis)
-from capsmech.database import load_database
-from capsmech.fitting import fit_tube
-from capsmech.measurements import Capsule, MeasurementError, read_measurements
-from capsmech.synthetic import noisy_contour
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import fit_tube
+from capsmech.io.measurements import Capsule, MeasurementError, read_measurements
+from capsmech.diagnosis.synthetic import noisy_contour
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "data" / "examples"

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.database import load_database
-from capsmech.diagnose import contour_offset_candidate, diagnose, offset_contour, tube_radius_candidate
-from capsmech.measurements import read_measurements
+from capsmech.io.database import load_database
+from capsmech.diagnosis.candidates import contour_offset_candidate, offset_contour, tube_radius_candidate
+from capsmech.diagnosis.diagnose import diagnose
+from capsmech.io.measurements import read_measurements
 
 # Each diagnosis refits the batch some 20 times (minutes): make validate, not make test.
 pytestmark = pytest.mark.validate
@@ -62,7 +63,7 @@ def test_undeclared_contour_offset_is_named_and_corrected(batch, database):
 
 
 def test_cli_writes_the_report(tmp_path):
-    from capsmech.cli import main
+    from capsmech.cli.main import main
 
     report = tmp_path / "report.md"
     assert main(["diagnose", str(ROOT / "data" / "examples" / "tube_batch_NH.csv"), "--law", "NH",

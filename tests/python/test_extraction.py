@@ -1,5 +1,5 @@
 """From frames to measurements (issue 8): rendered microscope frames of known capsule profiles
-(capsmech.microscopy) through ``capsmech extract`` (capsmech.extraction) and on to G_s.
+(capsmech.imaging.rendering) through ``capsmech extract`` (capsmech.imaging.extraction) and on to G_s.
 
 Truths are those of the drawn picture: the profiles' own lengths in pixels, the imposed
 displacement per frame, and for the chain test the modulus the kernel capsule was given."""
@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.cli import main
-from capsmech.database import load_database
-from capsmech.extraction import ExtractionError, FrameStack, extract, measure_capsules, read_frames
-from capsmech.fitting import fit_tube
-from capsmech.measurements import read_measurements
-from capsmech.microscopy import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
+from capsmech.cli.main import main
+from capsmech.io.database import load_database
+from capsmech.imaging.extraction import ExtractionError, FrameStack, extract, measure_capsules, read_frames
+from capsmech.inversion.fitting import fit_tube
+from capsmech.io.measurements import read_measurements
+from capsmech.imaging.rendering import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
                                  render_stack, write_tiff_stack)
-from capsmech.synthetic import simulate_tube
+from capsmech.diagnosis.synthetic import simulate_tube
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = REPO / "data" / "databases" / "tube.h5"

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.database import load_database
-from capsmech.fitting import fit_tube, shear_inverter, tube_inverter
-from capsmech.measurements import read_measurements
-from capsmech.population import population
-from capsmech.synthetic import simulate_tube, tube_batch, write_tube_csv
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import fit_tube, shear_inverter
+from capsmech.io.measurements import read_measurements
+from capsmech.inversion.population import population
+from capsmech.diagnosis.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = REPO / "data" / "databases" / "tube.h5"

@@ -1,4 +1,4 @@
-"""Inverse analysis core (capsmech.inverse) on analytic tables: the numerical facts the
+"""Inverse analysis core (capsmech.inversion.inverters) on analytic tables: the numerical facts the
 method must satisfy before it is used on simulated databases.
 
 - A forward map that is exactly quadratic in (a/l, ln Ca_s) is inverted to round-off (the
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.inverse import FIVE_FITS, ShearInverter, TubeInverter, TubeTable, profile_elongation
+from capsmech.inversion.inverters import FIVE_FITS, ShearInverter, TubeInverter, TubeTable, profile_elongation
 
 A_GRID = np.arange(0.70, 1.101, 0.05)
 CA_GRID = np.array([0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.10, 0.12, 0.15, 0.18, 0.20])

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from scipy.interpolate import LinearNDInterpolator
 
-from capsmech import inverse
-from capsmech.database import load_database
-from capsmech.fitting import fit_tube, tube_inverter
-from capsmech.inverse import FIVE_FITS, TubeInverter, TubeTable
-from capsmech.measurements import read_measurements
+from capsmech.inversion import inverters as inverse
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import fit_tube, tube_inverter
+from capsmech.inversion.inverters import FIVE_FITS, TubeInverter, TubeTable
+from capsmech.io.measurements import read_measurements
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = REPO / "data" / "databases" / "tube.h5"

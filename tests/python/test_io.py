@@ -1,4 +1,4 @@
-"""Tests of capsmech.io (case-file reader) and the capsmech CLI on synthetic case files.
+"""Tests of capsmech.io.case (case-file reader) and the capsmech CLI on synthetic case files.
 
 No kernel is needed: every case file is written here with h5py.
 """
@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 import capsmech
-from capsmech.cli import main, out_path_from_args
-from capsmech.io import CaseFileError, CaseResult, NotSteadyError, read_case
-from capsmech.paths import capsim_executable, repo_root
+from capsmech.cli.main import main, out_path_from_args
+from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
+from capsmech.workflow.paths import capsim_executable, repo_root
 
 # ---------------------------------------------------------------------------
 # Synthetic case files

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.measurements import MeasurementError, read_measurements
+from capsmech.io.measurements import MeasurementError, read_measurements
 
 TUBE = """# two capsules, 100 um capillary
 id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s]
@@ -82,7 +82,7 @@ def test_missing_file_is_an_error_naming_it(tmp_path):
     (["--other-law", "GH_nu9"], "no law 'GH_nu9'"),
 ])
 def test_diagnose_refuses_unknown_law_keys(args, message, capsys):
-    from capsmech.cli import main
+    from capsmech.cli.main import main
 
     root = Path(__file__).resolve().parents[2]
     assert main(["diagnose", str(root / "data" / "examples" / "tube_batch_NH.csv"), *args]) == 2

@@ -1,4 +1,4 @@
-"""capsmech.mesh_section: the plane section of a triangulated closed surface, checked on
+"""capsmech.imaging.mesh_section: the plane section of a triangulated closed surface, checked on
 ellipsoids (the section y = 0 of x^2/A^2 + y^2/B^2 + z^2/C^2 = 1 is the ellipse of semi-axes A
 along x and C along z) and against the 3D kernel's own half section (/profile)."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from capsmech.mesh_section import SectionError, plane_section
+from capsmech.imaging.mesh_section import SectionError, plane_section
 
 
 def ellipsoid_mesh(semi_axes, n: int = 4000, seed: int = 0):

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.cli import main
-from capsmech.database import load_database
-from capsmech.fitting import shear_inverter
-from capsmech.microrheometry import PAPER_EXAMPLE, compare_methods, modulus_ratio
+from capsmech.cli.main import main
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import shear_inverter
+from capsmech.inversion.microrheometry import PAPER_EXAMPLE, compare_methods, modulus_ratio
 
 REPO = Path(__file__).resolve().parents[2]
 SHEAR_DB = REPO / "data" / "databases" / "shear.h5"

@@ -18,10 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.database import load_database
-from capsmech.diagnose import contour_offset_candidate, diagnose, tube_radius_candidate
-from capsmech.fitting import fit_tube
-from capsmech.measurements import read_measurements
+from capsmech.io.database import load_database
+from capsmech.diagnosis.candidates import contour_offset_candidate, tube_radius_candidate
+from capsmech.diagnosis.diagnose import diagnose
+from capsmech.inversion.fitting import fit_tube
+from capsmech.io.measurements import read_measurements
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

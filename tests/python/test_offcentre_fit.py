@@ -1,4 +1,4 @@
-"""The off-centre position fitted per capsule (issue 7; ``capsmech.offcentre``).
+"""The off-centre position fitted per capsule (issue 7; ``capsmech.diagnosis.offcentre``).
 
 data/databases/effects/offcentre/table.h5 (``scripts/make_offcentre_table.py``) holds the
 antisymmetric mode of a capsule held 0.025 l off the axis, from the 3D tube kernel at level 3
@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.database import load_database
-from capsmech.diagnose import contour_offset_candidate, diagnose, tube_radius_candidate
-from capsmech.fitting import tube_inverter
-from capsmech.measurements import read_measurements
-from capsmech.offcentre import OffcentreError, OffcentreTable, fit_offcentre_capsule, fit_offset
+from capsmech.io.database import load_database
+from capsmech.diagnosis.candidates import contour_offset_candidate, tube_radius_candidate
+from capsmech.diagnosis.diagnose import diagnose
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.io.measurements import read_measurements
+from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable, fit_offcentre_capsule, fit_offset
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -173,9 +174,9 @@ def test_the_shipped_table_is_reproduced_by_the_kernel(table, tmp_path):
     sys.path.insert(0, str(ROOT / "scripts"))
     from make_offcentre_table import B0, SETTINGS
 
-    from capsmech.io import read_case
-    from capsmech.offcentre import mode_from_cases
-    from capsmech.synthetic import run_tube_3d
+    from capsmech.io.case import read_case
+    from capsmech.diagnosis.offcentre import mode_from_cases
+    from capsmech.diagnosis.synthetic import run_tube_3d
 
     runs = {b: run_tube_3d(0.7, 0.05, tmp_path / f"b{b}.h5", SETTINGS["t_max"], offset=b, offset_mode="held",
                            level=SETTINGS["level"], wall=SETTINGS["wall"], tube_length=SETTINGS["tube_length"],

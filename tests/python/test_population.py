@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.population import law_drift, plot_population, population, population_verdict
+from capsmech.inversion.population import law_drift, plot_population, population, population_verdict
 
 
 def batch(rng, slope, n=30, g0=0.043, noise=0.05):
@@ -55,8 +55,8 @@ def test_too_few_capsules_is_an_error():
 def test_population_table_round_trips_through_hdf5_and_csv(tmp_path):
     import h5py
 
-    from capsmech.fitting import write_results
-    from capsmech.population import POPULATION_UNITS, population_rows, read_results
+    from capsmech.inversion.fitting import write_results
+    from capsmech.inversion.population import POPULATION_UNITS, population_rows, read_results
 
     rng = np.random.default_rng(7)
     rows = rows_from("NH", *batch(rng, 0.0)) + rows_from("GH_nu0.5", *batch(rng, -2.0))

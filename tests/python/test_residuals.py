@@ -1,4 +1,4 @@
-"""Residuals of fitted capsules (capsmech.residuals, issue 7 part 1): numerical facts.
+"""Residuals of fitted capsules (capsmech.diagnosis.residuals, issue 7 part 1): numerical facts.
 
 - The volume radius of a contour is exact for a spheroid, and equal from either half.
 - A contour offset outward by delta along its normals has the residual profile +delta at
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.contours import full_profile, resample_curve, volume_radius
-from capsmech.residuals import batch_profile, profile_residual, size_residual
-from capsmech.synthetic import noisy_contour
+from capsmech.io.contours import full_profile, resample_curve, volume_radius
+from capsmech.diagnosis.residuals import batch_profile, profile_residual, size_residual
+from capsmech.diagnosis.synthetic import noisy_contour
 
 PX_PER_L = 100.0
 
@@ -91,9 +91,9 @@ def test_fitted_batch_size_residuals_are_noise_and_catch_a_scaled_image():
     uncertainties; the same contours scaled by 3 % (a wrong pixel size) show +0.03."""
     from pathlib import Path
 
-    from capsmech.database import load_database
-    from capsmech.fitting import fit_tube
-    from capsmech.measurements import Capsule, read_measurements
+    from capsmech.io.database import load_database
+    from capsmech.inversion.fitting import fit_tube
+    from capsmech.io.measurements import Capsule, read_measurements
 
     root = Path(__file__).resolve().parents[2]
     capsules = read_measurements(root / "data" / "examples" / "tube_batch_NH.csv", "tube")

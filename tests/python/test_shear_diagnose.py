@@ -1,4 +1,4 @@
-"""The viscosity ratio as a diagnose candidate for shear batches (capsmech.shear_diagnose, issue 7).
+"""The viscosity ratio as a diagnose candidate for shear batches (capsmech.diagnosis.shear, issue 7).
 
 Facts checked:
 - the score is exact on exact data: capsules built from one group's database nodes (no noise)
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.cli import main
-from capsmech.database import load_database
-from capsmech.fitting import shear_inverter
-from capsmech.measurements import Capsule, read_measurements
-from capsmech.shear_diagnose import ShearGroups, diagnose_shear, length_error, modulus, score_group, weighted_mean
-from capsmech.undeclared_shear import law_key, read_shear_truth
+from capsmech.cli.main import main
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import shear_inverter
+from capsmech.io.measurements import Capsule, read_measurements
+from capsmech.diagnosis.shear import ShearGroups, diagnose_shear, length_error, modulus, score_group, weighted_mean
+from capsmech.diagnosis.undeclared_shear import law_key, read_shear_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -77,7 +77,7 @@ def test_exact_nodes_give_zero_chi2_and_the_modulus(groups, key):
 
 def test_lambda_one_reads_an_inviscid_core_as_a_softening_material(groups):
     """Read with lambda = 1, exact lambda = 0.001 capsules give G_s below the truth, the more
-    the larger D12 (capsmech.microrheometry: ratio 1.13 to 1.37 over D12 0.35-0.5)."""
+    the larger D12 (capsmech.inversion.microrheometry: ratio 1.13 to 1.37 over D12 0.35-0.5)."""
     capsules = node_capsules(groups, LAMBDA_KEY)
     base = score_group(capsules, groups.inverter("NH"), "NH")
     ok = base.fitted
@@ -178,7 +178,7 @@ def test_cli_writes_the_report_and_names_bad_fields(tmp_path, capsys):
 
 
 def _rerun(name: str, capsule_id: str) -> tuple[float, float]:
-    from capsmech.undeclared_shear import simulate_shear
+    from capsmech.diagnosis.undeclared_shear import simulate_shear
 
     row = truth(name)[capsule_id]
     return simulate_shear(float(row["Ca_s"]), row["law"]).D12, float(row["D12"])

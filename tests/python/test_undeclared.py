@@ -26,15 +26,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.database import load_database
-from capsmech.diagnose import (NOT_ASSESSED, BatchScore, BlendedLaw, CandidateResult, DatabaseSet, _apply_all,
-                               candidate_library, compare_supported, diagnose, interpolation_weights, joint_refine,
-                               law_candidate, noise_levels, prestress_candidate, rivals_of, score_batch,
-                               screen_asymmetric, write_report)
-from capsmech.effect_grid import case_count
-from capsmech.grid import validate_grid
-from capsmech.measurements import read_measurements
-from capsmech.undeclared import expected_candidates, read_truth
+from capsmech.io.database import load_database
+from capsmech.diagnosis.diagnose import NOT_ASSESSED, diagnose, screen_asymmetric
+from capsmech.diagnosis.scoring import BatchScore, CandidateResult, compare_supported, noise_levels, rivals_of, score_batch
+from capsmech.diagnosis.candidates import BlendedLaw, DatabaseSet, candidate_library, interpolation_weights, law_candidate, prestress_candidate
+from capsmech.diagnosis.sequential import _apply_all, joint_refine
+from capsmech.diagnosis.report import write_report
+from capsmech.diagnosis.effect_grid import case_count
+from capsmech.workflow.grid import validate_grid
+from capsmech.io.measurements import read_measurements
+from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -106,7 +107,7 @@ def test_missing_effect_database_asks_for_the_grid_around_the_batch():
 
 @pytest.mark.validate
 def test_cli_prints_what_a_missing_candidate_needs(tmp_path, capsys):
-    from capsmech.cli import main
+    from capsmech.cli.main import main
 
     assert main(["diagnose", str(BATCHES / "batch_A.csv"), "--effects-database", str(TUBE), "--candidate", "prestress",
                  "--prestress-levels", "0.04,0.08", "--grid-dir", str(tmp_path)]) == 0
@@ -151,7 +152,7 @@ def test_two_fixed_effects_compose_whatever_their_order():
 def test_blended_law_between_levels_lies_between_their_profiles():
     """The blend at an effect database's level is that group's profile, and at mid-level its
     capsule length lies between the neighbouring groups' (a monotone effect stays monotone)."""
-    from capsmech.fitting import tube_inverter
+    from capsmech.inversion.fitting import tube_inverter
 
     keys = ["NH", "NH+prestress0.04", "NH+prestress0.08"]
     point = (0.95, 0.06)

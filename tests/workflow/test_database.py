@@ -1,4 +1,4 @@
-"""capsmech.database and capsmech.runner on case files written by the real kernel.
+"""capsmech.io.database and capsmech.workflow.runner on case files written by the real kernel.
 
 The kernel's fault paths (exit 1, exit 2, death by a signal) are injected with tiny
 executables standing in for capsim: they compute nothing, they only fail in the way named.
@@ -14,11 +14,11 @@ import h5py
 import numpy as np
 import pytest
 
-from capsmech.database import (DatabaseError, ShearDatabase, TubeDatabase, assemble_database,
+from capsmech.io.database import (DatabaseError, ShearDatabase, TubeDatabase, assemble_database,
                                expected_units, load_database, resample_by_arclength)
-from capsmech.grid import expand_cases, validate_grid
-from capsmech.io import read_case
-from capsmech.runner import CaseRunError, is_failure_record, run_case, source_code_version
+from capsmech.workflow.grid import expand_cases, validate_grid
+from capsmech.io.case import read_case
+from capsmech.workflow.runner import CaseRunError, is_failure_record, run_case, source_code_version
 from conftest import REPO
 
 CAPSIM = REPO / "bin" / "capsim"
@@ -187,7 +187,7 @@ def test_cli_assemble_show_and_figures(cases_dir: Path, tmp_path: Path, capsys: 
     """`capsmech database assemble` on a grid file, `database show`, and `figures` from the result."""
     import yaml
 
-    from capsmech.cli import main
+    from capsmech.cli.main import main
 
     grid_file = tmp_path / "unit.yaml"
     grid_file.write_text(yaml.safe_dump(GRID))

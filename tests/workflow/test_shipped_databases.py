@@ -9,10 +9,10 @@ import h5py
 import numpy as np
 import pytest
 
-from capsmech.database import FORMAT, RESULTS, load_database
-from capsmech.grid import expand_cases
-from capsmech.io import read_case
-from capsmech.runner import run_case, source_code_version
+from capsmech.io.database import FORMAT, RESULTS, load_database
+from capsmech.workflow.grid import expand_cases
+from capsmech.io.case import read_case
+from capsmech.workflow.runner import run_case, source_code_version
 from conftest import REPO
 
 def _is_database(path: Path) -> bool:

@@ -13,13 +13,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 import yaml
 
-from capsmech.database import RESULTS, expected_units, load_database
-from capsmech.grid import expand_cases, load_grid
-from capsmech.io import read_case
-from capsmech.runner import clear_stale_lock, source_code_version
+from capsmech.io.database import RESULTS, expected_units, load_database
+from capsmech.workflow.grid import expand_cases, load_grid
+from capsmech.io.case import read_case
+from capsmech.workflow.runner import clear_stale_lock, source_code_version
 from conftest import LOCAL_PROFILE, REPO, SMOKE, SNAKEFILE, run_snakemake, snakemake_argv
 
 GRID = load_grid(SMOKE)

@@ -1,7 +1,7 @@
 # One case file per (flow, law, a/l, Ca_s). The kernel writes OUT.tmp and renames it when
 # complete and resumes from OUT.ckpt, so a killed job leaves no output and is recomputed,
 # from its checkpoint, by the next run. A case that ends without a steady state is a
-# complete output (status in the file); see capsmech.runner for non-zero exit codes.
+# complete output (status in the file); see capsmech.workflow.runner for non-zero exit codes.
 # The params are the case's signature: kernel arguments (law, parameters, the flow's mesh
 # and time settings) and code version; a change to either makes exactly that case stale.
 
@@ -24,6 +24,6 @@ rule case:
         code_version=CODE_VERSION,
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli run-case --capsim {input.kernel} --out {output.case}"
+        "{params.python} -m capsmech.cli.main run-case --capsim {input.kernel} --out {output.case}"
         " --code-version {params.code_version} --threads {threads} -- {params.kernel_args}"
         " > {log} 2>&1"

@@ -1,11 +1,11 @@
 # Helpers shared by the rules: paths, the grid's cases, the kernel's code version.
-# The grid logic itself lives in the capsmech package (capsmech.grid), where it is tested.
+# The grid logic itself lives in the capsmech package (capsmech.workflow.grid), where it is tested.
 
 import sys
 from pathlib import Path
 
-from capsmech.grid import FLOWS, expand_cases, grid_json, validate_grid
-from capsmech.runner import source_code_version
+from capsmech.workflow.grid import FLOWS, expand_cases, grid_json, validate_grid
+from capsmech.workflow.runner import source_code_version
 
 # Semantic checks the schema cannot express (law parameters, duplicates); names the key.
 validate_grid(config, "config")

@@ -29,7 +29,7 @@ rule database:
         cases_dir=CASES_DIR,
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli database assemble --grid {input.grid} --flow {wildcards.flow}"
+        "{params.python} -m capsmech.cli.main database assemble --grid {input.grid} --flow {wildcards.flow}"
         " --cases {params.cases_dir} --out {output.database} > {log} 2>&1"
 
 

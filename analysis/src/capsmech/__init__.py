@@ -9,7 +9,7 @@ The inverse analysis, as the CLI uses it::
     import capsmech
     capsules = capsmech.read_measurements("batch.csv", "tube")
     rows = capsmech.fit_tube(capsules, capsmech.load_database("data/databases/tube.h5"))
-    drifts, law = capsmech.population(rows)
+    drifts, law = capsmech.inversion.population(rows)
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from __future__ import annotations
 # Set before the submodules are imported: some of them record it in the files they write.
 __version__ = "0.1.0"
 
-from capsmech.database import load_database
-from capsmech.fitting import fit_shear, fit_tube, write_results
-from capsmech.io import CaseFileError, CaseResult, NotSteadyError, read_case
-from capsmech.measurements import read_measurements
-from capsmech.population import population
+from capsmech.io.database import load_database
+from capsmech.inversion.fitting import fit_shear, fit_tube, write_results
+from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
+from capsmech.io.measurements import read_measurements
+from capsmech.inversion.population import population
 
 
 __all__ = ["CaseFileError", "CaseResult", "NotSteadyError", "__version__", "fit_shear", "fit_tube", "load_database",

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from capsmech.contours import resample_curve, symmetry_axis, volume_radius
+from capsmech.io.contours import resample_curve, symmetry_axis, volume_radius
 
 #: Points of the residual profile along the meridian.
 PROFILE_POINTS = 64

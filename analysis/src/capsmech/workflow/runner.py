@@ -31,7 +31,7 @@ from pathlib import Path
 
 import h5py
 
-from capsmech.io import CaseResult, decode_str, read_case
+from capsmech.io.case import CaseResult, decode_str, read_case
 
 #: Root attribute value that marks a failure record written by :func:`run_case`.
 FAILURE_RECORD = "capsim_failure"
@@ -105,7 +105,7 @@ def is_failure_record(path: str | Path) -> bool:
 def read_outcome(path: str | Path) -> tuple[str, str, str, CaseResult | None]:
     """Return ``(status, message, code_version, case)`` of a case file or failure record.
 
-    ``case`` is the validated :class:`~capsmech.io.CaseResult`, or None for a failure record.
+    ``case`` is the validated :class:`~capsmech.io.case.CaseResult`, or None for a failure record.
     """
     if is_failure_record(path):
         with h5py.File(path, "r") as f:
@@ -123,7 +123,7 @@ def run_case(capsim: str | Path, kernel_args: Sequence[str], out: str | Path, *,
     capsim : str or Path
         The kernel executable.
     kernel_args : sequence of str
-        The case's arguments (from :meth:`capsmech.grid.Case.kernel_args`).
+        The case's arguments (from :meth:`capsmech.workflow.grid.Case.kernel_args`).
     out : str or Path
         Case file to produce.
     code_version : str

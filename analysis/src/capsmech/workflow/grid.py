@@ -24,7 +24,7 @@ from typing import Any
 
 import yaml
 
-from capsmech.paths import repo_root
+from capsmech.workflow.paths import repo_root
 
 FLOWS = ("tube", "shear")
 

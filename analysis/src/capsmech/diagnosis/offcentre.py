@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from capsmech.residuals import PreparedContour
+from capsmech.diagnosis.residuals import PreparedContour
 
 FORMAT = "capsmech-offcentre-table"
 #: Points of the antisymmetric mode along the meridian.
@@ -147,7 +147,7 @@ def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarr
     """(s, A): the antisymmetric displacement of a closed section against a meridian.
 
     The section is folded about its axis of best mirror symmetry, as a measured contour is
-    (``capsmech.residuals.PreparedContour``; pass one to fold it once for many meridians);
+    (``capsmech.diagnosis.residuals.PreparedContour``; pass one to fold it once for many meridians);
     A = (upper - lower) / 2 of the halves' signed normal distances from the meridian, in the
     units of the inputs.
     """
@@ -159,11 +159,11 @@ def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarr
 def mode_from_cases(held: object, centred: object, points: int = MODE_POINTS) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """m(s) and the second-order coefficients from a held off-centre case and a centred one.
 
-    Both are ``capsmech.io.CaseResult`` of the 3D tube at the same (a/l, Ca_s) and mesh; the
+    Both are ``capsmech.io.case.CaseResult`` of the 3D tube at the same (a/l, Ca_s) and mesh; the
     held one's section through its centroid (the plane y = 0; the offset is along x) is taken
     against the centred one's meridian, so that the mesh's own errors cancel.
     """
-    from capsmech.mesh_section import plane_section
+    from capsmech.imaging.mesh_section import plane_section
 
     b0 = float(held.effects["offset"])
     if not b0 > 0 or centred.effects.get("offset", 0.0) != 0.0:
@@ -302,9 +302,9 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
 
     Parameters
     ----------
-    capsule : capsmech.measurements.Capsule
+    capsule : capsmech.io.measurements.Capsule
         SI units, with a contour.
-    inverter : capsmech.inverse.TubeInverter
+    inverter : capsmech.inversion.inverters.TubeInverter
         The base law's inverter.
     table : OffcentreTable
     iterations : int

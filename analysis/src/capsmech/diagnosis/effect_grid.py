@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from capsmech.database import TubeDatabase
-from capsmech.grid import validate_grid
+from capsmech.io.database import TubeDatabase
+from capsmech.workflow.grid import validate_grid
 
 #: Nodes added beyond the batch's fitted points on each side: the effect moves the points the
 #: refit lands on (pre-stress stiffens the membrane: the same lengths mean a larger Ca_s), and

@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from capsmech.diagnose import CandidateResult, Diagnosis
+    from capsmech.diagnosis.scoring import CandidateResult
+    from capsmech.diagnosis.diagnose import Diagnosis
 
 
 def _shown(diagnosis: Diagnosis) -> CandidateResult | None:
@@ -39,7 +40,7 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from capsmech.diagnose import PROFILE_POINTS
+    from capsmech.diagnosis.scoring import PROFILE_POINTS
 
     written: dict[str, Path] = {}
     shown = _shown(diagnosis)
@@ -83,7 +84,7 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
         plt.close(fig)
     assessed = [r for r in diagnosis.results if math.isfinite(r.bic_drop)]
     if assessed:
-        from capsmech.diagnose import MIN_BIC_DROP
+        from capsmech.diagnosis.scoring import MIN_BIC_DROP
 
         fig, axes = plt.subplots(1, 2, figsize=(7.5, 0.5 + 0.45 * len(assessed) + 1.2))
         names = [r.name for r in assessed]
@@ -109,7 +110,8 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     """A Markdown report: the verdict, per candidate its parameter with the interval, the
     criteria and G_s before and after, the grids candidates need, and the figures (written
     whole: temporary name, then renamed)."""
-    from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, NOT_ASSESSED, PROFILE_POINTS
+    from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, PROFILE_POINTS
+    from capsmech.diagnosis.diagnose import NOT_ASSESSED
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -3,10 +3,10 @@
 A bright-field microscope focused on the tube's mid-plane shows the capsule's membrane as a
 dark line (the meridian mirrored about the axis) and the capillary's two walls as dark
 horizontal lines at the axis +- l. ``render_frame`` draws that picture from a simulated
-meridian (``capsmech.synthetic.simulate_tube`` or a database profile): each line is a band of
+meridian (``capsmech.diagnosis.synthetic.simulate_tube`` or a database profile): each line is a band of
 a given width centred on the true curve, convolved with a Gaussian blur (focus), multiplied
 into a uniform bright background (transmission: darkenings multiply), plus Gaussian noise,
-quantised to 8 or 16 bits. Image convention (the one ``capsmech.extraction`` reads): the tube
+quantised to 8 or 16 bits. Image convention (the one ``capsmech.imaging.extraction`` reads): the tube
 axis along x (columns), the flow in +x, so the capsule's front is at the largest x.
 
 The blurred band is computed in closed form from the distance to the curve (the convolution

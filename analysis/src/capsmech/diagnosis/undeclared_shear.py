@@ -10,7 +10,7 @@ semi-axes L1, L2 [um] are the steady ones times a, each off by a uniform error i
 [-1, 1] pixel (0.5 um pixels, written in the ``pixel_size`` column); the shear rate and mu are
 exact. With ``theta_error_deg`` the rows also carry the inclination theta [deg], off by a
 Gaussian error of that standard deviation (its own generator: the semi-axes stay the same). The rows say nothing about lambda; the truth is returned apart
-and written to ``<stem>_truth.csv`` (conventions of ``capsmech.undeclared.write_batch``).
+and written to ``<stem>_truth.csv`` (conventions of ``capsmech.diagnosis.undeclared_tube.write_batch``).
 
 ``CA_S`` is where both shear databases (lambda = 1 and 0.001, NH) give D12 >= 0.35 (the paper's
 lower limit) and the lambda = 0.001 capsule's D12 stays inside the lambda = 1 database
@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.grid import parse_law
-from capsmech.io import read_case
-from capsmech.paths import capsim_executable
-from capsmech.undeclared import write_truth
+from capsmech.workflow.grid import parse_law
+from capsmech.io.case import read_case
+from capsmech.workflow.paths import capsim_executable
+from capsmech.diagnosis.undeclared_tube import write_truth
 
 CA_S = (0.25, 0.62)
 RADIUS_UM = (40.0, 50.0)
@@ -184,7 +184,7 @@ def write_shear_batch(batch: ShearBatch, path: str | Path) -> tuple[Path, Path]:
         columns.append("theta")
         header.append("theta [deg]")
     with open(path, "w", newline="", encoding="utf-8") as stream:
-        stream.write("# synthetic shear batch made with the kernel by capsmech.undeclared_shear;\n"
+        stream.write("# synthetic shear batch made with the kernel by capsmech.diagnosis.undeclared_shear;\n"
                      f"# semi-axes off by a uniform error in [-{ERROR_PX:g}, {ERROR_PX:g}] pixel "
                      f"({PIXEL_SIZE_UM:g} um pixels)\n")
         if "theta" in columns:

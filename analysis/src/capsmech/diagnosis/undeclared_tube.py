@@ -3,7 +3,7 @@
 ``make_batch({"prestress": 0.05})`` draws capsules of one material at random between the
 database nodes (a/l uniform in ``A_OVER_L``, Ca_s log-uniform in ``CA_S``: the region where the
 NH tube database is steady), simulates each with the kernel with the effect switched on, and
-turns them into measurement rows with realistic noise (``capsmech.synthetic.tube_batch``: 2 %
+turns them into measurement rows with realistic noise (``capsmech.diagnosis.synthetic.tube_batch``: 2 %
 on lengths and velocity, contours traced to +-1 px). The rows say nothing about the effect;
 the truth is returned apart (and written to a separate ``_truth.csv``).
 
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.diagnose import offset_contour
-from capsmech.synthetic import SimulatedCapsule, simulate_tube, tube_batch, write_tube_csv
+from capsmech.diagnosis.candidates import offset_contour
+from capsmech.diagnosis.synthetic import SimulatedCapsule, simulate_tube, tube_batch, write_tube_csv
 
 #: Where capsules are drawn (NH tube database steady and well inside its nodes).
 A_OVER_L = (0.87, 1.03)
@@ -125,7 +125,7 @@ def write_batch(batch: Batch, path: str | Path) -> tuple[Path, Path]:
     """The measurement CSV (and contour files) at ``path``; the truth beside it, ``<stem>_truth.csv``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_tube_csv(batch.rows, path, comment="synthetic tube batch made with the kernel by capsmech.undeclared;\n"
+    write_tube_csv(batch.rows, path, comment="synthetic tube batch made with the kernel by capsmech.diagnosis.undeclared_tube;\n"
                                              "2 % noise on lengths and velocity, contours traced to +-1 pixel")
     return path, write_truth(batch.truth, path)
 

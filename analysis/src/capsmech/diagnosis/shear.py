@@ -2,10 +2,10 @@
 law, what the base analysis lacks? (issue 7, "viscosity ratio lambda (shear)")
 
 Tube batches cannot see lambda (a steady capsule moves rigidly with its inner fluid,
-``capsmech.diagnose.NOT_ASSESSED``); a capsule in shear tank-treads, so lambda sets its steady
+``capsmech.diagnosis.diagnose.NOT_ASSESSED``); a capsule in shear tank-treads, so lambda sets its steady
 D12 and the Ca_s read from it. A batch of one material analysed with the wrong lambda gives a
 G_s that drifts with D12 (the two databases' G_s ratio grows from 1.13 to 1.37 over D12
-0.35-0.5 for NH, ``capsmech.microrheometry``), and that drift is the signature used here.
+0.35-0.5 for NH, ``capsmech.inversion.microrheometry``), and that drift is the signature used here.
 
 Score of a law group (a database law key, e.g. ``NH`` or ``NH+lambda0.001``)
 -------------------------------------------------------------------------------
@@ -28,7 +28,7 @@ error (1 deg by default), s_D12 from the semi-axes' noise (its correlation with 
 the angle's own error dominates).
 
 Candidates: the viscosity ratio (the group ``<base>+lambda<X>`` of the lambda database, a
-discrete candidate as ``capsmech.diagnose.law_candidate``) and every other law of the shear
+discrete candidate as ``capsmech.diagnosis.candidates.law_candidate``) and every other law of the shear
 database. A capsule outside a group's D12 range (or below D12 = 0.35, paper section 4.3) is
 flagged with the reason, never given a number; a candidate is scored on the capsules both
 its group and the base group fit.
@@ -42,7 +42,7 @@ A candidate is **supported** (the rule of ``capsmech.diagnose``) when
 The supported candidate with the largest BIC drop is named; none supported is a valid answer.
 G_s is reported as exp(y_bar) with its standard error, scaled by sqrt(chi2/(n-1)) when that
 exceeds 1 (scatter beyond the noise model), and the drift of G_s with D12 as the p-value of
-``capsmech.population.law_drift`` (G_s/mean against D12).
+``capsmech.inversion.population.law_drift`` (G_s/mean against D12).
 """
 from __future__ import annotations
 
@@ -56,11 +56,11 @@ import numpy as np
 from scipy import stats
 from scipy.interpolate import PchipInterpolator
 
-from capsmech.diagnose import CV_ALPHA, MIN_BIC_DROP, Evidence, rivals_of
-from capsmech.fitting import shear_inverter
-from capsmech.inverse import ShearInverter
-from capsmech.measurements import Capsule
-from capsmech.population import law_drift
+from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, Evidence, rivals_of
+from capsmech.inversion.fitting import shear_inverter
+from capsmech.inversion.inverters import ShearInverter
+from capsmech.io.measurements import Capsule
+from capsmech.inversion.population import law_drift
 
 #: Default pixel size [m] when the batch has no ``pixel_size`` column, and the error bound
 #: of each semi-axis in pixels (uniform in [-e, e]).
@@ -393,7 +393,7 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
               f"leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < {CV_ALPHA}). chi2: "
               "scatter of ln G_s about the weighted mean, over each capsule's standard error from +-1 pixel "
               "(uniform) on L1 and L2, plus, for capsules with theta, its residuals over the angle's error. G_s: weighted mean ± standard error (scaled by sqrt(chi2/(n-1)) when "
-              "above 1). Drift p: slope of G_s/mean against D12 (capsmech.population.law_drift).", ""]
+              "above 1). Drift p: slope of G_s/mean against D12 (capsmech.inversion.population.law_drift).", ""]
     groups = [diagnosis.base] + [r.score for r in diagnosis.results if r.score is not None]
     flagged = [(g.law, cid, flag) for g in groups for cid, flag in zip(g.ids, g.flags) if flag]
     if flagged:
@@ -412,7 +412,7 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """The ``diagnose-shear`` subcommand's arguments."""
     p = sub.add_parser("diagnose-shear", help="which effect (viscosity ratio, law) a shear batch's G_s drift supports")
-    p.add_argument("measurements", metavar="CSV", help="shear measurements (capsmech.measurements format)")
+    p.add_argument("measurements", metavar="CSV", help="shear measurements (capsmech.io.measurements format)")
     p.add_argument("--database", default="data/databases/shear.h5", help="shear database made with lambda = 1")
     p.add_argument("--lambda-database", default="data/databases/microrheometry/shear.h5",
                    help="shear database at the candidate viscosity ratio (law keys <law>+lambda<X>)")
@@ -429,8 +429,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def cmd_diagnose_shear(args: argparse.Namespace) -> int:
     """``diagnose-shear``: print the verdict (and write the report)."""
-    from capsmech.database import DatabaseError, load_database
-    from capsmech.measurements import MeasurementError, read_measurements
+    from capsmech.io.database import DatabaseError, load_database
+    from capsmech.io.measurements import MeasurementError, read_measurements
 
     for option in ("pixel_size", "error_px", "theta_error"):
         value = getattr(args, option)

@@ -21,12 +21,12 @@ from typing import Any
 import h5py
 import numpy as np
 
-from capsmech.contours import MAX_ASYMMETRY, MAX_H_OVER_A, contour_asymmetry, profile_misfit
-from capsmech.database import Database, ShearDatabase, TubeDatabase
-from capsmech.inverse import (FIVE_FITS, FiveFits, ShearInverter, TubeFits, TubeInverter, TubeTable,
+from capsmech.io.contours import MAX_ASYMMETRY, MAX_H_OVER_A, contour_asymmetry, profile_misfit
+from capsmech.io.database import Database, ShearDatabase, TubeDatabase
+from capsmech.inversion.inverters import (FIVE_FITS, FiveFits, ShearInverter, TubeFits, TubeInverter, TubeTable,
                               profile_elongation)
-from capsmech.measurements import Capsule
-from capsmech.residuals import size_residual, velocity_residual
+from capsmech.io.measurements import Capsule
+from capsmech.diagnosis.residuals import size_residual, velocity_residual
 
 #: Result columns and their units.
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
@@ -70,7 +70,7 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
     Parameters
     ----------
     capsules : sequence of Capsule
-        Measured capsules in SI units (``capsmech.measurements.read_measurements(..., 'tube')``).
+        Measured capsules in SI units (``capsmech.io.measurements.read_measurements(..., 'tube')``).
     database : TubeDatabase
         A loaded tube database.
     laws : iterable of str, optional

@@ -21,7 +21,7 @@ the capsule's contour file, in the unit of the column's header, e.g. ``contour [
 
 A contour file is what ImageJ's "Save XY Coordinates" writes: two columns x y (tab, space
 or comma separated, one optional header line), the capsule's mid-line in a plane through
-the tube axis, x along the axis with the flow in +x (see ``capsmech.contours``). With a
+the tube axis, x along the axis with the flow in +x (see ``capsmech.io.contours``). With a
 contour, ``fit-tube`` measures the misfit H/a of the fitted profile and the contour's
 asymmetry, and flags the capsule when either is too large.
 
@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.contours import ContourError, read_contour
+from capsmech.io.contours import ContourError, read_contour
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
 VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}

@@ -23,13 +23,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from capsmech import __version__
-from capsmech.database import DatabaseError
-from capsmech.extraction import ExtractionError
-from capsmech.grid import GridError
-from capsmech.io import CaseFileError, CaseResult, read_case
-from capsmech.paths import capsim_executable
-from capsmech.measurements import MeasurementError
-from capsmech.runner import CaseRunError
+from capsmech.io.database import DatabaseError
+from capsmech.imaging.extraction import ExtractionError
+from capsmech.workflow.grid import GridError
+from capsmech.io.case import CaseFileError, CaseResult, read_case
+from capsmech.workflow.paths import capsim_executable
+from capsmech.io.measurements import MeasurementError
+from capsmech.workflow.runner import CaseRunError
 
 #: Exit status for errors reported by capsmech itself (argparse uses the same).
 EXIT_ERROR = 2
@@ -281,8 +281,8 @@ def cmd_simulate(kernel_args: Sequence[str]) -> int:
 
 
 def cmd_run_case(args: argparse.Namespace) -> int:
-    """Run one workflow case (see :mod:`capsmech.runner` for the exit-code policy)."""
-    from capsmech.runner import run_case
+    """Run one workflow case (see :mod:`capsmech.workflow.runner` for the exit-code policy)."""
+    from capsmech.workflow.runner import run_case
 
     kernel_args = [a for a in args.kernel_args if a != "--"]
     run_case(args.capsim or capsim_executable(), kernel_args, args.out,
@@ -292,7 +292,7 @@ def cmd_run_case(args: argparse.Namespace) -> int:
 
 def cmd_kernel_version(args: argparse.Namespace) -> int:
     """Check that the built kernel writes the code_version its sources declare; record it."""
-    from capsmech.runner import kernel_code_version
+    from capsmech.workflow.runner import kernel_code_version
 
     found = kernel_code_version(args.capsim or capsim_executable())
     if args.expect and found != args.expect:
@@ -307,7 +307,7 @@ def cmd_kernel_version(args: argparse.Namespace) -> int:
 
 def cmd_unlock_stale(args: argparse.Namespace) -> int:
     """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
-    from capsmech.runner import clear_stale_lock, running_snakemake
+    from capsmech.workflow.runner import clear_stale_lock, running_snakemake
 
     if clear_stale_lock(args.workdir):
         print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
@@ -318,8 +318,8 @@ def cmd_unlock_stale(args: argparse.Namespace) -> int:
 
 def cmd_database(args: argparse.Namespace) -> int:
     """``database assemble``: case files -> database file; ``database show``: summarise one."""
-    from capsmech.database import assemble_database, load_database
-    from capsmech.grid import load_grid
+    from capsmech.io.database import assemble_database, load_database
+    from capsmech.workflow.grid import load_grid
 
     if args.action == "assemble":
         out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out)
@@ -336,8 +336,8 @@ def cmd_database(args: argparse.Namespace) -> int:
 
 def cmd_figures(args: argparse.Namespace) -> int:
     """Draw the paper's figures from one database, or from every database of a grid."""
-    from capsmech.figures import draw_figures
-    from capsmech.grid import FLOWS, load_grid
+    from capsmech.workflow.figures import draw_figures
+    from capsmech.workflow.grid import FLOWS, load_grid
 
     grid = load_grid(args.grid) if args.grid else None
     if args.database:
@@ -358,10 +358,10 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``fit-tube`` / ``fit-shear``: fit a measurement CSV against a database, print the table."""
-    from capsmech.database import load_database
-    from capsmech.fitting import (SHEAR_RESULT_UNITS, TUBE_RESULT_UNITS, fit_shear, fit_tube,
+    from capsmech.io.database import load_database
+    from capsmech.inversion.fitting import (SHEAR_RESULT_UNITS, TUBE_RESULT_UNITS, fit_shear, fit_tube,
                                   write_results)
-    from capsmech.measurements import read_measurements
+    from capsmech.io.measurements import read_measurements
 
     flow = "tube" if args.command == "fit-tube" else "shear"
     capsules = read_measurements(args.measurements, flow)
@@ -394,7 +394,7 @@ DEFAULT_OFFCENTRE_TABLE = "data/databases/effects/offcentre/table.h5"
 def _offcentre_table(path: str | None):
     """The off-centre table diagnose fits screened capsules with: the one named, else the
     shipped one when present; None for 'none'."""
-    from capsmech.offcentre import OffcentreError, OffcentreTable
+    from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable
 
     if path == "none" or (path is None and not Path(DEFAULT_OFFCENTRE_TABLE).is_file()):
         return None
@@ -406,10 +406,13 @@ def _offcentre_table(path: str | None):
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
-    from capsmech.database import load_database
-    from capsmech.diagnose import DatabaseSet, candidate_library, diagnose, diagnose_sequential, write_report
-    from capsmech.effect_grid import case_count, estimated_core_minutes, write_grid
-    from capsmech.measurements import read_measurements
+    from capsmech.io.database import load_database
+    from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
+    from capsmech.diagnosis.diagnose import diagnose
+    from capsmech.diagnosis.sequential import diagnose_sequential
+    from capsmech.diagnosis.report import write_report
+    from capsmech.diagnosis.effect_grid import case_count, estimated_core_minutes, write_grid
+    from capsmech.io.measurements import read_measurements
 
     capsules = read_measurements(args.measurements, "tube")
     database = load_database(args.database)
@@ -486,8 +489,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_make_batch(args: argparse.Namespace) -> int:
-    """``make-batch``: a synthetic tube batch with undeclared effects (capsmech.undeclared)."""
-    from capsmech.undeclared import make_batch, write_batch
+    """``make-batch``: a synthetic tube batch with undeclared effects (capsmech.diagnosis.undeclared_tube)."""
+    from capsmech.diagnosis.undeclared_tube import make_batch, write_batch
 
     effects = args.effect or []
     strengths = args.strength or []
@@ -505,8 +508,8 @@ def cmd_make_batch(args: argparse.Namespace) -> int:
 
 def cmd_population(args: argparse.Namespace) -> int:
     """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
-    from capsmech.fitting import write_results
-    from capsmech.population import (POPULATION_UNITS, plot_population, population_rows, population_verdict,
+    from capsmech.inversion.fitting import write_results
+    from capsmech.inversion.population import (POPULATION_UNITS, plot_population, population_rows, population_verdict,
                                      read_results)
 
     rows = [row for path in args.results for row in read_results(path)]
@@ -534,9 +537,9 @@ def cmd_population(args: argparse.Namespace) -> int:
 
 def cmd_compare_methods(args: argparse.Namespace) -> int:
     """``compare-methods``: the paper's shear and tube moduli, before and after the viscosity
-    ratio of its shear experiment (capsmech.microrheometry)."""
-    from capsmech.database import ShearDatabase, load_database
-    from capsmech.microrheometry import comparison_table, compare_methods
+    ratio of its shear experiment (capsmech.inversion.microrheometry)."""
+    from capsmech.io.database import ShearDatabase, load_database
+    from capsmech.inversion.microrheometry import comparison_table, compare_methods
 
     base, with_lambda = load_database(args.database), load_database(args.lambda_database)
     for path, db in ((args.database, base), (args.lambda_database, with_lambda)):
@@ -558,9 +561,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
     are printed and the per-frame report is still written), 2 for unreadable files or bad
     options (``ExtractionError``).
     """
-    from capsmech.extraction import ExtractionError, ExtractionSettings, extract, measure_capsules, \
+    from capsmech.imaging.extraction import ExtractionError, ExtractionSettings, extract, measure_capsules, \
         progress_printer, read_frames
-    from capsmech.extraction_output import (PIXEL_UNITS_UM, RATE_UNITS_HZ, VISCOSITY_UNITS_PA_S, default_ids,
+    from capsmech.imaging.extraction_output import (PIXEL_UNITS_UM, RATE_UNITS_HZ, VISCOSITY_UNITS_PA_S, default_ids,
                                             parse_quantity, write_frame_report, write_measurements,
                                             write_overlay)
 
@@ -673,7 +676,7 @@ def build_parser() -> argparse.ArgumentParser:
     figures.add_argument("--out", metavar="DIR", help="output directory (default: <results_dir>/figures/<flow>)")
     for name, flow in (("fit-tube", "tube"), ("fit-shear", "shear")):
         fit = sub.add_parser(name, help=f"fit measured capsules ({flow} CSV) against a {flow} database")
-        fit.add_argument("measurements", metavar="CSV", help="measurement file (format: capsmech.measurements)")
+        fit.add_argument("measurements", metavar="CSV", help="measurement file (format: capsmech.io.measurements)")
         fit.add_argument("--database", default=f"data/databases/{flow}.h5", help="database file")
         fit.add_argument("--law", action="append", help="law key to fit with (repeatable; default: all)")
         fit.add_argument("--out", action="append", metavar="FILE", help="write the results (.csv or .h5; repeatable)")
@@ -722,7 +725,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="shear database with the experiment's viscosity ratio (config/microrheometry.yaml)")
     comp.add_argument("--lambda-value", default="0.001", help="its viscosity ratio, as in the law keys (default 0.001)")
     comp.add_argument("--law", nargs="+", default=["NH", "GH_nu0.5", "GH_nu0.2"], help="base law keys")
-    from capsmech.shear_diagnose import add_parser as add_diagnose_shear
+    from capsmech.diagnosis.shear import add_parser as add_diagnose_shear
     add_diagnose_shear(sub)
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
     ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
@@ -764,7 +767,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     commands = {"run-case": cmd_run_case, "kernel-version": cmd_kernel_version, "unlock-stale": cmd_unlock_stale, "database": cmd_database, "figures": cmd_figures,
                 "fit-tube": cmd_fit, "fit-shear": cmd_fit, "population": cmd_population, "extract": cmd_extract,
                 "diagnose": cmd_diagnose, "make-batch": cmd_make_batch, "compare-methods": cmd_compare_methods}
-    from capsmech.shear_diagnose import cmd_diagnose_shear
+    from capsmech.diagnosis.shear import cmd_diagnose_shear
     commands["diagnose-shear"] = cmd_diagnose_shear
     try:
         if args.command == "simulate":

@@ -1,7 +1,7 @@
 """Inverse analysis: from measured capsule lengths to (a/l, Ca_s) and the shear modulus G_s.
 
 The method is the paper's (section 4.2 for the tube, 4.3 for shear), on numpy arrays, so that
-it does not depend on how a database is stored (``capsmech.database`` loads the files).
+it does not depend on how a database is stored (``capsmech.io.database`` loads the files).
 
 Tube
 ----

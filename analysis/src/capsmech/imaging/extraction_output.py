@@ -2,7 +2,7 @@
 
 Every file is written to a temporary name and renamed, so it is whole or absent.
 
-- Measurement CSV (the tube format of ``capsmech.measurements``, read by ``fit-tube``):
+- Measurement CSV (the tube format of ``capsmech.io.measurements``, read by ``fit-tube``):
   ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px]``;
   comment lines above the header give, per capsule, its frames, the spread of the lengths
   over them and the standard error of v_c.
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.extraction import CapsuleMeasurement, FrameResult, Walls
+from capsmech.imaging.extraction import CapsuleMeasurement, FrameResult, Walls
 
 
 def _write_text(path: Path, text: str) -> Path:
@@ -175,7 +175,7 @@ def parse_quantity(text: str, option: str, units: dict[str, float], default_unit
     """
     import re
 
-    from capsmech.extraction import ExtractionError
+    from capsmech.imaging.extraction import ExtractionError
 
     match = re.match(_QUANTITY, str(text))
     unit = ((match["unit"] or "") if match else "").strip()

@@ -2,7 +2,7 @@
 
 ``simulate_tube(a_over_l, Ca_s, law)`` runs ``capsim`` (axisymmetric tube) and returns its
 steady L_z, L_p, v_c/V and meridian; ``tube_batch(...)`` turns a list of such capsules into
-rows of the tube measurement format (``capsmech.measurements``) in micrometres for one
+rows of the tube measurement format (``capsmech.io.measurements``) in micrometres for one
 material (one G_s; each capsule's Ca_s set by its flow rate), with realistic noise: each
 length off by a relative Gaussian error (2 % by default, the paper's estimate), the
 velocity likewise, and the contour traced with +-1 pixel errors (``noisy_contour``: points
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.grid import parse_law
-from capsmech.io import read_case
-from capsmech.paths import capsim_executable
+from capsmech.workflow.grid import parse_law
+from capsmech.io.case import read_case
+from capsmech.workflow.paths import capsim_executable
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def noisy_contour(meridian: np.ndarray, pixels_per_l: float, rng: np.random.Gene
     sampled every ``spacing_px`` pixels; each coordinate is off by a uniform error in
     [-error_px, error_px] (the paper's +-1 pixel).
     """
-    from capsmech.contours import full_profile
+    from capsmech.io.contours import full_profile
 
     return traced_contour(full_profile(meridian), pixels_per_l, rng, error_px, spacing_px)
 
@@ -81,7 +81,7 @@ def traced_contour(section: np.ndarray, pixels_per_l: float, rng: np.random.Gene
                    error_px: float = 1.0, spacing_px: float = 2.0) -> np.ndarray:
     """A hand-traced contour [px] of a closed section (x along the flow, y across) [l]: placed,
     sampled and traced with errors as ``noisy_contour`` says."""
-    from capsmech.contours import resample_curve
+    from capsmech.io.contours import resample_curve
 
     profile = np.asarray(section, dtype=float) * pixels_per_l
     length = np.sum(np.hypot(*np.diff(np.vstack([profile, profile[:1]]), axis=0).T))
@@ -122,12 +122,12 @@ def simulate_offcentre_tube(a_over_l: float, Ca_s: float, offset: float, t_max: 
 
     It migrates towards the axis while it deforms; what is returned is its state at the end
     (lengths and v_c/V of the last history row, its radial position ``r_c``, and its section
-    through the tube axis and its centroid, ``capsmech.mesh_section``), whatever the run's
+    through the tube axis and its centroid, ``capsmech.imaging.mesh_section``), whatever the run's
     status: an off-centre capsule is a snapshot of a slow migration, not a steady state.
     ``self_quadrature``: the 3D kernel's membrane self term (``full`` or ``vertex``).
     ``out``: keep the case file there (and reuse it when it exists). Minutes a case at level 2.
     """
-    from capsmech.mesh_section import plane_section
+    from capsmech.imaging.mesh_section import plane_section
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(out) if out else Path(tmp) / "case.h5"
@@ -165,8 +165,8 @@ def offcentre_hybrid(axisymmetric: SimulatedCapsule, off_axis: str | Path, centr
     """
     from scipy.spatial import cKDTree
 
-    from capsmech.contours import resample_curve
-    from capsmech.mesh_section import plane_section
+    from capsmech.io.contours import resample_curve
+    from capsmech.imaging.mesh_section import plane_section
 
     moved, still = read_case(off_axis), read_case(centred)
     r_c = float(moved.history["r_c"][-1])

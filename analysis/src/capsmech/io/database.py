@@ -36,9 +36,9 @@ import h5py
 import numpy as np
 
 from capsmech import __version__
-from capsmech.grid import Case, expand_cases, flow_settings, grid_json, parse_law
-from capsmech.io import EFFECT_DEFAULTS, STATUSES, CaseResult, decode_str, require_hdf5_file
-from capsmech.runner import read_outcome
+from capsmech.workflow.grid import Case, expand_cases, flow_settings, grid_json, parse_law
+from capsmech.io.case import EFFECT_DEFAULTS, STATUSES, CaseResult, decode_str, require_hdf5_file
+from capsmech.workflow.runner import read_outcome
 
 FORMAT = "capsmech-database"
 FORMAT_VERSION = 1
@@ -179,7 +179,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     Parameters
     ----------
     grid : mapping
-        The validated grid (see :mod:`capsmech.grid`).
+        The validated grid (see :mod:`capsmech.workflow.grid`).
     flow : str
         'tube' or 'shear'.
     cases_dir : str or Path

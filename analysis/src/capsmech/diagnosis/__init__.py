@@ -1,0 +1,1 @@
+"""Diagnosis: what a fit leaves unexplained, the effects that may explain it, and synthetic batches to test it."""

@@ -1,0 +1,230 @@
+"""Candidate effects of the diagnosis: each adds one parameter to the forward model of a tube
+batch (a contour offset, a tube-radius error, another law group, a scalar kernel effect such as
+pre-stress or bending blended between database levels)."""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+
+from capsmech.io.database import TubeDatabase
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.inversion.inverters import TubeInverter
+from capsmech.io.measurements import Capsule
+
+
+def offset_contour(contour: np.ndarray, delta: float) -> np.ndarray:
+    """The closed contour moved outward by delta along its normals (inward for delta < 0).
+
+    The normals come from the contour smoothed over 5 neighbouring points, so that tracing
+    noise does not turn them; the traced points themselves are moved."""
+    kernel = np.ones(5) / 5
+    padded = np.vstack([contour[-2:], contour, contour[:2]])
+    smooth = np.column_stack([np.convolve(padded[:, k], kernel, mode="valid") for k in range(2)])
+    tangent = np.roll(smooth, -1, axis=0) - np.roll(smooth, 1, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1)[:, None]
+    normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    if np.mean(np.sum((smooth - smooth.mean(axis=0)) * normal, axis=1)) < 0:
+        normal = -normal
+    return contour + delta * normal
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect: a name, its parameter's name and unit, the grid of values to try, the
+    neutral value (the base model), and how a value changes the capsules or the law."""
+
+    name: str
+    parameter: str
+    unit: str
+    values: tuple[float, ...]
+    neutral: float
+    apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
+    #: Law groups the candidate needs from the databases (beyond the base law).
+    laws: tuple[str, ...] = ()
+    #: "capsules" (a measurement effect: changes the data, keeps the law it was built on) or
+    #: "law" (a model effect: changes the law, keeps the data); what makes two effects compose.
+    acts_on: str = "law"
+
+
+def contour_offset_candidate(base_law: str | BlendedLaw, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
+    """Traced contour offset outward by delta pixels (needs a ``pixel_size`` column)."""
+
+    def apply(capsules: Sequence[Capsule], delta: float) -> tuple[list[Capsule], str]:
+        out = []
+        for c in capsules:
+            pixel = c["pixel_size"]
+            if c.contour is None or not math.isfinite(pixel):
+                out.append(c)
+                continue
+            values = dict(c.values)
+            values["L_z"] = c["L_z"] - 2 * delta * pixel
+            out.append(replace(c, values=values, contour=offset_contour(c.contour, -delta * pixel)))
+        return out, base_law
+
+    values = tuple(np.round(np.arange(-2 * step_px, max_px + 1e-9, step_px), 6))
+    return Candidate("contour_offset", "delta", "px", values, 0.0, apply, acts_on="capsules")
+
+
+def tube_radius_candidate(base_law: str | BlendedLaw, max_rel: float = 0.045, step: float = 0.015) -> Candidate:
+    """The capillary radius is l (1 + eps) instead of the nominal l."""
+
+    def apply(capsules: Sequence[Capsule], eps: float) -> tuple[list[Capsule], str]:
+        out = []
+        for c in capsules:
+            values = dict(c.values)
+            values["tube_radius"] = c["tube_radius"] * (1 + eps)
+            out.append(replace(c, values=values))
+        return out, base_law
+
+    values = tuple(np.round(np.arange(-max_rel, max_rel + 1e-9, step), 6))
+    return Candidate("tube_radius", "eps", "1", values, 0.0, apply, acts_on="capsules")
+
+
+def law_candidate(base_law: str, other_law: str) -> Candidate:
+    """Another database group (law, nu_s, or a law key with an effect) instead of the base:
+    one discrete parameter, 0 = base, 1 = the other group."""
+
+    def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str]:
+        return list(capsules), other_law if which >= 0.5 else base_law
+
+    return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply, laws=(other_law,))
+
+
+#: Kernel effects with one scalar strength that an effect database holds at a few levels
+#: (law keys ``<base>+<effect><value>``): effect -> (parameter name, default levels).
+SCALAR_EFFECTS: dict[str, tuple[str, tuple[float, ...]]] = {
+    "prestress": ("alpha", (0.04, 0.06, 0.08)),
+    "kb": ("k_b", (0.0025, 0.005, 0.01)),
+}
+
+
+def effect_key(base_law: str, effect: str, value: float) -> str:
+    """The database law key of the base law with a scalar effect (``NH+prestress0.05``,
+    ``NH+kb0.01``); the base law itself at value 0."""
+    return base_law if value == 0 else f"{base_law}+{effect}{value:g}"
+
+
+def prestress_key(base_law: str, alpha: float) -> str:
+    """The database law key of the base law with pre-stress alpha (``NH+prestress0.05``)."""
+    return effect_key(base_law, "prestress", alpha)
+
+
+def interpolation_weights(levels: Sequence[float], value: float) -> list[tuple[int, float]]:
+    """Weights of the levels whose blend is the law at ``value``: linear between the two
+    levels that bracket it, [(level index, weight)].
+
+    Linear, not a quadratic through three levels: an effect can change a shape abruptly
+    between two levels (pre-stress removes the parachute between alpha = 0 and 0.04), and a
+    quadratic carries that into the next interval (measured on the pre-stress batch: alpha
+    0.0482 [0.0474, 0.0490] and chi2 418 against the linear blend's 0.0508 and 366, truth 0.05)."""
+    levels = np.asarray(levels, dtype=float)
+    k = int(np.clip(np.searchsorted(levels, value) - 1, 0, len(levels) - 2))
+    w = (value - levels[k]) / (levels[k + 1] - levels[k])
+    return [(k, 1 - w), (k + 1, w)]
+
+
+class BlendedLaw:
+    """A law between database groups (a scalar effect between its levels): its profiles and
+    velocity ratio are the weighted sum of the groups', at the same (a/l, Ca_s); its length
+    fit is that of the group with the largest weight (a contour fit's start only)."""
+
+    def __init__(self, keys: Sequence[str], weights: Sequence[float]) -> None:
+        self.keys, self.weights = list(keys), [float(w) for w in weights]
+
+    def __str__(self) -> str:
+        return " + ".join(f"{w:.3g} {key}" for key, w in zip(self.keys, self.weights))
+
+    def inverter(self, database) -> _BlendedInverter:
+        return _BlendedInverter([tube_inverter(database, key) for key in self.keys], self.weights)
+
+
+class _BlendedInverter:
+    """The TubeInverter interface diagnose uses, for a BlendedLaw."""
+
+    def __init__(self, inverters: Sequence[TubeInverter], weights: Sequence[float]) -> None:
+        self.inverters, self.weights = list(inverters), list(weights)
+        self.nearer = self.inverters[int(np.argmax(self.weights))]
+        self.table = self.nearer.table
+
+    def fit(self, L_z: float, L_p: float):
+        return self.nearer.fit(L_z, L_p)
+
+    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
+        profiles = [inverter.profile(a_over_l, Ca_s) for inverter in self.inverters]
+        if any(p is None for p in profiles):
+            return None
+        return sum(w * p for w, p in zip(self.weights, profiles))
+
+    def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
+        return sum(w * inverter.velocity_ratio(a_over_l, Ca_s) for w, inverter in zip(self.weights, self.inverters))
+
+
+def scalar_effect_candidate(base_law: str, effect: str, levels: Sequence[float] | None = None) -> Candidate:
+    """A kernel effect with one scalar strength (``SCALAR_EFFECTS``: pre-stress alpha, bending
+    stiffness k_b), fitted between the effect database's levels: between levels the law is
+    their blend (``BlendedLaw``, ``interpolation_weights``), so that the batch is refitted at
+    any strength, not only at the levels."""
+    parameter, default_levels = SCALAR_EFFECTS[effect]
+    values = (0.0, *sorted(float(v) for v in (default_levels if levels is None else levels)))
+
+    def apply(capsules: Sequence[Capsule], theta: float) -> tuple[list[Capsule], str | BlendedLaw]:
+        at = [v for v in values if math.isclose(v, theta, rel_tol=0, abs_tol=1e-12)]
+        if at:
+            return list(capsules), effect_key(base_law, effect, at[0])
+        weights = interpolation_weights(values, theta)
+        return list(capsules), BlendedLaw([effect_key(base_law, effect, values[k]) for k, _ in weights],
+                                          [w for _, w in weights])
+
+    return Candidate(effect, parameter, "", values, 0.0, apply,
+                     laws=tuple(effect_key(base_law, effect, v) for v in values[1:]))
+
+
+def prestress_candidate(base_law: str, levels: Sequence[float] = SCALAR_EFFECTS["prestress"][1]) -> Candidate:
+    """Membrane pre-stress alpha (``--prestress``) between the database's levels."""
+    return scalar_effect_candidate(base_law, "prestress", levels)
+
+
+def bending_candidate(base_law: str, levels: Sequence[float] = SCALAR_EFFECTS["kb"][1]) -> Candidate:
+    """Bending stiffness k_b = K_B/(G_s a^2) (``--kb``) between the database's levels."""
+    return scalar_effect_candidate(base_law, "kb", levels)
+
+
+def candidate_library(base_law: str, database_laws: Sequence[str], prestress_levels: Sequence[float] | None = None,
+                      other_laws: Sequence[str] | None = None, kb_levels: Sequence[float] | None = None
+                      ) -> list[Candidate]:
+    """The effect library (issue 7): contour offset, tube radius, pre-stress, bending
+    stiffness, and every other law group of the databases without an effect (another law,
+    nu_s or C) unless ``other_laws`` names them. Levels None: the defaults of
+    ``SCALAR_EFFECTS``; empty: no such candidate."""
+    candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
+    for effect, levels in (("prestress", prestress_levels), ("kb", kb_levels)):
+        if levels is None or len(levels):
+            candidates.append(scalar_effect_candidate(base_law, effect, levels))
+    if other_laws is None:
+        other_laws = [key for key in database_laws if key != base_law and "+" not in key]
+    return candidates + [law_candidate(base_law, key) for key in other_laws]
+
+
+class DatabaseSet:
+    """Several tube databases seen as one: a law key is taken from the first that has it
+    (the base database, then effect databases such as data/databases/effects/*/tube.h5)."""
+
+    flow = "tube"
+
+    def __init__(self, databases: Sequence[TubeDatabase]) -> None:
+        self.databases = list(databases)
+
+    @property
+    def laws(self) -> list[str]:
+        return list(dict.fromkeys(key for d in self.databases for key in d.laws))
+
+    def law(self, key: str):
+        for database in self.databases:
+            if key in database.laws:
+                return database.law(key)
+        raise KeyError(f"no database has law {key!r}")
+

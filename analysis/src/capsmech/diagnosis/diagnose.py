@@ -1,0 +1,219 @@
+"""Close the loop (issue 7): which effect the base model lacks, from what the fits leave.
+
+For a batch fitted with a base law, each candidate effect adds one parameter theta (shared
+by the batch) to the forward model. The batch is refitted over a grid of theta, and every
+capsule's contour residual (``capsmech.diagnosis.residuals.profile_residual``) is scored by
+
+    chi2_i(theta) = sum over PROFILE_POINTS points of (d(s) / sigma_i)**2,
+
+sigma_i the capsule's own noise level, measured once on the base fit from the disagreement
+of its contour's two halves (independent tracing errors; ``ProfileResidual.error``). The
+points are few enough (16 along the meridian, ~20 px apart on a 90 px capsule) to be nearly
+independent.
+
+A candidate is **supported** when both
+- leave-one-capsule-out cross-validation improves: theta fitted on the other capsules
+  lowers the held-out capsules' chi2 (one-sided Wilcoxon signed-rank test across
+  capsules, p < 0.05); and
+- the Bayesian information criterion falls by more than ``MIN_BIC_DROP`` (strong evidence),
+  counting one parameter.
+The supported candidate with the largest BIC drop is reported, with theta and its interval
+(two jackknife standard errors from the leave-one-out fits, widened to every strength whose
+chi2 is within a rise of 4 of the minimum), and G_s before and after. When no
+candidate is supported, the residual is within noise: that is a valid answer.
+
+Candidates
+----------
+Measurement effects need no new simulation:
+- ``contour_offset`` (pixels): the traced line lies delta outside the membrane (e.g. the
+  dark line's outer edge instead of its middle); the contour is moved in by delta along its
+  normals and L_z shortened by 2 delta.
+- ``tube_radius`` (relative): the capillary's radius is l (1 + eps), not the nominal l.
+Model effects come from the database: every other law group (another law or nu_s, or a
+law key with an effect such as ``NH+prestress0.05``) is a candidate with its group as the
+one discrete parameter.
+- ``prestress`` (alpha) and ``kb`` (bending stiffness k_b), continuous: the groups
+  ``<base>+prestress<alpha>`` and ``<base>+kb<k_b>`` of effect databases
+  (``capsmech.diagnosis.effect_grid``) at a few levels, the base law being 0. Between two levels the
+  law is their blend (profiles and velocity ratio linear in the strength at the same a/l and
+  Ca_s, ``BlendedLaw``), so the batch is refitted at any strength like the other continuous
+  candidates.
+- ``viscosity ratio`` is not a candidate for tube batches: a steady capsule translates as a
+  rigid body, its inner fluid with it, so lambda drops out of every steady observable (the
+  kernel reproduces the lambda = 1 shape to 6e-8 at lambda 0.2 and 5); it acts on the shear
+  method (``capsmech.diagnosis.shear``: ``capsmech diagnose-shear``). ``NOT_ASSESSED``
+  says so in every report.
+- ``off-centre position`` is not a batch effect: each capsule has its own offset b. Its
+  first-order signature, an up-down asymmetric contour, is what the inversion flags; such
+  capsules are left out of the batch's diagnosis (``screen_asymmetric``) and, given an
+  off-centre table (``capsmech.diagnosis.offcentre``: the 3D kernel's antisymmetric mode over a/l
+  0.7-0.85), each is fitted with its own b (linear least squares of its contour's
+  antisymmetric part), its lengths corrected by the second-order elongation c b**2 before
+  (a/l, Ca_s) and G_s are refitted (``fit_offcentre``; reported apart from the batch's
+  candidates). A capsule released off the axis centres itself (by a factor e every 2-3 l of
+  travel at a/l 0.75-0.85, 9 l at 0.7, 26 l at 0.6), so the capsules the method is made for
+  (a/l >~ 0.85) are mostly centred where they are imaged.
+A candidate whose law groups the databases lack is not guessed: it is reported as "not
+assessed: needs simulations", with the grid the workflow must run (``needs``).
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+from capsmech.io.contours import contour_asymmetry
+from capsmech.io.database import TubeDatabase
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.io.measurements import Capsule
+from capsmech.diagnosis.residuals import PreparedContour
+from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet, contour_offset_candidate, tube_radius_candidate
+from capsmech.diagnosis.scoring import BatchScore, CandidateResult, REFINE_EVALUATIONS, compare_supported, evaluate_candidate, noise_levels, rivals_of, score_batch
+
+
+#: Effects of the library diagnose does not fit on tube batches, and why (in every report).
+NOT_ASSESSED: dict[str, str] = {
+    "viscosity ratio": "not identifiable: a steady capsule moves as a rigid body with its inner fluid, so lambda "
+                       "leaves its shape and velocity unchanged (kernel: lambda 0.2 and 5 reproduce lambda = 1 to "
+                       "6e-8); it acts on the shear method: capsmech diagnose-shear tests it on Couette batches",
+    "off-centre position": "not a batch effect (each capsule has its own): an off-centre capsule's contour is up-down "
+                           "asymmetric (3D kernel: 0.04-0.07 a at 0.02-0.07 l off the axis), so such capsules are "
+                           "screened out of the batch (screen_asymmetric) and, with the off-centre table "
+                           "(capsmech.diagnosis.offcentre, a/l 0.7-0.85), each is fitted with its own offset b from its "
+                           "contour's antisymmetric part, its lengths corrected by the offset's second-order "
+                           "elongation before G_s",
+}
+
+
+@dataclass
+class Diagnosis:
+    """Every candidate's result and the verdict."""
+
+    base_law: str
+    results: list[CandidateResult]
+    chosen: CandidateResult | None
+    base: BatchScore | None = field(default=None, repr=False)
+    #: Capsules left out before the diagnosis, as (id, reason) (``screen_asymmetric``).
+    excluded: list[tuple[str, str]] = field(default_factory=list)
+    #: The left-out capsules fitted with their own offset (``capsmech.diagnosis.offcentre``), when an
+    #: off-centre table was given.
+    offcentre: list = field(default_factory=list)
+    #: Why no candidate was assessed, when none was.
+    note: str = ""
+
+    @property
+    def rivals(self) -> list[CandidateResult]:
+        """Other supported candidates the data cannot tell from the chosen one (BIC within
+        MIN_BIC_DROP of it)."""
+        return rivals_of(self.chosen, self.results, lambda r: r.bic_drop_common)
+
+    @property
+    def verdict(self) -> str:
+        if self.note and not self.results:
+            return self.note
+        if self.chosen is None:
+            return "no candidate effect is supported: the residual is within noise"
+        c = self.chosen
+        rivals = ""
+        if self.rivals:
+            rivals = ("; these data cannot tell it from " + ", ".join(
+                f"{r.name} ({r.parameter} = {r.theta:.3g} {r.unit}, BIC drop {r.bic_drop_common:.1f})" for r in self.rivals)
+                + ": measure what separates them (the flow rate, the tube radius) to decide")
+        return (f"{c.name}: {c.parameter} = {c.theta:.3g} {c.unit} [{c.interval[0]:.3g}, {c.interval[1]:.3g}], "
+                f"BIC drop {c.bic_drop:.1f} ({c.bic_drop_common:.1f} on the capsules every supported candidate fits), "
+                f"cross-validated chi2 gain {c.cv_gain:.2f} +- {c.cv_gain_error:.2f} "
+                f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
+
+
+def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
+             candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None,
+             refine_evaluations: int = REFINE_EVALUATIONS, screen: bool = True,
+             offcentre_table=None) -> Diagnosis:
+    """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
+
+    ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
+    effect databases). A candidate whose law groups none has is not assessed; its result
+    carries the grid to run (``needs``, see ``capsmech.diagnosis.effect_grid``). ``sigma``: the
+    capsules' tracing-noise levels when already measured (``noise_levels``), so that the chi2
+    of successive diagnoses of one batch share their scale. ``refine_evaluations``: refits of
+    the batch on each side of a continuous candidate's best grid value (0: the grid only).
+    ``screen``: leave out asymmetric contours first (``screen_asymmetric``); False when the
+    caller has screened the batch already (``diagnose_sequential``: once, so that every round
+    sees the same capsules). ``offcentre_table``: an ``capsmech.diagnosis.offcentre.OffcentreTable``;
+    the capsules screened out are then fitted with their own offset (``fit_offcentre``)."""
+    from capsmech.diagnosis.effect_grid import needed_grid
+
+    if candidates is None:
+        candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
+    with_contours: list[Capsule] = [c for c in capsules if c.contour is not None]
+    excluded: list[tuple[str, str]] = []
+    if screen:
+        with_contours, excluded = screen_asymmetric(with_contours)
+    if len(with_contours) < 3 and offcentre_table is not None and excluded:
+        # A batch caught off the axis: no batch effect can be tested, the offsets still can.
+        return Diagnosis(base_law, [], None, None, excluded,
+                         fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table),
+                         note=f"no candidate assessed: {len(with_contours)} centred capsules with contours, "
+                              "diagnose needs at least 3")
+    if len(with_contours) < 3:
+        raise ValueError(f"diagnose needs contours of at least 3 capsules, the batch has {len(with_contours)}"
+                         + (f" ({len(excluded)} more left out as asymmetric)" if excluded else ""))
+    if sigma is None:
+        sigma = noise_levels(with_contours, database, base_law)
+    prepared = [PreparedContour(c.contour) for c in with_contours]
+    base = score_batch(with_contours, database, base_law, sigma, prepared)
+    base_database = _base_database(database)
+    results = []
+    for candidate in candidates:
+        missing = [key for key in candidate.laws if key not in database.laws]
+        if not missing:
+            results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared,
+                                              refine_evaluations))
+            continue
+        result = CandidateResult(candidate.name, candidate.parameter, candidate.unit,
+                                 note="not assessed: needs simulations")
+        name = re.sub(r"[^A-Za-z0-9_-]", "_", candidate.name.replace(".", "p"))
+        result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
+        results.append(result)
+    chosen = compare_supported(results, base)
+    offcentre = (fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
+                 if offcentre_table is not None else [])
+    return Diagnosis(base_law, results, chosen, base, excluded, offcentre)
+
+
+def _base_database(database: TubeDatabase | DatabaseSet) -> TubeDatabase:
+    """The base law's database: the first of a set."""
+    return database.databases[0] if isinstance(database, DatabaseSet) else database
+
+
+def fit_offcentre(capsules: Sequence[Capsule], excluded: Sequence[tuple[str, str]], database: TubeDatabase,
+                  base_law: str | BlendedLaw, table) -> list:
+    """Fit every screened-out capsule with its own offset (``capsmech.diagnosis.offcentre``)."""
+    from capsmech.diagnosis.offcentre import fit_offcentre_capsule
+
+    if not isinstance(base_law, str) or not excluded:
+        return []
+    left_out = {capsule for capsule, _ in excluded}
+    inverter = tube_inverter(database, base_law)
+    return [fit_offcentre_capsule(c, inverter, table) for c in capsules if c.id in left_out]
+
+
+def screen_asymmetric(capsules: Sequence[Capsule]) -> tuple[list[Capsule], list[tuple[str, str]]]:
+    """Leave out the capsules whose contour the inversion flags as asymmetric.
+
+    An axisymmetric model cannot explain an up-down asymmetric contour, and a batch effect
+    should not be fitted to one: such a capsule is off the axis (still migrating towards it)
+    or not yet steady. Returns the capsules kept and, for the others, (id, reason)."""
+    kept, excluded = [], []
+    for capsule in capsules:
+        asymmetry, limit, _ = contour_asymmetry(capsule.contour, capsule["pixel_size"])
+        if asymmetry > limit:
+            excluded.append((capsule.id, f"asymmetric contour: its halves differ by {asymmetry:.4f} a "
+                                         f"(> {limit:.4f} a): off-centre or not steady"))
+        else:
+            kept.append(capsule)
+    return kept, excluded
+

@@ -1,0 +1,1 @@
+"""Images: from microscope frames to measurements (extraction), and frames rendered from simulations."""

@@ -1,0 +1,1 @@
+"""Input and output: measurement CSVs, contour files, kernel case files and database files."""

@@ -1,0 +1,1 @@
+"""Workflow glue: parameter grids, the kernel runner, the paper's figures from database files."""
