@@ -17,12 +17,11 @@ from __future__ import annotations
 # Set before the submodules are imported: some of them record it in the files they write.
 __version__ = "0.1.0"
 
-from capsmech.io.database import load_database
 from capsmech.inversion.fitting import fit_shear, fit_tube, write_results
-from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
-from capsmech.io.measurements import read_measurements
 from capsmech.inversion.population import population
-
+from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
+from capsmech.io.database import load_database
+from capsmech.io.measurements import read_measurements
 
 __all__ = ["CaseFileError", "CaseResult", "NotSteadyError", "__version__", "fit_shear", "fit_tube", "load_database",
            "population", "read_case", "read_measurements", "write_results"]

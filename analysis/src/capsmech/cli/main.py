@@ -23,12 +23,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from capsmech import __version__
-from capsmech.io.database import DatabaseError
 from capsmech.imaging.extraction import ExtractionError
-from capsmech.workflow.grid import GridError
 from capsmech.io.case import CaseFileError, CaseResult, read_case
-from capsmech.workflow.paths import capsim_executable
+from capsmech.io.database import DatabaseError
 from capsmech.io.measurements import MeasurementError
+from capsmech.workflow.grid import GridError
+from capsmech.workflow.paths import capsim_executable
 from capsmech.workflow.runner import CaseRunError
 
 #: Exit status for errors reported by capsmech itself (argparse uses the same).
@@ -358,9 +358,14 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``fit-tube`` / ``fit-shear``: fit a measurement CSV against a database, print the table."""
+    from capsmech.inversion.fitting import (
+        SHEAR_RESULT_UNITS,
+        TUBE_RESULT_UNITS,
+        fit_shear,
+        fit_tube,
+        write_results,
+    )
     from capsmech.io.database import load_database
-    from capsmech.inversion.fitting import (SHEAR_RESULT_UNITS, TUBE_RESULT_UNITS, fit_shear, fit_tube,
-                                  write_results)
     from capsmech.io.measurements import read_measurements
 
     flow = "tube" if args.command == "fit-tube" else "shear"
@@ -406,12 +411,16 @@ def _offcentre_table(path: str | None):
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
-    from capsmech.io.database import load_database
     from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
     from capsmech.diagnosis.diagnose import diagnose
-    from capsmech.diagnosis.sequential import diagnose_sequential
+    from capsmech.diagnosis.effect_grid import (
+        case_count,
+        estimated_core_minutes,
+        write_grid,
+    )
     from capsmech.diagnosis.report import write_report
-    from capsmech.diagnosis.effect_grid import case_count, estimated_core_minutes, write_grid
+    from capsmech.diagnosis.sequential import diagnose_sequential
+    from capsmech.io.database import load_database
     from capsmech.io.measurements import read_measurements
 
     capsules = read_measurements(args.measurements, "tube")
@@ -509,8 +518,13 @@ def cmd_make_batch(args: argparse.Namespace) -> int:
 def cmd_population(args: argparse.Namespace) -> int:
     """``population``: drift of G_s with Delta per law from fit-tube results; the law that fits."""
     from capsmech.inversion.fitting import write_results
-    from capsmech.inversion.population import (POPULATION_UNITS, plot_population, population_rows, population_verdict,
-                                     read_results)
+    from capsmech.inversion.population import (
+        POPULATION_UNITS,
+        plot_population,
+        population_rows,
+        population_verdict,
+        read_results,
+    )
 
     rows = [row for path in args.results for row in read_results(path)]
     verdict = population_verdict(rows)
@@ -538,8 +552,8 @@ def cmd_population(args: argparse.Namespace) -> int:
 def cmd_compare_methods(args: argparse.Namespace) -> int:
     """``compare-methods``: the paper's shear and tube moduli, before and after the viscosity
     ratio of its shear experiment (capsmech.inversion.microrheometry)."""
+    from capsmech.inversion.microrheometry import compare_methods, comparison_table
     from capsmech.io.database import ShearDatabase, load_database
-    from capsmech.inversion.microrheometry import comparison_table, compare_methods
 
     base, with_lambda = load_database(args.database), load_database(args.lambda_database)
     for path, db in ((args.database, base), (args.lambda_database, with_lambda)):
@@ -561,11 +575,24 @@ def cmd_extract(args: argparse.Namespace) -> int:
     are printed and the per-frame report is still written), 2 for unreadable files or bad
     options (``ExtractionError``).
     """
-    from capsmech.imaging.extraction import ExtractionError, ExtractionSettings, extract, measure_capsules, \
-        progress_printer, read_frames
-    from capsmech.imaging.extraction_output import (PIXEL_UNITS_UM, RATE_UNITS_HZ, VISCOSITY_UNITS_PA_S, default_ids,
-                                            parse_quantity, write_frame_report, write_measurements,
-                                            write_overlay)
+    from capsmech.imaging.extraction import (
+        ExtractionError,
+        ExtractionSettings,
+        extract,
+        measure_capsules,
+        progress_printer,
+        read_frames,
+    )
+    from capsmech.imaging.extraction_output import (
+        PIXEL_UNITS_UM,
+        RATE_UNITS_HZ,
+        VISCOSITY_UNITS_PA_S,
+        default_ids,
+        parse_quantity,
+        write_frame_report,
+        write_measurements,
+        write_overlay,
+    )
 
     pixel_um = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um") if args.pixel_size else None
     rate = parse_quantity(args.frame_rate, "--frame-rate", RATE_UNITS_HZ, "Hz") if args.frame_rate else None

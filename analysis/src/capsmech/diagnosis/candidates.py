@@ -9,10 +9,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-
-from capsmech.io.database import TubeDatabase
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter
+from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
 

@@ -64,15 +64,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
+from capsmech.diagnosis.candidates import (
+    BlendedLaw,
+    Candidate,
+    DatabaseSet,
+    contour_offset_candidate,
+    tube_radius_candidate,
+)
+from capsmech.diagnosis.residuals import PreparedContour
+from capsmech.diagnosis.scoring import (
+    REFINE_EVALUATIONS,
+    BatchScore,
+    CandidateResult,
+    compare_supported,
+    evaluate_candidate,
+    noise_levels,
+    rivals_of,
+    score_batch,
+)
+from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.contours import contour_asymmetry
 from capsmech.io.database import TubeDatabase
-from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.measurements import Capsule
-from capsmech.diagnosis.residuals import PreparedContour
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet, contour_offset_candidate, tube_radius_candidate
-from capsmech.diagnosis.scoring import BatchScore, CandidateResult, REFINE_EVALUATIONS, compare_supported, evaluate_candidate, noise_levels, rivals_of, score_batch
-
 
 #: Effects of the library diagnose does not fit on tube batches, and why (in every report).
 NOT_ASSESSED: dict[str, str] = {

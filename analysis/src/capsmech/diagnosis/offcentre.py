@@ -35,6 +35,7 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from capsmech.diagnosis.residuals import PreparedContour
+from capsmech.errors import CapsmechError
 
 FORMAT = "capsmech-offcentre-table"
 #: Points of the antisymmetric mode along the meridian.
@@ -43,7 +44,7 @@ MODE_POINTS = 32
 SECOND_ORDER = {"L_z": "L_z", "L_p": "L_p", "vc_over_V": "v_c"}
 
 
-class OffcentreError(ValueError):
+class OffcentreError(CapsmechError, ValueError):
     """An off-centre table cannot be built or read; the message names the item."""
 
 

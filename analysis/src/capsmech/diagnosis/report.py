@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from capsmech.diagnosis.scoring import CandidateResult
     from capsmech.diagnosis.diagnose import Diagnosis
+    from capsmech.diagnosis.scoring import CandidateResult
 
 
 def _shown(diagnosis: Diagnosis) -> CandidateResult | None:
@@ -110,8 +110,8 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     """A Markdown report: the verdict, per candidate its parameter with the interval, the
     criteria and G_s before and after, the grids candidates need, and the figures (written
     whole: temporary name, then renamed)."""
-    from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, PROFILE_POINTS
     from capsmech.diagnosis.diagnose import NOT_ASSESSED
+    from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, PROFILE_POINTS
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -9,18 +9,16 @@ from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
 import numpy as np
-
 from scipy import stats
 from scipy.optimize import minimize, minimize_scalar
 
-from capsmech.io.database import TubeDatabase
+from capsmech.diagnosis.candidates import BlendedLaw, Candidate
+from capsmech.diagnosis.residuals import PreparedContour
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
-from capsmech.io.measurements import Capsule
 from capsmech.inversion.population import law_drift
-from capsmech.diagnosis.residuals import PreparedContour
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate
-
+from capsmech.io.database import TubeDatabase
+from capsmech.io.measurements import Capsule
 
 #: Points of each capsule's residual profile in the score.
 PROFILE_POINTS = 16

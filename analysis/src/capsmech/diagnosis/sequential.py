@@ -7,14 +7,25 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from scipy.optimize import minimize
 
+from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
+from capsmech.diagnosis.diagnose import (
+    Diagnosis,
+    _base_database,
+    diagnose,
+    fit_offcentre,
+    screen_asymmetric,
+)
+from capsmech.diagnosis.scoring import (
+    PROFILE_POINTS,
+    PROFILE_RISE,
+    _g_s_summary,
+    noise_levels,
+    score_batch,
+)
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
-from capsmech.diagnosis.diagnose import Diagnosis, _base_database, diagnose, fit_offcentre, screen_asymmetric
-from capsmech.diagnosis.scoring import PROFILE_POINTS, PROFILE_RISE, _g_s_summary, noise_levels, score_batch
 
 
 @dataclass

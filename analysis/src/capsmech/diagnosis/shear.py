@@ -59,8 +59,8 @@ from scipy.interpolate import PchipInterpolator
 from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, Evidence, rivals_of
 from capsmech.inversion.fitting import shear_inverter
 from capsmech.inversion.inverters import ShearInverter
-from capsmech.io.measurements import Capsule
 from capsmech.inversion.population import law_drift
+from capsmech.io.measurements import Capsule
 
 #: Default pixel size [m] when the batch has no ``pixel_size`` column, and the error bound
 #: of each semi-axis in pixels (uniform in [-e, e]).

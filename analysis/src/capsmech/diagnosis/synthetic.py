@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.workflow.grid import parse_law
 from capsmech.io.case import read_case
+from capsmech.workflow.grid import parse_law
 from capsmech.workflow.paths import capsim_executable
 
 
@@ -165,8 +165,8 @@ def offcentre_hybrid(axisymmetric: SimulatedCapsule, off_axis: str | Path, centr
     """
     from scipy.spatial import cKDTree
 
-    from capsmech.io.contours import resample_curve
     from capsmech.imaging.mesh_section import plane_section
+    from capsmech.io.contours import resample_curve
 
     moved, still = read_case(off_axis), read_case(centred)
     r_c = float(moved.history["r_c"][-1])

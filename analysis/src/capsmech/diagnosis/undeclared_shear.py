@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.workflow.grid import parse_law
-from capsmech.io.case import read_case
-from capsmech.workflow.paths import capsim_executable
 from capsmech.diagnosis.undeclared_tube import write_truth
+from capsmech.io.case import read_case
+from capsmech.workflow.grid import parse_law
+from capsmech.workflow.paths import capsim_executable
 
 CA_S = (0.25, 0.62)
 RADIUS_UM = (40.0, 50.0)

@@ -30,7 +30,12 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.diagnosis.candidates import offset_contour
-from capsmech.diagnosis.synthetic import SimulatedCapsule, simulate_tube, tube_batch, write_tube_csv
+from capsmech.diagnosis.synthetic import (
+    SimulatedCapsule,
+    simulate_tube,
+    tube_batch,
+    write_tube_csv,
+)
 
 #: Where capsules are drawn (NH tube database steady and well inside its nodes).
 A_OVER_L = (0.87, 1.03)

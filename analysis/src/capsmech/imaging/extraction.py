@@ -52,13 +52,14 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from capsmech.errors import CapsmechError
 
 #: Gaussian smoothing (px) of the contrast before objects are detected, and before edges are traced.
 DETECTION_SMOOTHING_PX = 1.0
 CONTOUR_SMOOTHING_PX = 0.6
 
 
-class ExtractionError(ValueError):
+class ExtractionError(CapsmechError, ValueError):
     """Frames that cannot be read or measured; the message names the file and the problem."""
 
 

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from capsmech.errors import CapsmechError
 
-class SectionError(ValueError):
+
+class SectionError(CapsmechError, ValueError):
     """The plane does not cut the surface in one closed curve."""
 
 

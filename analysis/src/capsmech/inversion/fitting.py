@@ -21,12 +21,24 @@ from typing import Any
 import h5py
 import numpy as np
 
-from capsmech.io.contours import MAX_ASYMMETRY, MAX_H_OVER_A, contour_asymmetry, profile_misfit
-from capsmech.io.database import Database, ShearDatabase, TubeDatabase
-from capsmech.inversion.inverters import (FIVE_FITS, FiveFits, ShearInverter, TubeFits, TubeInverter, TubeTable,
-                              profile_elongation)
-from capsmech.io.measurements import Capsule
 from capsmech.diagnosis.residuals import size_residual, velocity_residual
+from capsmech.inversion.inverters import (
+    FIVE_FITS,
+    FiveFits,
+    ShearInverter,
+    TubeFits,
+    TubeInverter,
+    TubeTable,
+    profile_elongation,
+)
+from capsmech.io.contours import (
+    MAX_ASYMMETRY,
+    MAX_H_OVER_A,
+    contour_asymmetry,
+    profile_misfit,
+)
+from capsmech.io.database import Database, ShearDatabase, TubeDatabase
+from capsmech.io.measurements import Capsule
 
 #: Result columns and their units.
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsmech.io.database import ShearDatabase
 from capsmech.inversion.fitting import shear_inverter
 from capsmech.inversion.inverters import ShearInverter
+from capsmech.io.database import ShearDatabase
 
 #: The section 4.3 capsule: D12, radius [m], shear rate [1/s], outer viscosity [Pa s].
 PAPER_EXAMPLE = {"D12": 0.38, "a": 45e-6, "shear_rate": 350.0, "mu": 0.756}

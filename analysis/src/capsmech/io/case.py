@@ -34,6 +34,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from capsmech.errors import CapsmechError
+
 #: The only case-file schema version this reader understands.
 SCHEMA_VERSION = 1
 
@@ -68,14 +70,14 @@ EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0, "kb": 0.0, "offset": 0.0}
 EFFECT_ATTRS = {"kb": "k_b"}
 
 
-class CaseFileError(ValueError):
+class CaseFileError(CapsmechError, ValueError):
     """A case file is missing pieces, malformed, truncated or not HDF5.
 
     The message always names the file and what is wrong with it.
     """
 
 
-class NotSteadyError(RuntimeError):
+class NotSteadyError(CapsmechError, RuntimeError):
     """A steady-state value was requested from a case that did not reach steady state."""
 
 

@@ -30,6 +30,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
+from capsmech.errors import CapsmechError
+
 #: The paper's limit on the profile misfit H/a (section 4.2).
 MAX_H_OVER_A = 0.06
 #: Contours whose mirrored halves differ (mean distance) by more than this fraction of a, and
@@ -47,7 +49,7 @@ MIN_CONTOUR_POINTS = 8
 _SEPARATOR = re.compile(r"[\s,;]+")
 
 
-class ContourError(ValueError):
+class ContourError(CapsmechError, ValueError):
     """A contour file that cannot be read; the message names file and line."""
 
 

@@ -36,8 +36,21 @@ import h5py
 import numpy as np
 
 from capsmech import __version__
-from capsmech.workflow.grid import Case, expand_cases, flow_settings, grid_json, parse_law
-from capsmech.io.case import EFFECT_DEFAULTS, STATUSES, CaseResult, decode_str, require_hdf5_file
+from capsmech.errors import CapsmechError
+from capsmech.io.case import (
+    EFFECT_DEFAULTS,
+    STATUSES,
+    CaseResult,
+    decode_str,
+    require_hdf5_file,
+)
+from capsmech.workflow.grid import (
+    Case,
+    expand_cases,
+    flow_settings,
+    grid_json,
+    parse_law,
+)
 from capsmech.workflow.runner import read_outcome
 
 FORMAT = "capsmech-database"
@@ -60,7 +73,7 @@ LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
 TEXT_COLUMNS = ("status", "message")
 
 
-class DatabaseError(ValueError):
+class DatabaseError(CapsmechError, ValueError):
     """A database cannot be assembled or loaded; the message names the file and the item."""
 
 

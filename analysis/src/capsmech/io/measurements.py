@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capsmech.errors import CapsmechError
 from capsmech.io.contours import ContourError, read_contour
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
@@ -72,7 +73,7 @@ UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOS
 HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 
 
-class MeasurementError(ValueError):
+class MeasurementError(CapsmechError, ValueError):
     """A measurement file that cannot be read; the message names file, line and field."""
 
 

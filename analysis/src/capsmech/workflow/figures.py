@@ -25,7 +25,13 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from capsmech.io.database import Database, LawTable, ShearDatabase, TubeDatabase, load_database
+from capsmech.io.database import (
+    Database,
+    LawTable,
+    ShearDatabase,
+    TubeDatabase,
+    load_database,
+)
 
 GH_LAWS = ("GH_nu0.5", "GH_nu0.2", "GH_nu0")
 K3_LAWS = ("NH", "SK_C1", "GH_nu0.5")

@@ -24,6 +24,7 @@ from typing import Any
 
 import yaml
 
+from capsmech.errors import CapsmechError
 from capsmech.workflow.paths import repo_root
 
 FLOWS = ("tube", "shear")
@@ -56,7 +57,7 @@ EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear", "tube"), "kb
 EFFECT_TUBE_MODELS = {"offset": ("3d",), "lambda": ("axi", "3d")}
 
 
-class GridError(ValueError):
+class GridError(CapsmechError, ValueError):
     """A grid is malformed; the message names the offending key."""
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import h5py
 
+from capsmech.errors import CapsmechError
 from capsmech.io.case import CaseResult, decode_str, read_case
 
 #: Root attribute value that marks a failure record written by :func:`run_case`.
@@ -39,7 +40,7 @@ FAILURE_RECORD = "capsim_failure"
 _CODE_VERSION = re.compile(r"code_version\s*=\s*'([^']*)'")
 
 
-class CaseRunError(RuntimeError):
+class CaseRunError(CapsmechError, RuntimeError):
     """The case could not be run or recorded; the workflow job must fail."""
 
 
