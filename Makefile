@@ -25,7 +25,7 @@ PY      := $(VENV)/bin/python
 # Modules in dependency order (one concept per module, file name = module name). Each module
 # may use any module before it: compiling in list order is the dependency rule. Names not
 # (yet) present in kernel/src are skipped.
-MODULE_ORDER := capsim_kinds lapack_interfaces text_format file_ops command_args vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
+MODULE_ORDER := capsim_kinds lapack_interfaces text_format file_ops command_args option_table vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
            elliptic_integrals ring_stokeslet ring_stresslet membrane_law membrane_forces membrane_bending axisymmetric_membrane \
            axisymmetric_bending \
             stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \
@@ -74,11 +74,11 @@ test: setup
 	$(PY) -m pytest
 
 demo: setup
-	$(PY) -m capsmech.cli.main simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
-	$(PY) -m capsmech.cli.main show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
-	$(PY) -m capsmech.cli.main fit-tube data/examples/tube_batch_NH.csv --database data/databases/tube.h5 \
+	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
+	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
+	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database tube-paper \
 	    --law NH --law GH_nu0.5 --out demo/fit_tube_batch_NH.csv
-	$(PY) -m capsmech.cli.main population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
+	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
 
 bench: system-deps venv
 	$(MAKE) clean-kernel && $(MAKE) build OPT='-O3 -march=native'
@@ -100,15 +100,21 @@ SNAKEMAKE := $(VENV)/bin/snakemake -s workflow/Snakefile --configfile config/$(G
              --profile workflow/profiles/$(PROFILE)
 
 database: setup
-	$(PY) -m capsmech.cli.main unlock-stale .
+	$(PY) -m capsmech.cli dev unlock-stale .
 	$(SNAKEMAKE)
 
 # Redraw the figures from the grid's databases as they are (no case is run).
 figures: venv
-	$(PY) -m capsmech.cli.main figures --grid config/$(GRID).yaml
+	$(PY) -m capsmech.cli figures --grid config/$(GRID).yaml
 
 clean-kernel:
 	rm -rf build $(BIN)
 
 clean: clean-kernel
 	rm -rf $(VENV) demo
+
+# Documentation site (mkdocs.yml, docs/): the CLI and API pages are generated at build time;
+# --strict makes any warning (a broken link, a docstring griffe cannot read) an error.
+.PHONY: docs
+docs: venv
+	$(VENV)/bin/mkdocs build --strict -d site

@@ -1,11 +1,11 @@
 !> capsim: one capsule in Stokes flow (BIM-FEM), from the command line to an HDF5 case file.
 !> This is the program's edge: errors from the modules become one line on stderr and exit 2.
 program capsim
-   use, intrinsic :: iso_fortran_env, only: error_unit
+   use, intrinsic :: iso_fortran_env, only: error_unit, output_unit
    use omp_lib, only: omp_set_num_threads, omp_get_max_threads
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
-   use run_options, only: run_options_t, parse_command_line, usage_text
+   use run_options, only: run_options_t, parse_command_line, write_help
    use case_output, only: case_summary_t, open_case_file, close_case_file
    use capsule_model, only: capsule_model_t
    use capsule_dynamics, only: capsule_t
@@ -23,7 +23,7 @@ program capsim
 
    call parse_command_line(opts, stat, errmsg)
    if (opts%show_help) then
-      write (*, '(a)') usage_text
+      call write_help(output_unit)
       stop
    end if
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)

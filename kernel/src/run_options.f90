@@ -1,13 +1,16 @@
 !> Run parameters of capsim: read from the command line (and optionally a namelist file),
 !> validated field by field. Errors come back as (stat, errmsg) naming the field; the program
-!> turns them into one line on stderr and exit code 2.
+!> turns them into one line on stderr and exit code 2. The options themselves (names, units,
+!> help) are option_table's; bind_option ties each to its component here, for the parser and
+!> for the defaults that write_help prints.
 module run_options
    use capsim_kinds, only: dp
    use text_format, only: real_text, int_text
+   use option_table, only: option_spec_t, option_specs, option_index
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, usage_text
+   public :: run_options_t, parse_command_line, option_signature, write_help
 
    integer, parameter :: path_len = 1024
 
@@ -19,8 +22,9 @@ module run_options
       character(len=16) :: model = 'axi'
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
-      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, RK2 otherwise). Shear: 'auto' is
-      !> 'rk2'; 'implicit' takes linearly implicit ROS2 steps (capsule_dynamics).
+      !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, implicit steps otherwise and after
+      !> a failed Newton; see axisymmetric_tube). Shear and 3D tube: 'auto' is 'rk2'; shear
+      !> 'implicit' takes linearly implicit ROS2 steps (capsule_dynamics).
       integer :: n_meridian = 64
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
@@ -76,23 +80,17 @@ module run_options
       logical :: show_help = .false.
    end type run_options_t
 
-   character(len=*), parameter :: usage_text = &
-      'usage: capsim --flow shear|tube --law NH|SK|GH [--nu-s X] [--C X] --ca X [--lambda X] [--a-over-l X]'// &
-      ' [--model axi|3d] [--n-meridian N] [--tube-length X] [--integrator auto|newton|implicit|rk2]'// &
-      ' [--prestress ALPHA] [--kb X] [--offset X] [--offset-mode drift|held] [--level N] [--dt X]'// &
-      ' [--wall-h-far X] [--wall-h-centre X] [--wall-cache DIR|none] [--self-quadrature vertex|full]'// &
-      ' [--t-max X] [--threads N] [--checkpoint-every SECONDS] [--volume-correction on|off] [--quiet]'// &
-      ' --out FILE.h5'// &
-      '  (or --namelist FILE with group &capsim)'
-
 contains
 
+   !> Reads the options (a namelist file first, if --namelist is given, then the flags, which
+   !> override it) and validates them. Names come from option_table; unknown ones are errors.
    subroutine parse_command_line(opts, stat, errmsg)
       type(run_options_t), intent(out) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      integer :: k, n, eq
+      integer :: k, n, eq, i
       character(len=path_len) :: arg, key, value
+      character(len=:), allocatable :: shown
       logical :: has_value
 
       stat = 0
@@ -102,12 +100,16 @@ contains
       k = 1
       do while (k <= n)
          call get_command_argument(k, arg)
-         if (trim(arg) == '--namelist') then
-            if (k == n) then
-               call fail('--namelist', 'needs a file name')
-               return
+         if (trim(arg) == '--namelist' .or. arg(1:11) == '--namelist=') then
+            if (trim(arg) == '--namelist') then
+               if (k == n) then
+                  call fail('--namelist', 'needs a file name')
+                  return
+               end if
+               call get_command_argument(k + 1, value)
+            else
+               value = arg(12:)
             end if
-            call get_command_argument(k + 1, value)
             call read_namelist(trim(value), opts, stat, errmsg)
             if (stat /= 0) return
          end if
@@ -116,114 +118,40 @@ contains
       k = 1
       do while (k <= n)
          call get_command_argument(k, arg)
+         k = k + 1
          eq = index(arg, '=')
-         if (arg(1:2) /= '--') then
-            call fail(trim(arg), 'unexpected argument (options start with --)')
-            return
-         end if
-         if (eq > 0) then
+         if (arg(1:2) == '--' .and. eq > 0) then
             key = arg(:eq - 1)
             value = arg(eq + 1:)
             has_value = .true.
          else
             key = arg
+            value = ''
             has_value = .false.
          end if
-         select case (trim(key))
-         case ('--help', '-h')
-            opts%show_help = .true.
-            k = k + 1
-            cycle
-         case ('--quiet')
-            opts%quiet = .true.
-            k = k + 1
-            cycle
-         end select
-         if (.not. has_value) then
-            if (k == n) then
+         i = option_index(trim(key))
+         if (i == 0) then
+            if (key(1:1) /= '-') then
+               call fail(trim(arg), 'unexpected argument (options start with --)')
+            else
+               call fail(trim(key), 'unknown option')
+            end if
+            return
+         end if
+         if (len_trim(option_specs(i)%arg) == 0) then
+            if (has_value) then
+               call fail(trim(key), 'takes no value')
+               return
+            end if
+         else if (.not. has_value) then
+            if (k > n) then
                call fail(trim(key), 'needs a value')
                return
             end if
-            call get_command_argument(k + 1, value)
+            call get_command_argument(k, value)
             k = k + 1
          end if
-         k = k + 1
-         select case (trim(key))
-         case ('--namelist')
-            continue
-         case ('--flow')
-            opts%flow = value(:len(opts%flow))
-         case ('--law')
-            opts%law = value(:len(opts%law))
-         case ('--model')
-            opts%model = value(:len(opts%model))
-         case ('--a-over-l')
-            call read_real(key, value, opts%a_over_l)
-         case ('--integrator')
-            opts%integrator = value(:len(opts%integrator))
-         case ('--tube-length')
-            call read_real(key, value, opts%tube_length)
-         case ('--wall-h-far')
-            call read_real(key, value, opts%wall_h_far)
-         case ('--wall-h-centre')
-            call read_real(key, value, opts%wall_h_centre)
-         case ('--wall-cache')
-            opts%wall_cache = value
-            if (len_trim(value) == 0) call fail(trim(key), 'empty directory name (use none to disable the cache)')
-         case ('--self-quadrature')
-            opts%self_quadrature = value(:len(opts%self_quadrature))
-         case ('--n-meridian')
-            call read_int(key, value, opts%n_meridian)
-         case ('--out')
-            opts%out = value
-         case ('--nu-s')
-            call read_real(key, value, opts%nu_s)
-         case ('--C')
-            call read_real(key, value, opts%c)
-         case ('--ca')
-            call read_real(key, value, opts%ca)
-         case ('--lambda')
-            call read_real(key, value, opts%lambda)
-         case ('--dt')
-            call read_real(key, value, opts%dt)
-         case ('--dt-factor')
-            call read_real(key, value, opts%dt_factor)
-         case ('--newton-tol')
-            call read_real(key, value, opts%newton_tol)
-         case ('--t-max')
-            call read_real(key, value, opts%t_max)
-         case ('--steady-tol')
-            call read_real(key, value, opts%steady_tol)
-         case ('--max-length')
-            call read_real(key, value, opts%max_length)
-         case ('--record-every')
-            call read_real(key, value, opts%record_every)
-         case ('--checkpoint-every')
-            call read_real(key, value, opts%checkpoint_every)
-         case ('--volume-correction')
-            select case (trim(value))
-            case ('on', '1', 'yes')
-               opts%volume_correction = .true.
-            case ('off', '0', 'no')
-               opts%volume_correction = .false.
-            case default
-               call fail(trim(key), 'expected on or off, got "'//trim(value)//'"')
-            end select
-         case ('--level')
-            call read_int(key, value, opts%level)
-         case ('--prestress')
-            call read_real(key, value, opts%prestress)
-         case ('--kb')
-            call read_real(key, value, opts%kb)
-         case ('--offset')
-            call read_real(key, value, opts%offset)
-         case ('--offset-mode')
-            opts%offset_mode = value
-         case ('--threads')
-            call read_int(key, value, opts%threads)
-         case default
-            call fail(trim(key), 'unknown option')
-         end select
+         call bind_option(opts, trim(option_specs(i)%name), .true., value, shown, stat, errmsg)
          if (stat /= 0) return
       end do
       if (opts%show_help) return
@@ -237,28 +165,276 @@ contains
          errmsg = field//': '//reason
       end subroutine fail
 
-      subroutine read_real(field, text, x)
-         character(len=*), intent(in) :: field, text
+   end subroutine parse_command_line
+
+   !> The one binding of each option of option_table to its component of run_options_t, both
+   !> ways: with `set`, reads `text` into the component (stat = 2 and errmsg naming the option
+   !> for a bad value); without, writes the component's value into `shown` (the help prints the
+   !> defaults so). An option of the table without a case here is a bug: stat = 3.
+   subroutine bind_option(opts, name, set, text, shown, stat, errmsg)
+      type(run_options_t), intent(inout) :: opts
+      character(len=*), intent(in) :: name
+      logical, intent(in) :: set
+      character(len=*), intent(in) :: text
+      character(len=:), allocatable, intent(out) :: shown
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+
+      stat = 0
+      errmsg = ''
+      shown = ''
+      select case (name)
+      case ('--help')
+         call flag_field(opts%show_help)
+      case ('--quiet')
+         call flag_field(opts%quiet)
+      case ('--namelist')
+         ! Read before the flags (parse_command_line); nothing is left to set.
+         continue
+      case ('--flow')
+         call word_field(opts%flow)
+      case ('--law')
+         call word_field(opts%law)
+      case ('--model')
+         call word_field(opts%model)
+      case ('--a-over-l')
+         call real_field(opts%a_over_l)
+      case ('--integrator')
+         call word_field(opts%integrator)
+      case ('--tube-length')
+         call real_field(opts%tube_length)
+      case ('--wall-h-far')
+         call real_field(opts%wall_h_far)
+      case ('--wall-h-centre')
+         call real_field(opts%wall_h_centre)
+      case ('--wall-cache')
+         if (set .and. len_trim(text) == 0) then
+            call fail('empty directory name (use none to disable the cache)')
+         else
+            call word_field(opts%wall_cache)
+         end if
+      case ('--self-quadrature')
+         call word_field(opts%self_quadrature)
+      case ('--n-meridian')
+         call int_field(opts%n_meridian)
+      case ('--out')
+         call word_field(opts%out)
+      case ('--nu-s')
+         call real_field(opts%nu_s)
+      case ('--C')
+         call real_field(opts%c)
+      case ('--ca')
+         call real_field(opts%ca)
+      case ('--lambda')
+         call real_field(opts%lambda)
+      case ('--dt')
+         call real_field(opts%dt)
+      case ('--dt-factor')
+         call real_field(opts%dt_factor)
+      case ('--newton-tol')
+         call real_field(opts%newton_tol)
+      case ('--t-max')
+         call real_field(opts%t_max)
+      case ('--steady-tol')
+         call real_field(opts%steady_tol)
+      case ('--max-length')
+         call real_field(opts%max_length)
+      case ('--record-every')
+         call real_field(opts%record_every)
+      case ('--checkpoint-every')
+         call real_field(opts%checkpoint_every)
+      case ('--volume-correction')
+         call switch_field(opts%volume_correction)
+      case ('--level')
+         call int_field(opts%level)
+      case ('--prestress')
+         call real_field(opts%prestress)
+      case ('--kb')
+         call real_field(opts%kb)
+      case ('--offset')
+         call real_field(opts%offset)
+      case ('--offset-mode')
+         call word_field(opts%offset_mode)
+      case ('--threads')
+         call int_field(opts%threads)
+      case default
+         stat = 3
+         errmsg = name//': in option_table but not bound to a field of run_options_t'
+      end select
+
+   contains
+
+      subroutine fail(reason)
+         character(len=*), intent(in) :: reason
+         stat = 2
+         errmsg = name//': '//reason
+      end subroutine fail
+
+      !> A word or a path; a longer value is cut to the component's length.
+      subroutine word_field(s)
+         character(len=*), intent(inout) :: s
+         if (set) then
+            s = text
+         else
+            shown = trim(s)
+         end if
+      end subroutine word_field
+
+      subroutine real_field(x)
          real(dp), intent(inout) :: x
          integer :: ios
+         if (.not. set) then
+            shown = short_real_text(x)
+            return
+         end if
          read (text, *, iostat=ios) x
          if (ios /= 0 .or. len_trim(text) == 0) then
-            call fail(trim(field), 'not a number: "'//trim(text)//'"')
+            call fail('not a number: "'//trim(text)//'"')
          else if (.not. ieee_is_finite(x)) then
-            call fail(trim(field), 'must be finite (got "'//trim(text)//'")')
+            call fail('must be finite (got "'//trim(text)//'")')
          end if
-      end subroutine read_real
+      end subroutine real_field
 
-      subroutine read_int(field, text, i)
-         character(len=*), intent(in) :: field, text
+      subroutine int_field(i)
          integer, intent(inout) :: i
          integer :: ios
+         if (.not. set) then
+            shown = int_text(i)
+            return
+         end if
          read (text, *, iostat=ios) i
          if (ios /= 0 .or. len_trim(text) == 0 .or. verify(trim(adjustl(text)), '+-0123456789') /= 0) &
-            call fail(trim(field), 'not an integer: "'//trim(text)//'"')
-      end subroutine read_int
+            call fail('not an integer: "'//trim(text)//'"')
+      end subroutine int_field
 
-   end subroutine parse_command_line
+      !> on|off (also 1|0, yes|no).
+      subroutine switch_field(on)
+         logical, intent(inout) :: on
+         if (.not. set) then
+            shown = merge('on ', 'off', on)
+            shown = trim(shown)
+            return
+         end if
+         select case (trim(text))
+         case ('on', '1', 'yes')
+            on = .true.
+         case ('off', '0', 'no')
+            on = .false.
+         case default
+            call fail('expected on or off, got "'//trim(text)//'"')
+         end select
+      end subroutine switch_field
+
+      !> A flag without a value: given, it is on.
+      subroutine flag_field(on)
+         logical, intent(inout) :: on
+         if (set) then
+            on = .true.
+         else
+            shown = trim(merge('on ', 'off', on))
+         end if
+      end subroutine flag_field
+
+   end subroutine bind_option
+
+   !> `capsim --help`: a usage line, the scales, then every option of option_table, group by
+   !> group, one line each: name, argument, help, [unit], (default: ...). The defaults are the
+   !> components of a default-initialised run_options_t, shown through bind_option.
+   subroutine write_help(unit)
+      integer, intent(in) :: unit
+      type(run_options_t) :: defaults
+      type(option_spec_t) :: spec
+      character(len=len(spec%group)) :: group
+      character(len=:), allocatable :: shown, errmsg, head, default_text
+      integer :: i, stat, width
+
+      write (unit, '(a)') 'usage: capsim --flow shear|tube --law NH|SK|GH --ca VALUE [--a-over-l VALUE] --out FILE.h5 [options]'
+      write (unit, '(a)') '       capsim --namelist FILE [options]      capsim --help'
+      write (unit, '(a)') 'Scales: lengths in a (capsule radius, shear) or l (tube radius, tube); time in 1/gamma_dot'// &
+         ' (shear) or l/V (tube, V mean velocity); forces in G_s (surface shear modulus).'
+      write (unit, '(a)') 'Options take their value as the next argument or after "=" (--ca=0.1).'
+      ! The help text starts one column after the longest "-h, --name ARG".
+      width = 0
+      do i = 1, size(option_specs)
+         width = max(width, len(option_head(option_specs(i))))
+      end do
+      group = ''
+      do i = 1, size(option_specs)
+         spec = option_specs(i)
+         if (spec%group /= group) then
+            group = spec%group
+            write (unit, '(/,a)') trim(group)//':'
+         end if
+         call bind_option(defaults, trim(spec%name), .false., '', shown, stat, errmsg)
+         if (stat /= 0) shown = '? ('//errmsg//')'
+         if (spec%required) then
+            default_text = trim('required '//spec%default_note)
+         else if (len(shown) == 0) then
+            default_text = trim(spec%default_note)
+            if (len(default_text) == 0) default_text = 'none'
+         else
+            default_text = trim(shown//' '//spec%default_note)
+         end if
+         head = option_head(spec)
+         head = head//repeat(' ', width - len(head))
+         if (len_trim(spec%unit) > 0) then
+            write (unit, '(a)') '  '//head//' '//trim(spec%help)//' ['//trim(spec%unit)//'] (default: '//default_text//')'
+         else
+            write (unit, '(a)') '  '//head//' '//trim(spec%help)//' (default: '//default_text//')'
+         end if
+      end do
+   end subroutine write_help
+
+   !> "-h, --name ARG" of the help.
+   pure function option_head(spec) result(head)
+      type(option_spec_t), intent(in) :: spec
+      character(len=:), allocatable :: head
+      head = trim(spec%name)
+      if (len_trim(spec%short) > 0) head = trim(spec%short)//', '//head
+      if (len_trim(spec%arg) > 0) head = head//' '//trim(spec%arg)
+   end function option_head
+
+   !> A default value for the help: up to 6 significant digits, trailing zeros dropped
+   !> (10, 0.5, 0.14, 1e-08).
+   function short_real_text(x) result(s)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: s
+      character(len=32) :: buf
+      integer :: e
+      if (x == 0.0_dp) then
+         s = '0'
+         return
+      end if
+      if (abs(x) >= 1.0e-3_dp .and. abs(x) < 1.0e6_dp) then
+         write (buf, '(f0.6)') x
+         s = trim(adjustl(buf))
+         do while (s(len(s):len(s)) == '0')
+            s = s(:len(s) - 1)
+         end do
+         if (s(len(s):len(s)) == '.') s = s(:len(s) - 1)
+         if (s(1:1) == '.') s = '0'//s
+         if (s(1:2) == '-.') s = '-0'//s(2:)
+      else
+         write (buf, '(es13.5e3)') x
+         buf = adjustl(buf)
+         e = index(buf, 'E')
+         s = buf(:e - 1)
+         do while (s(len(s):len(s)) == '0')
+            s = s(:len(s) - 1)
+         end do
+         if (s(len(s):len(s)) == '.') s = s(:len(s) - 1)
+         ! Exponent without its leading zeros and plus sign: E-008 -> e-8.
+         s = s//'e'//trim(merge('-', ' ', buf(e + 1:e + 1) == '-'))//int_text(abs(exponent_of(buf(e + 1:))))
+      end if
+
+   contains
+
+      integer function exponent_of(t)
+         character(len=*), intent(in) :: t
+         read (t, *) exponent_of
+      end function exponent_of
+
+   end function short_real_text
 
    subroutine read_namelist(path, opts, stat, errmsg)
       character(len=*), intent(in) :: path
