@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.cli.main import main
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.imaging.rendering import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
 
@@ -32,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def rendered_stack(n_frames: int) -> np.ndarray:
     """n_frames of capsules crossing the field one after the other (40 frames each)."""
-    rows = load_database(REPO / "data" / "databases" / "tube.h5").law("NH").steady_rows()
+    rows = load_database(database_path("tube-paper")).law("NH").steady_rows()
     i = int(np.argmin(np.abs(rows["a_over_l"] - 0.9) + np.abs(rows["Ca_s"] - 0.06)))
     outline = outline_from_meridian(rows["profile_r"][i], rows["profile_z"][i])
     style = FrameStyle(shape=(200, 400), tube_radius_px=60.0)
@@ -66,7 +67,7 @@ def accuracy(radius_px: float = 60.0, n_frames: int = 6) -> None:
     from capsmech.imaging.extraction import FrameStack, extract
     from capsmech.imaging.rendering import drawn_lengths, render_stack
 
-    database = load_database(REPO / "data" / "databases" / "tube.h5")
+    database = load_database(database_path("tube-paper"))
     errors = []
     for law in database.laws:
         rows = database.law(law).steady_rows()

@@ -1,7 +1,7 @@
 """Time the batch tube inversion (issue 5: 10^5 capsules, lengths only, under 10 s on 2 cores).
 
 The capsules are drawn uniformly in the NH steady region of the paper database
-(data/databases/tube.h5) in (a/l, ln Ca_s), their lengths linear in the database's Delaunay
+(tube-paper) in (a/l, ln Ca_s), their lengths linear in the database's Delaunay
 triangles, with 2 % Gaussian noise on L_z and L_p. Timed: ``TubeInverter.fit_many`` on all
 of them in one process, then split into 2 chunks on 2 processes (ProcessPoolExecutor, forked
 after the inverter is built; the pool's start is included), and the scalar reference
@@ -22,12 +22,13 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter
 
 REPO = Path(__file__).resolve().parents[1]
-DATABASE = REPO / "data" / "databases" / "tube.h5"
+DATABASE = database_path("tube-paper")
 LAW = "NH"
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.measurements import read_measurements
@@ -22,8 +23,8 @@ BATCHES = ROOT / "data" / "examples" / "undeclared"
 
 
 def main() -> int:
-    table = OffcentreTable.read(ROOT / "data" / "databases" / "effects" / "offcentre" / "table.h5")
-    inverter = tube_inverter(load_database(ROOT / "data" / "databases" / "tube.h5"), "NH")
+    table = OffcentreTable.read(database_path("offcentre"))
+    inverter = tube_inverter(load_database(database_path("tube-paper")), "NH")
     print("| capsule | truth a/l, Ca_s | truth r_c [l] | fitted b [l] (interval) | G_s error as centred | G_s error with b |")
     print("|---|---|---|---|---|---|")
     for name in ("batch_O", "batch_O0"):

@@ -2,14 +2,14 @@
 finds against the truth (the README's before/after table, issue 7).
 
 For each batch: the effect library of ``capsmech diagnose`` (contour offset, tube radius,
-pre-stress and bending stiffness from data/databases/effects/*/tube.h5, every other law of
+pre-stress and bending stiffness from the shipped tube-prestress and tube-kb, every other law of
 the tube database), base law NH, diagnosed sequentially (``diagnose_sequential``: a second
 effect after fixing the first). Columns: the truth, the first chosen candidate and its value
 with the interval, the second effect found (or none), the relative error of the batch's mean
 G_s against the truth before (base fit) and after (every effect found), and chi2 before and
 after the first. Reports (first round) with figures go to --reports.
 
-    PYTHONPATH=analysis/src .venv/bin/python scripts/undeclared_table.py [--readme] [--only batch_A]
+    PYTHONPATH=analysis/src .venv/bin/python scripts/undeclared_table.py [--readme]  (--readme: into docs/validation/diagnosis.md) [--only batch_A]
 """
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from capsmech.io.catalog import database_path, effect_database_paths
 from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
 from capsmech.diagnosis.sequential import diagnose_sequential
@@ -29,8 +30,7 @@ from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
-DATABASES = [ROOT / "data" / "databases" / "tube.h5",
-             *sorted((ROOT / "data" / "databases" / "effects").glob("*/tube.h5"))]
+DATABASES = [database_path("tube-paper"), *effect_database_paths()]
 BEGIN, END = "<!-- undeclared-table: scripts/undeclared_table.py -->", "<!-- /undeclared-table -->"
 
 
@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", action="append",
                         help="batch name (repeatable; default all); the other rows are kept from the last run's table.json")
-    parser.add_argument("--readme", action="store_true", help="write the table into README.md between its markers")
+    parser.add_argument("--readme", action="store_true", help="write the table into docs/validation/diagnosis.md between its markers")
     parser.add_argument("--reports", type=Path, default=ROOT / "results" / "undeclared", help="report folder")
     args = parser.parse_args(argv)
     databases = DatabaseSet([load_database(path) for path in DATABASES if path.is_file()])
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     saved.write_text(json.dumps(rows, indent=1))
     if args.readme:
-        readme = ROOT / "README.md"
+        readme = ROOT / "docs" / "validation" / "diagnosis.md"
         text = readme.read_text(encoding="utf-8")
         if BEGIN not in text or END not in text:
             raise SystemExit(f"{readme}: no table markers {BEGIN} ... {END}")

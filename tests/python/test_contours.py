@@ -19,16 +19,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.contours import (ContourError, full_profile, modified_hausdorff, profile_misfit, read_contour,
                                symmetry_axis)
 from capsmech.io.database import load_database
-from capsmech.inversion.fitting import fit_tube
+from capsmech.inversion.fitting import fit_tube_rows
 from capsmech.io.measurements import Capsule, MeasurementError, read_measurements
 from capsmech.diagnosis.synthetic import noisy_contour
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "data" / "examples"
-DEV_TUBE = ROOT / "data" / "databases" / "tube.h5"
+DEV_TUBE = database_path("tube-paper")
 
 
 def ellipse(cx: float, cy: float, ax: float, ay: float, n: int = 400) -> np.ndarray:
@@ -123,7 +124,7 @@ def dev_tube():
 
 
 def test_synthetic_nh_batch_fits_its_contours(nh_batch, dev_tube):
-    rows = fit_tube(nh_batch, dev_tube, ["NH"])
+    rows = fit_tube_rows(nh_batch, dev_tube, ["NH"])
     h_over_a = np.array([row["H_over_a"] for row in rows])
     asymmetry = np.array([row["asymmetry"] for row in rows])
     assert np.all(h_over_a < 0.06), h_over_a
@@ -140,7 +141,7 @@ def test_wider_or_lopsided_contours_are_flagged(nh_batch, dev_tube):
     lopsided = capsule.contour.copy()
     upper = lopsided[:, 1] > axis
     lopsided[upper, 1] = axis + 1.15 * (lopsided[upper, 1] - axis)  # one half 15 % wider
-    rows = fit_tube([Capsule(capsule.id, capsule.values, capsule.line, wider),
+    rows = fit_tube_rows([Capsule(capsule.id, capsule.values, capsule.line, wider),
                      Capsule(capsule.id, capsule.values, capsule.line, lopsided)], dev_tube, ["NH"])
-    assert rows[0]["H_over_a"] > 0.06 and rows[0]["flag"].startswith("profile misfit")
-    assert rows[1]["asymmetry"] > 0.0115 and rows[1]["flag"].startswith("asymmetric contour")
+    assert rows[0]["H_over_a"] > 0.06 and rows[0]["flag"] == "profile_misfit" and rows[0]["reason"].startswith("profile misfit")
+    assert rows[1]["asymmetry"] > 0.0115 and rows[1]["flag"] == "asymmetric" and rows[1]["reason"].startswith("asymmetric contour")

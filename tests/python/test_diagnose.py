@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import contour_offset_candidate, offset_contour, tube_radius_candidate
 from capsmech.diagnosis.diagnose import diagnose
@@ -34,7 +35,7 @@ def batch():
 
 @pytest.fixture(scope="module")
 def database():
-    return load_database(ROOT / "data" / "databases" / "tube.h5")
+    return load_database(database_path("tube-paper"))
 
 
 def candidates():

@@ -13,16 +13,17 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.imaging.extraction import ExtractionError, FrameStack, extract, measure_capsules, read_frames
-from capsmech.inversion.fitting import fit_tube
+from capsmech.inversion.fitting import fit_tube_rows
 from capsmech.io.measurements import read_measurements
 from capsmech.imaging.rendering import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
                                  render_stack, write_tiff_stack)
 from capsmech.diagnosis.synthetic import simulate_tube
 
 REPO = Path(__file__).resolve().parents[2]
-TUBE_DB = REPO / "data" / "databases" / "tube.h5"
+TUBE_DB = database_path("tube-paper")
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +145,7 @@ def test_image_to_contour_to_fit_recovers_g_s(tube_db, tmp_path, law, a_over_l, 
     assert (tmp_path / "overlay" / "capsule.png").stat().st_size > 10_000
     measured = read_measurements(out, "tube")
     assert measured[0].contour is not None and len(measured[0].contour) > 100
-    (fit,) = fit_tube(measured, tube_db, [law])
+    (fit,) = fit_tube_rows(measured, tube_db, [law])
     assert not fit["flag"], fit["flag"]
     assert fit["G_s"] == pytest.approx(g_s, rel=0.05)
     # The written contour is the fitted profile (modified Hausdorff distance; paper's limit 0.06)
@@ -155,7 +156,7 @@ def test_image_to_contour_to_fit_recovers_g_s(tube_db, tmp_path, law, a_over_l, 
     exact.write_text("id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s]\n"
                      f"x,{capsule.L_z * radius_px * pixel_um},{capsule.L_p * radius_px * pixel_um},"
                      f"{v_c * 1e3},{radius_px * pixel_um},{mu}\n")
-    (reference,) = fit_tube(read_measurements(exact, "tube"), tube_db, [law])
+    (reference,) = fit_tube_rows(read_measurements(exact, "tube"), tube_db, [law])
     assert fit["G_s"] == pytest.approx(reference["G_s"], rel=0.015)
 
 

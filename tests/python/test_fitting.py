@@ -3,7 +3,7 @@
 spread pattern of Table 1, and law discrimination on the synthetic example batches
 (data/examples, made by scripts/make_examples.py).
 
-The databases are the paper grid's (data/databases/tube.h5, shear.h5), made by the workflow."""
+The databases are the paper grid's (shipped as tube-paper, shear-paper), made by the workflow."""
 from __future__ import annotations
 
 import csv
@@ -12,15 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.inversion.fitting import fit_tube, shear_inverter
+from capsmech.inversion.fitting import fit_tube_rows, shear_inverter
 from capsmech.io.measurements import read_measurements
-from capsmech.inversion.population import population
+from capsmech.inversion.population import population_verdict
 from capsmech.diagnosis.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 REPO = Path(__file__).resolve().parents[2]
-TUBE_DB = REPO / "data" / "databases" / "tube.h5"
-SHEAR_DB = REPO / "data" / "databases" / "shear.h5"
+TUBE_DB = database_path("tube-paper")
+SHEAR_DB = database_path("shear-paper")
 G_S = 0.04      # modulus of the synthetic capsules [N/m]
 EXAMPLES = REPO / "data" / "examples"
 
@@ -41,7 +42,7 @@ def test_paper_shear_example(law, expected):
 def fit_simulated(tube_db, capsules, laws, noise=0.0, seed=0, tmp_path=None):
     rows = tube_batch(capsules, g_s=G_S, noise=noise, seed=seed)
     path = write_tube_csv(rows, tmp_path / f"batch{seed}.csv")
-    return fit_tube(read_measurements(path, "tube"), tube_db, laws)
+    return fit_tube_rows(read_measurements(path, "tube"), tube_db, laws)
 
 
 # Away from the end of the NH steady branch (a/l = 0.97, Ca_s = 0.11 has L_z = 3.5 l, where
@@ -84,8 +85,9 @@ def read_truth(path):
 @pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
 def test_example_batch_is_attributed_to_the_law_that_made_it(tube_db, law):
     capsules = read_measurements(EXAMPLES / f"tube_batch_{law}.csv", "tube")
-    rows = fit_tube(capsules, tube_db, ["NH", "GH_nu0.5"])
-    drifts, best = population(rows)
+    rows = fit_tube_rows(capsules, tube_db, ["NH", "GH_nu0.5"])
+    verdict = population_verdict(rows)
+    drifts, best = verdict.drifts, verdict.best
     assert best == law, {k: (d.slope, d.p_value) for k, d in drifts.items()}
     truth = read_truth(EXAMPLES / f"tube_batch_{law}_truth.csv")
     errors = [abs(r["G_s"] / float(truth[r["id"]]["G_s [N/m]"]) - 1) for r in rows if r["law"] == law and not r["flag"]]

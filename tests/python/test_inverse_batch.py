@@ -16,13 +16,14 @@ import pytest
 from scipy.interpolate import LinearNDInterpolator
 
 from capsmech.inversion import inverters as inverse
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.inversion.fitting import fit_tube, tube_inverter
+from capsmech.inversion.fitting import fit_tube_rows, tube_inverter
 from capsmech.inversion.inverters import FIVE_FITS, TubeInverter, TubeTable
 from capsmech.io.measurements import read_measurements
 
 REPO = Path(__file__).resolve().parents[2]
-TUBE_DB = REPO / "data" / "databases" / "tube.h5"
+TUBE_DB = database_path("tube-paper")
 EXAMPLES = REPO / "data" / "examples"
 FIELDS = ("a_over_l", "Ca_s", "G_s", "vc_over_V")
 
@@ -125,10 +126,10 @@ def test_fit_many_equals_fit_on_the_paper_database_nodes(tube_db):
 
 @pytest.mark.parametrize("batch", ["NH", "GH_nu0.5"])
 def test_fit_tube_rows_are_the_capsules_five_fits(tube_db, batch):
-    # fit_tube fits all capsules at once; each row's statistics are those of the capsule's
+    # fit_tube_rows fits all capsules at once; each row's statistics are those of the capsule's
     # own five fits by the reference fit.
     capsules = read_measurements(EXAMPLES / f"tube_batch_{batch}.csv", "tube")
-    rows = fit_tube(capsules, tube_db, ["NH", "GH_nu0.5"])
+    rows = fit_tube_rows(capsules, tube_db, ["NH", "GH_nu0.5"])
     inverters = {law: tube_inverter(tube_db, law) for law in ("NH", "GH_nu0.5")}
     for k, capsule in enumerate(capsules):
         l = capsule["tube_radius"]

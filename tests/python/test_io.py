@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 import capsmech
-from capsmech.cli.main import main, out_path_from_args
+from capsmech.cli.case import out_path_from_args
+from capsmech.cli.main import main
 from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
 from capsmech.workflow.paths import capsim_executable, repo_root
 

@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.inversion.fitting import shear_inverter
 from capsmech.inversion.microrheometry import PAPER_EXAMPLE, compare_methods, modulus_ratio
 
 REPO = Path(__file__).resolve().parents[2]
-SHEAR_DB = REPO / "data" / "databases" / "shear.h5"
-LAMBDA_DB = REPO / "data" / "databases" / "microrheometry" / "shear.h5"
+SHEAR_DB = database_path("shear-paper")
+LAMBDA_DB = database_path("shear-microrheometry")
 LAWS = ("NH", "GH_nu0.5", "GH_nu0.2")
 SUFFIX = "+lambda0.001"
 

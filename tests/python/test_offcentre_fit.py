@@ -1,6 +1,6 @@
 """The off-centre position fitted per capsule (issue 7; ``capsmech.diagnosis.offcentre``).
 
-data/databases/effects/offcentre/table.h5 (``scripts/make_offcentre_table.py``) holds the
+the shipped off-centre table (``offcentre``, ``scripts/make_offcentre_table.py``) holds the
 antisymmetric mode of a capsule held 0.025 l off the axis, from the 3D tube kernel at level 3
 over a/l 0.7-0.85 x Ca_s 0.035-0.14. data/examples/undeclared/batch_O.csv
 (``scripts/make_offcentre_batch.py``) holds ten capsules released 0.05-0.1 l off the axis and
@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import contour_offset_candidate, tube_radius_candidate
 from capsmech.diagnosis.diagnose import diagnose
@@ -32,8 +33,8 @@ from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable, fit_off
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
-TUBE = ROOT / "data" / "databases" / "tube.h5"
-TABLE = ROOT / "data" / "databases" / "effects" / "offcentre" / "table.h5"
+TUBE = database_path("tube-paper")
+TABLE = database_path("offcentre")
 G_S = 0.04
 
 

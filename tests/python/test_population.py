@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsmech.inversion.population import law_drift, plot_population, population, population_verdict
+from capsmech.inversion.population import law_drift, plot_population, population_verdict
 
 
 def batch(rng, slope, n=30, g0=0.043, noise=0.05):
@@ -22,11 +22,14 @@ def test_constant_law_is_reported_and_drifting_law_is_not(tmp_path):
     rng = np.random.default_rng(1)
     rows = rows_from("NH", *batch(rng, 0.0)) + rows_from("GH_nu0.5", *batch(rng, -2.0))
     rows.append({"law": "NH", "Delta": 1.1, "G_s": 9.9, "flag": "outside the database"})   # excluded
-    drifts, best = population(rows)
+    verdict = population_verdict(rows)
+    drifts, best = verdict.drifts, verdict.best
     assert best == "NH"
     assert drifts["GH_nu0.5"].drifts and drifts["GH_nu0.5"].ci_high < 0
     assert drifts["NH"].n == 30
-    assert plot_population(rows, drifts, tmp_path / "fig10.png").stat().st_size > 0
+    figure = plot_population(rows, drifts)
+    assert [ax.get_ylabel() for ax in figure.axes] == ["G_s [N/m]"]
+    assert len(figure.axes[0].lines) >= len(drifts)  # one regression line per law
 
 
 def test_confidence_interval_covers_the_true_drift_at_its_level():
@@ -43,7 +46,8 @@ def test_confidence_interval_covers_the_true_drift_at_its_level():
 def test_every_law_drifting_reports_none():
     rng = np.random.default_rng(3)
     rows = rows_from("A", *batch(rng, 2.0)) + rows_from("B", *batch(rng, -2.0))
-    _, best = population(rows)
+    verdict = population_verdict(rows)
+    _, best = verdict.drifts, verdict.best
     assert best is None
 
 
@@ -60,7 +64,8 @@ def test_population_table_round_trips_through_hdf5_and_csv(tmp_path):
 
     rng = np.random.default_rng(7)
     rows = rows_from("NH", *batch(rng, 0.0)) + rows_from("GH_nu0.5", *batch(rng, -2.0))
-    drifts, best = population(rows)
+    verdict = population_verdict(rows)
+    drifts, best = verdict.drifts, verdict.best
     table = population_rows(drifts, best)
     assert [r["verdict"] for r in table] == ["supported", "drifts"]
     write_results(table, POPULATION_UNITS, tmp_path / "pop.h5")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.contours import full_profile, resample_curve, volume_radius
 from capsmech.diagnosis.residuals import batch_profile, profile_residual, size_residual
 from capsmech.diagnosis.synthetic import noisy_contour
@@ -92,17 +93,17 @@ def test_fitted_batch_size_residuals_are_noise_and_catch_a_scaled_image():
     from pathlib import Path
 
     from capsmech.io.database import load_database
-    from capsmech.inversion.fitting import fit_tube
+    from capsmech.inversion.fitting import fit_tube_rows
     from capsmech.io.measurements import Capsule, read_measurements
 
     root = Path(__file__).resolve().parents[2]
     capsules = read_measurements(root / "data" / "examples" / "tube_batch_NH.csv", "tube")
-    database = load_database(root / "data" / "databases" / "tube.h5")
-    rows = fit_tube(capsules, database, ["NH"])
+    database = load_database(database_path("tube-paper"))
+    rows = fit_tube_rows(capsules, database, ["NH"])
     residual = np.array([r["size_residual"] for r in rows])
     error = np.array([r["size_residual_error"] for r in rows])
     assert np.mean((residual / error) ** 2) < 3.0           # chi^2 per capsule ~ 1
     assert abs(residual.mean()) < 3 * residual.std(ddof=1) / np.sqrt(len(rows))
     scaled = [Capsule(c.id, c.values, c.line, c.contour * 1.03) for c in capsules]
-    shifted = np.array([r["size_residual"] for r in fit_tube(scaled, database, ["NH"])])
+    shifted = np.array([r["size_residual"] for r in fit_tube_rows(scaled, database, ["NH"])])
     assert shifted.mean() == pytest.approx(residual.mean() + 0.03, abs=0.002)

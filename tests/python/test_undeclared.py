@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.diagnosis.diagnose import NOT_ASSESSED, diagnose, screen_asymmetric
 from capsmech.diagnosis.scoring import BatchScore, CandidateResult, compare_supported, noise_levels, rivals_of, score_batch
@@ -39,12 +40,12 @@ from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
-TUBE = ROOT / "data" / "databases" / "tube.h5"
-PRESTRESS = ROOT / "data" / "databases" / "effects" / "prestress" / "tube.h5"
+TUBE = database_path("tube-paper")
+PRESTRESS = database_path("tube-prestress")
 ONE_EFFECT = ["batch_B", "batch_C", "batch_D", "batch_E", "batch_G", "batch_H"]
 
 
-KB = ROOT / "data" / "databases" / "effects" / "kb" / "tube.h5"
+KB = database_path("tube-kb")
 
 
 @lru_cache(maxsize=None)

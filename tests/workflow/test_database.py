@@ -63,7 +63,10 @@ def test_round_trip_tube(cases_dir: Path, tmp_path: Path) -> None:
     database = load_database(out)
     assert isinstance(database, TubeDatabase)
     assert database.grid == GRID and database.provenance["created"] == "2026-01-01T00:00:00+00:00"
-    assert database.provenance["code_version"] == CODE_VERSION
+    assert database.provenance["code_version"] == CODE_VERSION == database.code_version
+    # A grid that does not name its database: the defaults.
+    assert (database.name, database.version, database.grid_name) == ("tube-unit", 1, "unit")
+    assert database.accuracy == "not stated by grid unit"
     nh = database.law("NH")
     case = read_case(cases_dir / "tube/NH/a0.5_Ca0.002.h5")
     assert nh.status.tolist() == [case.status] == ["steady"]
@@ -125,6 +128,25 @@ def test_round_trip_shear_records_non_steady_rows(cases_dir: Path, tmp_path: Pat
     y, z = nh.profiles["profile_y"][0], nh.profiles["profile_z"][0]
     steps = np.hypot(np.diff(np.append(y, y[0])), np.diff(np.append(z, z[0])))
     assert steps.max() / steps.min() < 1.2
+
+
+def test_database_carries_the_identity_its_grid_gives(cases_dir: Path, tmp_path: Path) -> None:
+    """<flow>.database of the grid (name, version, accuracy) lands in the file's root attributes;
+    the loaded database shows them, and its repr is one short line."""
+    grid = {**GRID, "shear": {**GRID["shear"], "database": {
+        "name": "shear-unit-test", "version": 3, "accuracy": "level 2, t_max 6: not for fitting"}}}
+    validate_grid(grid)
+    out = assemble_database(grid, "shear", cases_dir, tmp_path / "shear.h5")
+    with h5py.File(out, "r") as f:
+        assert (f.attrs["name"], f.attrs["version"], f.attrs["accuracy"]) == (
+            "shear-unit-test", 3, "level 2, t_max 6: not for fitting")
+    database = load_database(out)
+    assert (database.name, database.version, database.accuracy) == ("shear-unit-test", 3,
+                                                                    "level 2, t_max 6: not for fitting")
+    assert repr(database) == "<ShearDatabase 'shear-unit-test': shear, laws NH; 2 cases (2 Ca_s per law)>"
+    bad = {**GRID, "tube": {**GRID["tube"], "database": {"name": "tube unit", "colour": "red"}}}
+    with pytest.raises(Exception, match="tube.database"):
+        validate_grid(bad)
 
 
 def test_resample_by_arclength_on_a_circle() -> None:

@@ -1,28 +1,23 @@
-"""The database files shipped in data/databases/ agree with the kernel: a few of their cases,
-run again now, reproduce their rows to 1e-6."""
+"""The database files shipped with capsmech (package data, capsmech.io.catalog) agree with the
+kernel: a few of their cases, run again now, reproduce their rows to 1e-6."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 
-from capsmech.io.database import FORMAT, RESULTS, load_database
+from capsmech.io.catalog import CATALOG, database_path
+from capsmech.io.database import RESULTS, load_database
 from capsmech.workflow.grid import expand_cases
 from capsmech.io.case import read_case
 from capsmech.workflow.runner import run_case, source_code_version
 from conftest import REPO
 
-def _is_database(path: Path) -> bool:
-    """A capsmech database file (data/databases also holds other tables, e.g. the off-centre one,
-    tested with their module)."""
-    with h5py.File(path, "r") as f:
-        return f.attrs.get("format") == FORMAT
-
-
-SHIPPED = sorted(p for p in (REPO / "data" / "databases").rglob("*.h5") if _is_database(p))
+#: The shipped capsmech databases, by name (the catalog also ships other tables, e.g. the
+#: off-centre one, tested with their module).
+SHIPPED = [name for name, entry in CATALOG.items() if entry.kind == "database"]
 #: A database whose cheapest steady case took longer than this is checked by `make validate`.
 QUICK_CASE_S = 30.0
 
@@ -34,9 +29,10 @@ def _cheapest_steady_case_s(path: Path) -> float:
 
 
 def _shipped_params() -> list:
-    return [pytest.param(p, id=p.relative_to(REPO).as_posix(),
-                         marks=[pytest.mark.validate] if _cheapest_steady_case_s(p) > QUICK_CASE_S else [])
-            for p in SHIPPED]
+    return [pytest.param(database_path(name), id=name,
+                         marks=[pytest.mark.validate] if _cheapest_steady_case_s(database_path(name)) > QUICK_CASE_S
+                         else [])
+            for name in SHIPPED]
 
 
 @pytest.mark.skipif(not SHIPPED, reason="no database file shipped yet")

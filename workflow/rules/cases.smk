@@ -24,6 +24,6 @@ rule case:
         code_version=CODE_VERSION,
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli.main run-case --capsim {input.kernel} --out {output.case}"
+        "{params.python} -m capsmech.cli dev run-case --capsim {input.kernel} --out {output.case}"
         " --code-version {params.code_version} --threads {threads} -- {params.kernel_args}"
         " > {log} 2>&1"

@@ -1,4 +1,4 @@
-# Assemble the case files of each flow into data/databases/<flow>.h5 (provenance: the grid
+# Assemble the case files of each flow into <databases_dir>/<flow>.h5 (provenance: the grid
 # as run, recorded in grid.json whenever it changes).
 
 
@@ -29,7 +29,7 @@ rule database:
         cases_dir=CASES_DIR,
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli.main database assemble --grid {input.grid} --flow {wildcards.flow}"
+        "{params.python} -m capsmech.cli database assemble --grid {input.grid} --flow {wildcards.flow}"
         " --cases {params.cases_dir} --out {output.database} > {log} 2>&1"
 
 

@@ -14,5 +14,5 @@ rule figures:
     params:
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli.main figures --database {input.database} --grid {input.grid}"
+        "{params.python} -m capsmech.cli figures --database {input.database} --grid {input.grid}"
         " --out {output.figures} > {log} 2>&1"

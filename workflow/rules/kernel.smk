@@ -24,5 +24,5 @@ rule kernel_version:
         expected=CODE_VERSION,
         python=PYTHON,
     shell:
-        "{params.python} -m capsmech.cli.main kernel-version --capsim {input.kernel} --expect {params.expected}"
+        "{params.python} -m capsmech.cli dev kernel-version --capsim {input.kernel} --expect {params.expected}"
         " --out {output.version} > {log} 2>&1"

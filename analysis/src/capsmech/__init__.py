@@ -1,15 +1,18 @@
-"""capsmech: read, fit and plot the case files written by the ``capsim`` kernel.
+"""capsmech: the shear modulus of microcapsules' membranes from images of capsules flowing in a
+capillary (or sheared in a Couette rheometer), compared with simulations of the ``capsim`` kernel.
 
-The kernel (``bin/capsim``, Fortran + OpenMP) simulates one microcapsule in
-Stokes flow and writes one HDF5 case file per run; :func:`read_case` turns such
-a file into a validated, immutable :class:`CaseResult`.
-
-The inverse analysis, as the CLI uses it::
+The public API (every function documented in ``capsmech.api``)::
 
     import capsmech
-    capsules = capsmech.read_measurements("batch.csv", "tube")
-    rows = capsmech.fit_tube(capsules, capsmech.load_database("data/databases/tube.h5"))
-    drifts, law = capsmech.inversion.population(rows)
+
+    db = capsmech.load_database("tube-paper")           # a shipped database by name, or a file
+    capsules = capsmech.read_measurements("batch.csv")  # flow inferred from the columns
+    results = capsmech.fit_tube(capsules, db, laws=["NH", "GH_nu0.5"])   # a DataFrame
+    verdict = capsmech.population(results)              # which law: verdict.best, verdict.reason
+    figure = capsmech.plot_population(results)          # a matplotlib Figure
+    diagnosis = capsmech.diagnose(capsules, db, law="NH")   # which effect the model lacks
+
+Errors a user can cause are ``CapsmechError``; warnings are ``CapsmechWarning``.
 """
 
 from __future__ import annotations
@@ -17,11 +20,40 @@ from __future__ import annotations
 # Set before the submodules are imported: some of them record it in the files they write.
 __version__ = "0.1.0"
 
-from capsmech.inversion.fitting import fit_shear, fit_tube, write_results
-from capsmech.inversion.population import population
+from capsmech.api import (
+    diagnose,
+    fit_shear,
+    fit_tube,
+    plot_population,
+    population,
+    population_table,
+    read_results,
+)
+from capsmech.errors import CapsmechError, CapsmechWarning, InputWarning, OutsideDatabaseWarning
 from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
 from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
+from capsmech.plotting import plot_case, save_figure
 
-__all__ = ["CaseFileError", "CaseResult", "NotSteadyError", "__version__", "fit_shear", "fit_tube", "load_database",
-           "population", "read_case", "read_measurements", "write_results"]
+__all__ = [
+    "CapsmechError",
+    "CapsmechWarning",
+    "CaseFileError",
+    "CaseResult",
+    "InputWarning",
+    "NotSteadyError",
+    "OutsideDatabaseWarning",
+    "__version__",
+    "diagnose",
+    "fit_shear",
+    "fit_tube",
+    "load_database",
+    "plot_case",
+    "plot_population",
+    "population",
+    "population_table",
+    "read_case",
+    "read_measurements",
+    "read_results",
+    "save_figure",
+]

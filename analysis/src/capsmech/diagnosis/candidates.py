@@ -210,7 +210,7 @@ def candidate_library(base_law: str, database_laws: Sequence[str], prestress_lev
 
 class DatabaseSet:
     """Several tube databases seen as one: a law key is taken from the first that has it
-    (the base database, then effect databases such as data/databases/effects/*/tube.h5)."""
+    (the base database, then effect databases such as the shipped tube-prestress and tube-kb)."""
 
     flow = "tube"
 

@@ -63,6 +63,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from capsmech.diagnosis.candidates import (
     BlendedLaw,
@@ -144,7 +145,7 @@ class Diagnosis:
 def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
              candidates: Sequence[Candidate] | None = None, sigma: np.ndarray | None = None,
              refine_evaluations: int = REFINE_EVALUATIONS, screen: bool = True,
-             offcentre_table=None) -> Diagnosis:
+             offcentre_table=None, progress: bool = False) -> Diagnosis:
     """Test the candidate effects on a batch fitted with ``base_law`` (see the module).
 
     ``database`` is one tube database or a ``DatabaseSet`` (the base database first, then
@@ -156,7 +157,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     ``screen``: leave out asymmetric contours first (``screen_asymmetric``); False when the
     caller has screened the batch already (``diagnose_sequential``: once, so that every round
     sees the same capsules). ``offcentre_table``: an ``capsmech.diagnosis.offcentre.OffcentreTable``;
-    the capsules screened out are then fitted with their own offset (``fit_offcentre``)."""
+    the capsules screened out are then fitted with their own offset (``fit_offcentre``).
+    ``progress``: a progress bar over the candidates (each refits the batch many times)."""
     from capsmech.diagnosis.effect_grid import needed_grid
 
     if candidates is None:
@@ -180,7 +182,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     base = score_batch(with_contours, database, base_law, sigma, prepared)
     base_database = _base_database(database)
     results = []
-    for candidate in candidates:
+    for candidate in tqdm(candidates, desc=f"candidates on {getattr(base_law, 'name', base_law)}", unit="candidate",
+                          disable=not progress, leave=False):
         missing = [key for key in candidate.laws if key not in database.laws]
         if not missing:
             results.append(evaluate_candidate(candidate, with_contours, database, base_law, sigma, base, prepared,

@@ -53,11 +53,15 @@ def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over
     grid = {
         "name": name,
         "description": f"{effect} candidate of capsmech diagnose: {', '.join(laws)} around a batch's fitted points",
-        "databases_dir": f"data/databases/effects/{effect}",
+        # Where the shipped effect databases live, so that a refill is found by name (tube-<effect>).
+        "databases_dir": f"analysis/src/capsmech/databases/effects/{effect}",
         "results_dir": f"results/{name}",
         "profile_points": int(base.get("profile_points", 64)),
         "tube": {"laws": list(laws), "a_over_l": bracketing_nodes(tube["a_over_l"], a_over_l),
-                 "Ca_s": bracketing_nodes(tube["Ca_s"], Ca_s)},
+                 "Ca_s": bracketing_nodes(tube["Ca_s"], Ca_s),
+                 "database": {"name": f"tube-{effect}", "version": 1,
+                              "accuracy": "the mesh of the base database: " + str(tube.get("database", {}).get(
+                                  "accuracy", "see its grid"))}},
     }
     if tube.get("settings"):
         grid["tube"]["settings"] = dict(tube["settings"])

@@ -151,7 +151,7 @@ def joint_refine(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
 
 def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
                         library: Callable[[str | BlendedLaw], Sequence[Candidate]],
-                        max_effects: int = 2, offcentre_table=None) -> SequentialDiagnosis:
+                        max_effects: int = 2, offcentre_table=None, progress: bool = False) -> SequentialDiagnosis:
     """A second effect after fixing the first: diagnose the batch; if a candidate is
     supported, switch it on at its fitted value and diagnose again with the other candidates
     that compose with it (any measurement effect; a model effect only on top of a measurement
@@ -163,13 +163,13 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
 
     ``library(law)`` builds the candidate list on a law (a key or a ``BlendedLaw``), e.g.
     ``lambda law: candidate_library(law, laws)`` for the base key. The noise levels are
-    measured once, on the base fit. ``offcentre_table``: as in ``diagnose``."""
+    measured once, on the base fit. ``offcentre_table`` and ``progress``: as in ``diagnose``."""
     with_contours, excluded = screen_asymmetric([c for c in capsules if c.contour is not None])
     if len(with_contours) < 3 and offcentre_table is not None and excluded:
         only = diagnose(capsules, database, base_law, [], offcentre_table=offcentre_table)
         return SequentialDiagnosis([only], [], [(math.nan, math.nan)], only.note, None)
     sigma = noise_levels(with_contours, database, base_law)
-    rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma, screen=False)]
+    rounds = [diagnose(with_contours, database, base_law, list(library(base_law)), sigma, screen=False, progress=progress)]
     rounds[0].excluded = excluded
     if offcentre_table is not None:
         rounds[0].offcentre = fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table)
@@ -186,14 +186,14 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         rest = [c for c in library(law) if c.name not in names and not (model_fixed and c.acts_on == "law")]
         if not rest:
             break
-        rounds.append(diagnose(state, database, law, rest, sigma, screen=False))
+        rounds.append(diagnose(state, database, law, rest, sigma, screen=False, progress=progress))
         if model_fixed and rounds[-1].chosen is None:
             note = "model effects on top of a model effect not assessed (no database holds both)"
     if len(fixed) == 2:
         (first, _), (second, theta_2) = fixed
         state, law = _apply_all(with_contours, base_law, [(second, theta_2)], library)
         rebuilt = [c for c in library(law) if c.name == first.name]
-        refit = diagnose(state, database, law, rebuilt, sigma, screen=False)
+        refit = diagnose(state, database, law, rebuilt, sigma, screen=False, progress=progress)
         result = refit.results[0]
         if math.isfinite(result.theta):
             fixed[0] = (first, result.theta)

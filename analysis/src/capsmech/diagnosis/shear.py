@@ -46,7 +46,6 @@ exceeds 1 (scatter beyond the noise model), and the drift of G_s with D12 as the
 """
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -407,60 +406,3 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
     tmp.write_text("\n".join(lines), encoding="utf-8")
     tmp.replace(out)
     return out
-
-
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """The ``diagnose-shear`` subcommand's arguments."""
-    p = sub.add_parser("diagnose-shear", help="which effect (viscosity ratio, law) a shear batch's G_s drift supports")
-    p.add_argument("measurements", metavar="CSV", help="shear measurements (capsmech.io.measurements format)")
-    p.add_argument("--database", default="data/databases/shear.h5", help="shear database made with lambda = 1")
-    p.add_argument("--lambda-database", default="data/databases/microrheometry/shear.h5",
-                   help="shear database at the candidate viscosity ratio (law keys <law>+lambda<X>)")
-    p.add_argument("--lambda-value", default=LAMBDA_VALUE, help=f"that viscosity ratio, as in the law keys (default {LAMBDA_VALUE})")
-    p.add_argument("--law", default="NH", help="base law key (default NH)")
-    p.add_argument("--pixel-size", type=float, default=PIXEL_SIZE * 1e6,
-                   help="pixel size [um] of the noise model where the CSV has no pixel_size column (default 0.5)")
-    p.add_argument("--error-px", type=float, default=ERROR_PX, help="error bound of each semi-axis [px] (default 1)")
-    p.add_argument("--theta-error", type=float, default=math.degrees(THETA_ERROR),
-                   help="standard deviation of a measured theta [deg], for batches with a theta column (default 1)")
-    p.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figure beside it)")
-    return p
-
-
-def cmd_diagnose_shear(args: argparse.Namespace) -> int:
-    """``diagnose-shear``: print the verdict (and write the report)."""
-    from capsmech.io.database import DatabaseError, load_database
-    from capsmech.io.measurements import MeasurementError, read_measurements
-
-    for option in ("pixel_size", "error_px", "theta_error"):
-        value = getattr(args, option)
-        if not (math.isfinite(value) and value > 0):
-            raise MeasurementError(f"--{option.replace('_', '-')}: must be a positive number, got {value}")
-    capsules = read_measurements(args.measurements, "shear")
-    databases = []
-    for option, path in (("--database", args.database), ("--lambda-database", args.lambda_database)):
-        database = load_database(path)
-        if database.flow != "shear":
-            raise DatabaseError(f"{option}: {path}: a {database.flow} database, diagnose-shear needs a shear one")
-        databases.append(database)
-    if args.law not in databases[0].laws:
-        raise DatabaseError(f"--law: {args.database} has no law {args.law!r} (it has {', '.join(databases[0].laws)})")
-    key = lambda_key(args.law, args.lambda_value)
-    if key not in databases[1].laws:
-        raise DatabaseError(f"--lambda-value: {args.lambda_database} has no law {key!r} "
-                            f"(it has {', '.join(databases[1].laws)})")
-    candidates = default_candidates(args.law, databases[0].laws, args.lambda_value)
-    try:
-        result = diagnose_shear(capsules, ShearGroups(databases), args.law, candidates,
-                                pixel_size=args.pixel_size * 1e-6, error_px=args.error_px,
-                                theta_error=math.radians(args.theta_error))
-    except ValueError as err:
-        raise MeasurementError(f"{args.measurements}: {err}") from None
-    for r in result.results:
-        state = r.note or (f"BIC drop {r.bic_drop:.1f}, CV p = {r.cv_p_value:.2g}, "
-                           f"{'supported' if r.supported else 'not supported'}")
-        print(f"{r.name}: {state}")
-    print(f"verdict: {result.verdict}")
-    if args.out:
-        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
-    return 0

@@ -4,22 +4,24 @@ and ``capsmech fit-shear`` wrap.
 ``fit_tube(capsules, database, laws)`` returns one result row per (capsule, law): the five
 fits of paper section 4.2 reduced to a mean and a spread (half the range of the valid fits)
 for a/l, Ca_s, v_c/V and G_s, the number of valid fits, and a flag with its reason when the
-capsule cannot be fitted (outside the database, no valid fit). ``fit_shear`` does the same
-from D12 (paper section 4.3). Results are plain dicts of floats and strings, in SI units
-(G_s in N/m), ready for ``write_results`` (CSV and HDF5, written whole or not at all).
+capsule cannot be fitted (outside the database, no valid fit): ``flag`` is a short code
+(``FLAG_CODES``; empty when the capsule is fitted) and ``reason`` says why in words.
+``fit_shear`` does the same from D12 (paper section 4.3). Rows are plain dicts of floats and
+strings, in SI units (G_s in N/m), ready for ``write_results`` (CSV and HDF5, written whole or
+not at all); the public API (``capsmech.fit_tube``) turns them into a DataFrame.
 """
 from __future__ import annotations
 
 import csv
 import math
 import os
-import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
+from tqdm import tqdm
 
 from capsmech.diagnosis.residuals import size_residual, velocity_residual
 from capsmech.inversion.inverters import (
@@ -45,9 +47,30 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
                      "valid_fits": "1", "H_over_a": "1", "asymmetry": "1", "size_residual": "1",
-                     "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": ""}
+                     "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
+                     "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
-                      "G_s": "N/m", "flag": ""}
+                      "G_s": "N/m", "flag": "", "reason": ""}
+
+#: The codes of a result row's ``flag`` column (empty: fitted), and what each means.
+FLAG_CODES = {
+    "invalid_input": "the measured values cannot describe a capsule (e.g. L_p >= L_z, D12 outside [0, 1))",
+    "outside_database": "no steady simulation of the law reproduces the measured lengths or D12",
+    "central_fit_outside": "the central of the five fits is outside the database (the others are not)",
+    "asymmetric": "the contour's two halves differ: not an axisymmetric capsule on the axis",
+    "profile_misfit": "the fitted simulation does not have the measured shape (H/a above the limit)",
+    "no_velocity": "no v_c or mu: (a/l, Ca_s) fitted, G_s not computed",
+    "imprecise": "D12 below the method's limit (paper section 4.3: 0.35)",
+}
+
+
+def inverter_flag_code(reason: str) -> str:
+    """The ``FLAG_CODES`` code of an inverter's flag text (``TubeFit.flag``, ``ShearFit.flag``)."""
+    if reason.startswith(("invalid", "need D12")):
+        return "invalid_input"
+    if "too imprecise" in reason:
+        return "imprecise"
+    return "outside_database"
 
 
 def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
@@ -64,19 +87,8 @@ def shear_inverter(database: ShearDatabase, law: str) -> ShearInverter:
     return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"])
 
 
-def _progress(done: int, total: int, stream=sys.stderr) -> None:
-    if total < 20 or not stream.isatty():
-        return
-    width = 30
-    filled = int(width * done / total)
-    stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total}")
-    if done == total:
-        stream.write("\n")
-    stream.flush()
-
-
-def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None
-             ) -> list[dict[str, Any]]:
+def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None,
+                  progress: bool = False) -> list[dict[str, Any]]:
     """Fit every capsule with every law (all the database's laws by default).
 
     Parameters
@@ -92,13 +104,14 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
     -------
     list of dict
         One row per (capsule, law), columns as in ``TUBE_RESULT_UNITS``.
+    progress : bool
+        Show a progress bar (tqdm, on stderr) when fitting takes more than a moment.
     """
     laws = list(laws) if laws is not None else list(database.laws)
     inverters = {law: tube_inverter(database, law) for law in laws}
     five = _five_fits_many(capsules, inverters)
     rows = []
-    total = len(capsules) * len(laws)
-    for k, capsule in enumerate(capsules):
+    for k, capsule in enumerate(tqdm(capsules, desc="fitting", unit="capsule", disable=not progress, leave=False)):
         l = capsule["tube_radius"]
         l_z, l_p = capsule["L_z"] / l, capsule["L_p"] / l
         v_c, mu = capsule["v_c"], capsule["mu"]
@@ -119,7 +132,8 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
                                    "H_over_a": float("nan"), "asymmetry": asymmetry,
                                    "size_residual": float("nan"), "size_residual_error": float("nan"),
-                                   "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": ""}
+                                   "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
+                                   "reason": ""}
             central = fits.fits["fit1"]
             meridian = inverters[law].profile(central.a_over_l, central.Ca_s) if central.ok else None
             if meridian is not None:
@@ -136,19 +150,21 @@ def fit_tube(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
             # An asymmetric contour comes first: it says why every fit of it is doubtful.
             if asymmetry > asymmetry_limit:
-                row["flag"] = (f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
-                               "1 % of a or one pixel), not an axisymmetric centred capsule")
+                row["flag"], row["reason"] = "asymmetric", (
+                    f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
+                    "1 % of a or one pixel), not an axisymmetric centred capsule")
             elif fits.n_valid == 0:
-                row["flag"] = fits.fits["fit1"].flag or "no valid fit"
+                row["reason"] = fits.fits["fit1"].flag or "no valid fit"
+                row["flag"] = inverter_flag_code(row["reason"])
             elif not fits.fits["fit1"].ok:
-                row["flag"] = "central fit: " + fits.fits["fit1"].flag
+                row["flag"], row["reason"] = "central_fit_outside", "central fit: " + fits.fits["fit1"].flag
             elif row["H_over_a"] > MAX_H_OVER_A:
-                row["flag"] = (f"profile misfit: H/a = {row['H_over_a']:.3f} > {MAX_H_OVER_A} "
-                               "(the fitted simulation does not have the measured shape)")
+                row["flag"], row["reason"] = "profile_misfit", (
+                    f"profile misfit: H/a = {row['H_over_a']:.3f} > {MAX_H_OVER_A} "
+                    "(the fitted simulation does not have the measured shape)")
             elif not has_velocity:
-                row["flag"] = "no v_c or mu: G_s not computed"
+                row["flag"], row["reason"] = "no_velocity", "no v_c or mu: G_s not computed"
             rows.append(row)
-            _progress(len(rows), total)
     return rows
 
 
@@ -171,8 +187,8 @@ def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInvert
             for law, inverter in inverters.items()}
 
 
-def fit_shear(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterable[str] | None = None
-              ) -> list[dict[str, Any]]:
+def fit_shear_rows(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterable[str] | None = None
+                   ) -> list[dict[str, Any]]:
     """Fit every sheared capsule (semi-axes L1, L2, shear rate, viscosity) with every law."""
     laws = list(laws) if laws is not None else list(database.laws)
     inverters = {law: shear_inverter(database, law) for law in laws}
@@ -182,7 +198,8 @@ def fit_shear(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterab
         for law in laws:
             fit = inverters[law].fit(L1=l1, L2=l2, shear_rate=capsule["shear_rate"], mu=capsule["mu"])
             rows.append({"id": capsule.id, "law": law, "D12": (l1 - l2) / (l1 + l2), "Ca_s": fit.Ca_s,
-                         "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s, "flag": fit.flag})
+                         "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s,
+                         "flag": inverter_flag_code(fit.flag) if fit.flag else "", "reason": fit.flag})
     return rows
 
 

@@ -24,10 +24,13 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 #: Significance level of the drift test.
 ALPHA = 0.05
@@ -180,13 +183,6 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     return PopulationVerdict(drifts, shape, best, f"{why}; G_s does not drift (p = {drifts[best].p_value:.2g})")
 
 
-def population(rows: Iterable[Mapping[str, Any]]) -> tuple[dict[str, LawDrift], str | None]:
-    """Drift per law and the law the data support (None when none is): ``population_verdict``
-    without its details."""
-    verdict = population_verdict(rows)
-    return verdict.drifts, verdict.best
-
-
 #: Columns of the population table (``write_population``) and their units.
 POPULATION_UNITS = {"law": "", "n": "1", "G_s_mean": "N/m", "G_s_std": "N/m", "drift": "1",
                     "drift_ci_low": "1", "drift_ci_high": "1", "t": "1", "p_value": "1", "verdict": ""}
@@ -212,15 +208,14 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
         return [dict(zip(header, row)) for row in reader]
 
 
-def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift], out: str | Path) -> Path:
+def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift]) -> Figure:
     """Figure 10 of the paper: G_s against Delta per law, error bars = spread of the five fits,
-    with each law's regression line."""
-    import matplotlib
+    with each law's regression line. Returns the Figure (no pyplot state: safe in scripts and
+    notebooks alike; ``capsmech.plotting.save_figure`` writes it)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig = Figure(figsize=(6, 4.2), layout="constrained")
+    ax = fig.subplots()
     rows = [r for r in rows if not r.get("flag")]
     for law in drifts:
         mine = [r for r in rows if r["law"] == law]
@@ -236,8 +231,4 @@ def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawD
     ax.set_xlabel("mean profile elongation Δ = p / 2πa")
     ax.set_ylabel("G_s [N/m]")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=150)
-    plt.close(fig)
-    return out
+    return fig

@@ -2,11 +2,15 @@
 
 Layout of ``tube.h5`` / ``shear.h5`` (``format = 'capsmech-database'``, version 1)
 -------------------------------------------------------------------------------------
-Root attributes (provenance)
+Root attributes (identity and provenance)
+    ``name`` (e.g. ``'tube-paper'``, the name :mod:`capsmech.io.catalog` ships it under),
+    ``version`` (of the database, an integer), ``accuracy`` (one line: the mesh and how
+    close its results are to a finer one) - all three from the grid's ``<flow>.database``;
     ``format``, ``format_version``, ``flow``, ``grid_name``, ``grid`` (the whole grid as
     JSON), ``settings`` (the flow's mesh and time settings as JSON), ``code_version`` (of
     the kernel that wrote every case), ``created`` (UTC, ISO 8601), ``case_count``,
     ``profile_points``, ``capsmech_version``, ``length_scale``.
+    Files made before the identity was recorded gained it with ``scripts/label_databases.py``.
 ``/<law key>`` (``NH``, ``SK_C1``, ``GH_nu0.5`` ...), attributes ``law``, ``nu_s``, ``C``
 (NaN when the law has no such parameter), ``case_count``, ``steady_count``; one row per
 case of the grid, in grid order, with 1-D datasets
@@ -75,6 +79,29 @@ TEXT_COLUMNS = ("status", "message")
 
 class DatabaseError(CapsmechError, ValueError):
     """A database cannot be assembled or loaded; the message names the file and the item."""
+
+
+def database_identity(grid: Mapping[str, Any], flow: str) -> dict[str, Any]:
+    """Return the identity a grid gives its ``flow`` database: name, version, accuracy.
+
+    Parameters
+    ----------
+    grid : mapping
+        The validated grid; its optional ``<flow>.database`` holds ``name``, ``version`` and
+        ``accuracy``.
+    flow : str
+        'tube' or 'shear'.
+
+    Returns
+    -------
+    dict
+        ``name`` (default ``'<flow>-<grid name>'``), ``version`` (default 1) and
+        ``accuracy`` (default ``'not stated by grid <grid name>'``).
+    """
+    given = grid.get(flow, {}).get("database", {})
+    return {"name": str(given.get("name", f"{flow}-{grid['name']}")),
+            "version": int(given.get("version", 1)),
+            "accuracy": str(given.get("accuracy", f"not stated by grid {grid['name']}"))}
 
 
 def expected_units(flow: str) -> dict[str, str]:
@@ -230,6 +257,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     tmp = out.with_name(out.name + ".tmp")
     with h5py.File(tmp, "w") as f:
         f.attrs.update({
+            **database_identity(grid, flow),
             "format": FORMAT, "format_version": FORMAT_VERSION, "flow": flow,
             "grid_name": grid["name"], "grid": grid_json(grid),
             "settings": json.dumps(flow_settings(grid, flow), sort_keys=True),
@@ -260,7 +288,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
 # ---------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class LawTable:
     """The rows of one membrane law in a database.
 
@@ -292,6 +320,9 @@ class LawTable:
     def __len__(self) -> int:
         return len(self.status)
 
+    def __repr__(self) -> str:
+        return f"<LawTable {self.key}: {len(self)} rows, {int(self.steady.sum())} steady>"
+
     @property
     def steady(self) -> np.ndarray:
         """numpy.ndarray: boolean mask of the rows that reached a steady state."""
@@ -312,14 +343,62 @@ class LawTable:
         return {name: values[rows] for name, values in {**self.columns, **self.profiles}.items()}
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class Database:
-    """A loaded database file: one :class:`LawTable` per law key, and its provenance."""
+    """A loaded database file: one :class:`LawTable` per law key, and its provenance.
+
+    Attributes
+    ----------
+    path : str
+        The file.
+    flow : str
+        'tube' or 'shear'.
+    laws : dict[str, LawTable]
+        One table per law key, in the grid's order.
+    provenance : dict[str, Any]
+        Every root attribute of the file.
+    """
 
     path: str
     flow: str
     laws: dict[str, LawTable]
     provenance: dict[str, Any]
+
+    @property
+    def name(self) -> str:
+        """str: the database's name (``'tube-paper'`` ...; ``''`` in a file made before names)."""
+        return str(self.provenance.get("name", ""))
+
+    @property
+    def version(self) -> int | None:
+        """int or None: the database's version (None in a file made before versions)."""
+        version = self.provenance.get("version")
+        return None if version is None else int(version)
+
+    @property
+    def accuracy(self) -> str:
+        """str: one line on the database's accuracy (``''`` in a file made before it was recorded)."""
+        return str(self.provenance.get("accuracy", ""))
+
+    @property
+    def code_version(self) -> str:
+        """str: the version of the kernel that computed every case."""
+        return str(self.provenance.get("code_version", ""))
+
+    @property
+    def grid_name(self) -> str:
+        """str: the name of the grid the database was computed from."""
+        return str(self.provenance.get("grid_name", ""))
+
+    def __repr__(self) -> str:
+        grid = json.loads(self.provenance.get("grid", "{}")).get(self.flow, {})
+        axes = " x ".join(f"{len(grid[axis])} {label}" for axis, label in (("a_over_l", "a/l"), ("Ca_s", "Ca_s"))
+                          if axis in grid)
+        keys = list(self.laws)
+        laws = ", ".join(keys[:6]) + (f" (+{len(keys) - 6} more)" if len(keys) > 6 else "")
+        size = f"{self.provenance.get('case_count', sum(len(t) for t in self.laws.values()))} cases"
+        return (f"<{type(self).__name__} {self.name or self.path!r}: {self.flow}, laws {laws}; "
+                f"{size}{f' ({axes} per law)' if axes else ''}>")
 
     @property
     def grid(self) -> dict[str, Any]:
@@ -377,12 +456,14 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
 
 
 def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
-    """Load a database file and check its format, columns and units.
+    """Load a database, by name or by path, and check its format, columns and units.
 
     Parameters
     ----------
     path : str or Path
-        ``tube.h5`` or ``shear.h5`` written by :func:`assemble_database`.
+        The name of a shipped database (``'tube-paper'``, ``'shear-paper'`` ...; see
+        :mod:`capsmech.io.catalog`) or the path of a ``tube.h5`` / ``shear.h5`` written by
+        :func:`assemble_database`.
 
     Returns
     -------
@@ -391,13 +472,16 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
 
     Raises
     ------
-    FileNotFoundError
-        If the file does not exist.
     DatabaseError
-        If it is not a capsmech database of a known version, or a column is missing,
-        has other units or another length; the message names the file and dataset.
+        If ``path`` is neither a shipped database's name nor an existing file (a
+        :class:`capsmech.io.catalog.DatabaseNotFoundError`, also a FileNotFoundError; the
+        message lists the shipped names); if it is not a capsmech database of a known
+        version, or a column is missing, has other units or another length (the message
+        names the file and dataset).
     """
-    path = Path(path)
+    from capsmech.io.catalog import database_path  # the catalog imports this module
+
+    path = database_path(path)
     where = require_hdf5_file(path, "database", DatabaseError)
     with h5py.File(path, "r") as f:
         provenance = {k: decode_str(v) if isinstance(v, (bytes, str, np.bytes_)) else v

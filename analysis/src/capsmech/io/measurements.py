@@ -35,25 +35,41 @@ optional ``theta`` (inclination of the major axis to the flow direction, in (0, 
 ``deg`` or ``rad``), which ``diagnose-shear`` uses when given.
 
 Units: lengths m, mm, um (or µm), nm, px (with a ``pixel_size`` column); velocities m/s, mm/s,
-um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Everything is converted to SI on reading.
+um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Micro may be written ``u``, the micro sign
+(U+00B5) or the Greek mu (U+03BC). Everything is converted to SI on reading.
+
+Files a spreadsheet wrote
+-------------------------
+What a spreadsheet's "Save as CSV" adds is accepted: a UTF-8 byte-order mark (or, failing
+UTF-8, Windows-1252 text: Excel's plain "CSV"), CRLF line endings, a ``;`` (or tab) separator
+instead of ``,`` (the one the header line uses most), columns in any order, rows padded with
+empty cells, and columns that are not part of the format (e.g. ``note``): those are ignored
+with one ``capsmech.errors.InputWarning`` naming them. Decimal commas (``0,5``) are accepted
+only when the separator is ``;`` (with ``,`` as separator a decimal comma cannot be told from
+a field break); decimal points are accepted with every separator.
+
+The flow (tube or shear) is the one the caller names, or else the one whose required columns
+the header has; a header that has those of both, or of neither, is an error that names the
+columns each flow lacks.
 
 Errors
 ------
-Any problem (unknown column or unit, missing column, empty or non-numeric value, NaN,
-negative or zero length, duplicate id) raises ``MeasurementError`` naming the file, the line
-and the field. A file is read whole or not at all: a batch is never half-processed.
+Any problem (unknown unit, missing column, empty or non-numeric value, NaN, negative or zero
+length, duplicate id) raises ``MeasurementError`` naming the file, the line and the field. A
+file is read whole or not at all: a batch is never half-processed.
 """
 from __future__ import annotations
 
 import csv
 import math
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from capsmech.errors import CapsmechError
+from capsmech.errors import CapsmechError, InputWarning
 from capsmech.io.contours import ContourError, read_contour
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
@@ -71,6 +87,11 @@ SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": (
 UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
          "angle": ANGLE_UNITS}
 HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
+#: A header cell read: column name, unit, scale to SI (None for id, and for px until a row's pixel_size).
+Column = tuple[str, str, float | None]
+FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
+#: Separators tried on the header line; decimal commas only go with ";".
+SEPARATORS = (",", ";", "\t")
 
 
 class MeasurementError(CapsmechError, ValueError):
@@ -102,22 +123,54 @@ class Capsule:
         return self.values.get(name, math.nan)
 
 
-def _parse_header(path: Path, line: int, row: list[str], columns: dict[str, tuple[str, bool]]):
-    parsed: list[tuple[str, str, float | None]] = []
+def _unit(text: str) -> str:
+    """A header's unit as the unit tables spell it: micro as ``u``, whitespace single spaces."""
+    # Spreadsheets and keyboards give both the micro sign and the Greek mu, and may put a
+    # non-breaking space in "Pa s"; all mean the same unit.
+    return " ".join(text.replace("\u00b5", "u").replace("\u03bc", "u").split())
+
+
+def _names(row: list[str]) -> list[str | None]:
+    """Each header cell's column name, None where the cell is not ``name [unit]``."""
+    return [match["name"] if (match := HEADER.match(cell)) else None for cell in row]
+
+
+def _missing(names: set[str], flow: str) -> list[str]:
+    return [c for c, (_, required) in FLOWS[flow].items() if required and c not in names]
+
+
+def _infer_flow(path: Path, line: int, row: list[str]) -> str:
+    """The flow whose required columns the header has; an error unless exactly one has them all."""
+    names = {name for name in _names(row) if name}
+    fits = [flow for flow in FLOWS if not _missing(names, flow)]
+    if len(fits) == 1:
+        return fits[0]
+    if fits:
+        raise MeasurementError(f"{path}:{line}: the header has the required columns of both a tube and a shear "
+                               "file; name the flow ('tube' or 'shear')")
+    lacks = "; ".join(f"for {flow}: {', '.join(_missing(names, flow))}" for flow in FLOWS)
+    raise MeasurementError(f"{path}:{line}: neither a tube nor a shear file, missing column(s) {lacks}")
+
+
+def _parse_header(path: Path, line: int, row: list[str], flow: str) -> tuple[list[Column | None], list[str]]:
+    """Each header cell's (name, unit, SI scale), None where the column is ignored; and the ignored cells."""
+    columns = FLOWS[flow]
+    parsed: list[Column | None] = []
+    ignored: list[str] = []
     seen = set()
-    for cell in row:
+    for i, cell in enumerate(row):
         match = HEADER.match(cell)
-        if not match:
-            raise MeasurementError(f"{path}:{line}: header cell {cell!r} is not 'name [unit]'")
-        name, unit = match["name"], (match["unit"] or "").strip()
+        if not match or (match["name"] != "id" and match["name"] not in columns):
+            parsed.append(None)
+            ignored.append(cell.strip() or f"(unnamed column {i + 1})")
+            continue
+        name, unit = match["name"], _unit(match["unit"] or "")
         if name in seen:
             raise MeasurementError(f"{path}:{line}: column {name!r} appears twice")
         seen.add(name)
         if name == "id":
             parsed.append((name, "", None))
             continue
-        if name not in columns:
-            raise MeasurementError(f"{path}:{line}: unknown column {name!r} (expected id, {', '.join(columns)})")
         kind = columns[name][0]
         if unit not in UNITS[kind]:
             raise MeasurementError(f"{path}:{line}: column {name!r}: unknown {kind} unit {unit!r} "
@@ -125,52 +178,105 @@ def _parse_header(path: Path, line: int, row: list[str], columns: dict[str, tupl
         if name == "pixel_size" and unit == "px":
             raise MeasurementError(f"{path}:{line}: column 'pixel_size' needs a physical length unit, not px")
         parsed.append((name, unit, UNITS[kind][unit]))
-    missing = [c for c, (_, required) in columns.items() if required and c not in seen]
+    missing = _missing(seen, flow)
     if "id" not in seen:
         missing.insert(0, "id")
     if missing:
-        raise MeasurementError(f"{path}:{line}: missing column(s) {', '.join(missing)}")
-    return parsed
+        # A misspelt header ("Lz [um]") is ignored, so name what was not understood too.
+        other = "shear" if flow == "tube" else "tube"
+        hint = ""
+        if not _missing({n for n in _names(row) if n}, other):
+            hint = f"; the header has the columns of a {other} file"
+        elif ignored:
+            hint = f"; ignored: {', '.join(repr(c) for c in ignored)}"
+        raise MeasurementError(f"{path}:{line}: missing column(s) {', '.join(missing)} for a {flow} file{hint}")
+    return parsed, ignored
 
 
-def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
+def _text(path: Path) -> str:
+    """The file's text: UTF-8 (a byte-order mark dropped), else Windows-1252 (Excel's plain CSV)."""
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise MeasurementError(f"{path}: cannot read: {err.strerror}") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as utf8_err:
+        try:
+            return data.decode("cp1252")
+        except UnicodeDecodeError:
+            line = data[:utf8_err.start].count(b"\n") + 1
+            raise MeasurementError(f"{path}:{line}: not UTF-8 (nor Windows-1252) text; save it as "
+                                   "'CSV UTF-8'") from None
+
+
+def _separator(lines: list[str]) -> str:
+    """The separator the header line (the first that is not blank or a comment) uses most."""
+    for text in lines:
+        content = text.strip().lstrip('"')
+        if content.strip(",;\t \"") and not content.startswith("#"):
+            return max(SEPARATORS, key=text.count)       # ties (none at all) go to ","
+    return ","
+
+
+def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule]:
     """Read a tube or shear measurement CSV (see the module docstring) into SI units.
 
     Parameters
     ----------
     path : str or Path
-        The CSV file.
-    flow : {'tube', 'shear'}
-        Which format.
+        The CSV file: ``,``, ``;`` or tab separated, UTF-8 (with or without a byte-order mark)
+        or Windows-1252, any line endings. Decimal commas (``0,5``) are accepted only in a
+        ``;``-separated file.
+    flow : {'tube', 'shear'} or None
+        Which format; None (default) infers it from the header's columns.
+
+    Returns
+    -------
+    list of Capsule
+        One per row, in file order, values in SI units.
 
     Raises
     ------
     MeasurementError
-        On any malformed content, naming file, line and field.
+        On any malformed content, naming file, line and field; with ``flow=None``, also when the
+        columns fit neither flow or both.
+
+    Warns
+    -----
+    InputWarning
+        Once, naming the columns that are not part of the format and are ignored.
     """
     path = Path(path)
-    columns = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}.get(flow)
-    if columns is None:
-        raise ValueError(f"flow must be 'tube' or 'shear', got {flow!r}")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise MeasurementError(f"{path}: cannot read: {err.strerror}") from None
-    rows = [(i + 1, row) for i, row in enumerate(csv.reader(text.splitlines()))
+    if flow is not None and flow not in FLOWS:
+        raise ValueError(f"flow must be 'tube', 'shear' or None, got {flow!r}")
+    lines = _text(path).splitlines()
+    separator = _separator(lines)
+    rows = [(i + 1, row) for i, row in enumerate(csv.reader(lines, delimiter=separator))
             if row and not row[0].lstrip().startswith("#") and any(c.strip() for c in row)]
     if not rows:
         raise MeasurementError(f"{path}: no header line")
     header_line, header = rows[0]
-    parsed = _parse_header(path, header_line, header, columns)
+    while header and not header[-1].strip():            # spreadsheets pad rows with empty cells
+        header = header[:-1]
+    if flow is None:
+        flow = _infer_flow(path, header_line, header)
+    columns = FLOWS[flow]
+    parsed, ignored = _parse_header(path, header_line, header, flow)
     capsules: list[Capsule] = []
     ids: dict[str, int] = {}
     for line, row in rows[1:]:
+        if len(row) > len(parsed) and not any(c.strip() for c in row[len(parsed):]):
+            row = row[:len(parsed)]
         if len(row) != len(parsed):
             raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
         raw: dict[str, tuple[float, str, float | None]] = {}
         capsule_id = ""
         contour_cell: tuple[str, str, float | None] | None = None
-        for (name, unit, scale), cell in zip(parsed, row):
+        for column, cell in zip(parsed, row):
+            if column is None:
+                continue
+            name, unit, scale = column
             cell = cell.strip()
             if name == "id":
                 if not cell:
@@ -186,7 +292,8 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
                     raise MeasurementError(f"{path}:{line}: field {name!r} is empty")
                 continue
             try:
-                value = float(cell)
+                # "0,5" is a decimal comma only where "," cannot be the separator.
+                value = float(cell.replace(",", ".") if separator == ";" else cell)
             except ValueError:
                 raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
             if not math.isfinite(value):
@@ -220,6 +327,10 @@ def read_measurements(path: str | Path, flow: str) -> list[Capsule]:
         if flow == "shear" and capsule["theta"] >= math.pi / 2:
             raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
                                    "inclination to the flow direction)")
+    if ignored:
+        # Warned only once the file is read: a file that is refused warns of nothing.
+        warnings.warn(f"{path}:{header_line}: ignored column(s) not in the {flow} format: "
+                      f"{', '.join(repr(c) for c in ignored)}", InputWarning, stacklevel=2)
     return capsules
 
 

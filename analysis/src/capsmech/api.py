@@ -1,0 +1,303 @@
+"""The public API: what ``import capsmech`` offers a script or a notebook, and what the CLI wraps.
+
+Every function takes a database as a loaded object, a shipped database's name (``"tube-paper"``,
+see ``capsmech.io.catalog``) or a file path, and measurements as capsules or a CSV path.
+Results are pandas DataFrames, one row per capsule (and law), with a ``flag`` code column
+(empty when the capsule was fitted; ``capsmech.inversion.fitting.FLAG_CODES``) and a
+``reason`` column in words; ``DataFrame.attrs["units"]`` gives each column's unit. What a
+user must know but that does not stop the analysis is a warning of the
+``capsmech.errors.CapsmechWarning`` family; what stops it is a ``CapsmechError`` with a
+message naming the file, line, field or name at fault.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from capsmech.errors import OutsideDatabaseWarning
+from capsmech.inversion.fitting import (
+    SHEAR_RESULT_UNITS,
+    TUBE_RESULT_UNITS,
+    fit_shear_rows,
+    fit_tube_rows,
+)
+from capsmech.inversion.population import PopulationVerdict, population_verdict
+from capsmech.inversion.population import plot_population as plot_population_rows
+from capsmech.io.database import Database, DatabaseError, load_database
+from capsmech.io.measurements import Capsule, read_measurements
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from capsmech.diagnosis.diagnose import Diagnosis
+    from capsmech.diagnosis.offcentre import OffcentreTable
+    from capsmech.diagnosis.sequential import SequentialDiagnosis
+
+DatabaseLike = Database | str | Path
+CapsulesLike = Sequence[Capsule] | str | Path
+ResultsLike = pd.DataFrame | Iterable[Mapping[str, Any]] | str | Path
+
+
+def as_database(database: DatabaseLike, flow: str, caller: str) -> Database:
+    """A loaded database of ``flow``: ``database`` itself, or the one its name or path gives.
+
+    Raises
+    ------
+    DatabaseError
+        When the name is unknown, the file unreadable, or the database of another flow.
+    """
+    db = database if isinstance(database, Database) else load_database(database)
+    if db.flow != flow:
+        raise DatabaseError(f"{caller}: {_label(db)} is a {db.flow} database; {caller} needs a {flow} database "
+                            f"(e.g. '{flow}-paper')")
+    return db
+
+
+def check_laws(database: Database, laws: str | Iterable[str] | None, option: str = "laws") -> list[str]:
+    """The law keys asked for (all the database's when None); a single key may be given as a string.
+
+    Raises
+    ------
+    DatabaseError
+        Naming every unknown key and listing the valid ones.
+    """
+    if laws is None:
+        return list(database.laws)
+    keys = [laws] if isinstance(laws, str) else list(laws)
+    unknown = [key for key in keys if key not in database.laws]
+    if unknown:
+        raise DatabaseError(f"{option}: {_label(database)} has no law {', '.join(repr(k) for k in unknown)}; "
+                            f"valid laws: {', '.join(database.laws)}")
+    if not keys:
+        raise DatabaseError(f"{option}: no law given; valid laws: {', '.join(database.laws)}")
+    return keys
+
+
+def _label(database: Database) -> str:
+    return str(getattr(database, "name", "") or database.path)
+
+
+def _capsules(capsules: CapsulesLike, flow: str) -> list[Capsule]:
+    if isinstance(capsules, (str, Path)):
+        return read_measurements(capsules, flow)
+    return list(capsules)
+
+
+def _frame(rows: Sequence[Mapping[str, Any]], units: Mapping[str, str]) -> pd.DataFrame:
+    frame = pd.DataFrame(list(rows), columns=list(units))
+    frame.attrs["units"] = dict(units)
+    return frame
+
+
+def _warn_unfitted(frame: pd.DataFrame, database: Database) -> None:
+    """One warning that says how many (capsule, law) rows have no value and why, by flag code."""
+    flagged = frame[frame["flag"] != ""]
+    if flagged.empty:
+        return
+    counts = flagged["flag"].value_counts()
+    warnings.warn(f"{len(flagged)} of {len(frame)} (capsule, law) fits have no value against {_label(database)}: "
+                  + ", ".join(f"{n} {code}" for code, n in counts.items()) + " (see the 'reason' column)",
+                  OutsideDatabaseWarning, stacklevel=3)
+
+
+def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws: str | Iterable[str] | None = None,
+             progress: bool = False) -> pd.DataFrame:
+    """Fit capsules measured in a tube (capillary) with every law asked for (paper section 4.2).
+
+    Parameters
+    ----------
+    capsules : sequence of Capsule, or str or Path
+        Measured capsules, or a measurement CSV (``capsmech.io.measurements``).
+    database : Database, str or Path
+        A tube database, its shipped name (default ``"tube-paper"``) or its file.
+    laws : str or iterable of str, optional
+        Law keys (``"NH"``, ``["NH", "GH_nu0.5"]``); default every law of the database.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    DataFrame
+        One row per (capsule, law): a/l, Ca_s, v_c/V and G_s [N/m] with their spreads, Delta,
+        H/a, residuals, ``flag`` (code, empty when fitted) and ``reason``; units in
+        ``attrs["units"]``. Rows without a value raise one ``OutsideDatabaseWarning``.
+    """
+    db = as_database(database, "tube", "fit_tube")
+    keys = check_laws(db, laws)
+    frame = _frame(fit_tube_rows(_capsules(capsules, "tube"), db, keys, progress=progress), TUBE_RESULT_UNITS)
+    _warn_unfitted(frame, db)
+    return frame
+
+
+def fit_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
+              laws: str | Iterable[str] | None = None) -> pd.DataFrame:
+    """Fit capsules sheared in a Couette rheometer from their deformation D12 (paper section 4.3).
+
+    Parameters and result as ``fit_tube`` (columns D12, Ca_s, L3/a, a [m], G_s [N/m], flag, reason).
+    """
+    db = as_database(database, "shear", "fit_shear")
+    keys = check_laws(db, laws)
+    frame = _frame(fit_shear_rows(_capsules(capsules, "shear"), db, keys), SHEAR_RESULT_UNITS)
+    _warn_unfitted(frame, db)
+    return frame
+
+
+def read_results(path: str | Path) -> pd.DataFrame:
+    """A results file written by ``capsmech fit-tube`` (CSV with ``name [unit]`` headers)."""
+    from capsmech.inversion.population import read_results as read_rows
+
+    rows = read_rows(path)
+    frame = pd.DataFrame(rows)
+    for column in frame.columns:
+        if column not in ("id", "law", "flag", "reason"):
+            frame[column] = pd.to_numeric(frame[column], errors="coerce")
+    for column in ("flag", "reason"):
+        if column in frame.columns:
+            frame[column] = frame[column].fillna("")
+    return frame
+
+
+def _result_rows(results: ResultsLike | Sequence[str | Path]) -> list[dict[str, Any]]:
+    if isinstance(results, (str, Path)):
+        results = [results]
+    if isinstance(results, pd.DataFrame):
+        return results.to_dict("records")
+    items = list(results)
+    if items and isinstance(items[0], (str, Path)):
+        return [row for path in items for row in read_results(path).to_dict("records")]
+    return [dict(row) for row in items]
+
+
+def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict:
+    """Which membrane law gives one G_s at every deformation (paper section 4.4).
+
+    Parameters
+    ----------
+    results : DataFrame, rows, or results file(s)
+        ``fit_tube`` results with several laws.
+
+    Returns
+    -------
+    PopulationVerdict
+        ``best`` (the law, or None when no law fits), ``reason``, ``drifts`` per law and the
+        contour comparison; ``population_table(verdict)`` gives it as a DataFrame.
+    """
+    return population_verdict(_result_rows(results))
+
+
+def population_table(verdict: PopulationVerdict) -> pd.DataFrame:
+    """The verdict per law: n, mean G_s [N/m] and its spread, drift per unit Delta with its 95 %
+    interval, p-value, and 'supported' / 'no drift' / 'drifts'."""
+    from capsmech.inversion.population import POPULATION_UNITS, population_rows
+
+    return _frame(population_rows(verdict.drifts, verdict.best), POPULATION_UNITS)
+
+
+def plot_population(results: ResultsLike | Sequence[str | Path], verdict: PopulationVerdict | None = None) -> Figure:
+    """G_s against the profile elongation Delta per law, with each law's drift (paper figure 10)."""
+    rows = _result_rows(results)
+    verdict = verdict or population_verdict(rows)
+    return plot_population_rows(rows, verdict.drifts)
+
+
+#: Levels of the scalar effect candidates when not given (those of the shipped effect databases).
+DEFAULT_PRESTRESS_LEVELS = (0.04, 0.06, 0.08)
+DEFAULT_KB_LEVELS = (0.0025, 0.005, 0.01)
+CANDIDATE_NAMES = ("contour_offset", "tube_radius", "prestress", "kb", "laws")
+
+
+def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law: str = "NH", *,
+             effect_databases: Sequence[DatabaseLike] | None = None, other_laws: Sequence[str] | None = None,
+             prestress_levels: Sequence[float] = DEFAULT_PRESTRESS_LEVELS,
+             kb_levels: Sequence[float] = DEFAULT_KB_LEVELS, candidates: Sequence[str] | None = None,
+             max_effects: int = 2, offcentre_table: OffcentreTable | str | Path | None = "offcentre",
+             progress: bool = False) -> SequentialDiagnosis | Diagnosis:
+    """Which effect the base model lacks, from what the fits of a tube batch leave (closing the loop).
+
+    Parameters
+    ----------
+    capsules : sequence of Capsule, or str or Path
+        A tube batch with contours.
+    database : Database, str or Path
+        The base tube database (default ``"tube-paper"``).
+    law : str
+        The base law key.
+    effect_databases : sequence, optional
+        Tube databases of effect law groups; default the shipped ones (pre-stress, bending).
+    other_laws : sequence of str, optional
+        Law groups to test as candidates (default every other law of the database).
+    prestress_levels, kb_levels : sequence of float
+        Levels of the pre-stress and bending candidates (empty: no such candidate).
+    candidates : sequence of str, optional
+        Test only these (``CANDIDATE_NAMES``).
+    max_effects : int
+        Effects to look for one after another (1: a single round, a ``Diagnosis``).
+    offcentre_table : OffcentreTable, name, path or None
+        Modes to fit the offset of capsules screened out as asymmetric (None: leave them unfitted).
+    progress : bool
+        Progress bars on stderr (a diagnosis refits the batch hundreds of times: minutes).
+
+    Returns
+    -------
+    SequentialDiagnosis or Diagnosis
+        The rounds, the effects found and G_s before and after (``.verdict`` says it in words).
+    """
+    from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
+    from capsmech.diagnosis.diagnose import diagnose as diagnose_round
+    from capsmech.diagnosis.sequential import diagnose_sequential
+
+    base = as_database(database, "tube", "diagnose")
+    if effect_databases is None:
+        from capsmech.io.catalog import effect_database_paths
+
+        effect_databases = list(effect_database_paths())
+    effects = [as_database(d, "tube", "diagnose (effect database)") for d in effect_databases]
+    databases = DatabaseSet([base, *effects])
+    check_laws(base, [law], "law")
+    for key in other_laws or []:
+        if key not in databases.laws:
+            raise DatabaseError(f"other law: no law {key!r} in the base or effect databases; valid laws: "
+                                f"{', '.join(databases.laws)}")
+    for name, levels in (("prestress_levels", prestress_levels), ("kb_levels", kb_levels)):
+        if any(not (math.isfinite(v) and v > 0) for v in levels):
+            raise DatabaseError(f"{name}: levels must be finite and > 0 (0 is the base law): {list(levels)}")
+    unknown = [c for c in candidates or [] if c not in CANDIDATE_NAMES]
+    if unknown:
+        raise DatabaseError(f"candidates: unknown {', '.join(unknown)}; valid: {', '.join(CANDIDATE_NAMES)}")
+    if max_effects < 1:
+        raise DatabaseError(f"max_effects: must be at least 1, got {max_effects}")
+    table = _offcentre(offcentre_table)
+
+    def library(base_law: Any) -> list:
+        found = candidate_library(base_law, list(base.laws), list(prestress_levels), other_laws,
+                                  kb_levels=list(kb_levels))
+        if candidates:
+            found = [c for c in found if c.name in candidates or ("laws" in candidates and c.name.startswith("law "))]
+        return found
+
+    batch = _capsules(capsules, "tube")
+    if max_effects == 1:
+        return diagnose_round(batch, databases, law, library(law), offcentre_table=table, progress=progress)
+    names = {c.name for c in library(law)}
+    return diagnose_sequential(batch, databases, law, lambda current: [c for c in library(current) if c.name in names],
+                               max_effects=max_effects, offcentre_table=table, progress=progress)
+
+
+def _offcentre(table: OffcentreTable | str | Path | None) -> OffcentreTable | None:
+    from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable
+
+    if table is None or isinstance(table, OffcentreTable):
+        return table
+    if str(table) == "offcentre":
+        from capsmech.io.catalog import offcentre_table_path
+
+        table = offcentre_table_path()
+    try:
+        return OffcentreTable.read(table)
+    except OffcentreError as err:
+        raise DatabaseError(f"offcentre_table: {err}") from None

@@ -1,0 +1,81 @@
+"""``capsmech databases`` (the shipped databases by name), ``capsmech database assemble|show``
+(the workflow's assembly of case files, a database's summary) and ``capsmech figures`` (the
+paper's figures 2-6 drawn from databases)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from capsmech.workflow.grid import GridError
+
+
+def cmd_databases(args: argparse.Namespace) -> int:
+    """``databases``: list the shipped databases: name, flow, what it holds, its accuracy."""
+    from capsmech.io.catalog import shipped_databases
+
+    for entry in shipped_databases():
+        print(f"{entry.name:<22} {entry.flow:<6} {entry.description}")
+        if entry.accuracy:
+            print(f"{'':<22} {'':<6} accuracy: {entry.accuracy}")
+    return 0
+
+
+def cmd_database(args: argparse.Namespace) -> int:
+    """``database assemble``: case files -> database file; ``database show``: summarise one."""
+    from capsmech.io.database import assemble_database, load_database
+    from capsmech.workflow.grid import load_grid
+
+    if args.action == "assemble":
+        out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out)
+        print(f"wrote {out}")
+        args.database = out
+    database = load_database(args.database)
+    print(f"{database.path}: {database.flow} database of grid {database.provenance['grid_name']!r}, "
+          f"kernel {database.provenance['code_version']}, created {database.provenance['created']}")
+    for key, table in database.laws.items():
+        counts = {s: int((table.status == s).sum()) for s in sorted(set(table.status))}
+        print(f"  {key:<10} {len(table):4d} cases  " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    return 0
+
+
+def cmd_figures(args: argparse.Namespace) -> int:
+    """Draw the paper's figures from one database, or from every database of a grid."""
+    from capsmech.workflow.figures import draw_figures
+    from capsmech.workflow.grid import FLOWS, load_grid
+
+    grid = load_grid(args.grid) if args.grid else None
+    if args.database:
+        jobs = [(Path(args.database), Path(args.out) if args.out else None)]
+    elif grid is not None:
+        jobs = [(Path(grid["databases_dir"]) / f"{flow}.h5",
+                 Path(args.out or Path(grid["results_dir"]) / "figures") / flow)
+                for flow in FLOWS if flow in grid]
+    else:
+        raise GridError("figures: give --database DB.h5 or --grid GRID.yaml")
+    for database, out in jobs:
+        if out is None:
+            raise GridError("figures: --out DIR is required with --database")
+        for path in draw_figures(database, out, grid):
+            print(f"wrote {path}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``databases``, ``database`` and ``figures``."""
+    listing = sub.add_parser("databases", help="list the shipped databases (names for --database)")
+    listing.set_defaults(func=cmd_databases)
+    database = sub.add_parser("database", help="assemble (workflow) or summarise a database file")
+    actions = database.add_subparsers(dest="action", required=True, metavar="ACTION")
+    assemble = actions.add_parser("assemble", help="case files of a grid -> tube.h5 or shear.h5")
+    assemble.add_argument("--grid", required=True, help="grid file (YAML or JSON)")
+    assemble.add_argument("--flow", required=True, choices=("tube", "shear"))
+    assemble.add_argument("--cases", required=True, help="directory holding <flow>/<law>/<case>.h5")
+    assemble.add_argument("--out", required=True, help="database file to write")
+    summary = actions.add_parser("show", help="summarise a database (name or file)")
+    summary.add_argument("database", metavar="NAME|H5")
+    database.set_defaults(func=cmd_database)
+    figures = sub.add_parser("figures", help="draw the paper's figures 2-6 from the databases")
+    figures.add_argument("--database", metavar="NAME|H5", help="one database (tube: figures 2-5, shear: 6)")
+    figures.add_argument("--grid", help="grid file: its databases, and figure settings")
+    figures.add_argument("--out", metavar="DIR", help="output directory (default: <results_dir>/figures/<flow>)")
+    figures.set_defaults(func=cmd_figures)

@@ -1,0 +1,68 @@
+"""``capsmech dev ...``: the developers' and the workflow's commands (not a user's job):
+``run-case`` (one grid case, as the workflow's case rule runs it), ``kernel-version`` (check
+and record the version the built kernel writes), ``unlock-stale`` (remove the lock a killed
+workflow left)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from capsmech.workflow.paths import capsim_executable
+from capsmech.workflow.runner import CaseRunError
+
+
+def cmd_run_case(args: argparse.Namespace) -> int:
+    """Run one workflow case (see :mod:`capsmech.workflow.runner` for the exit-code policy)."""
+    from capsmech.workflow.runner import run_case
+
+    kernel_args = [a for a in args.kernel_args if a != "--"]
+    run_case(args.capsim or capsim_executable(), kernel_args, args.out,
+             code_version=args.code_version, threads=args.threads)
+    return 0
+
+
+def cmd_kernel_version(args: argparse.Namespace) -> int:
+    """Check that the built kernel writes the code_version its sources declare; record it."""
+    from capsmech.workflow.runner import kernel_code_version
+
+    found = kernel_code_version(args.capsim or capsim_executable())
+    if args.expect and found != args.expect:
+        raise CaseRunError(f"{args.capsim} writes code_version {found!r} but the kernel sources declare "
+                           f"{args.expect!r}: the executable is stale, run `make build`")
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(found + "\n")
+    print(found)
+    return 0
+
+
+def cmd_unlock_stale(args: argparse.Namespace) -> int:
+    """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
+    from capsmech.workflow.runner import clear_stale_lock, running_snakemake
+
+    if clear_stale_lock(args.workdir):
+        print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
+    elif running_snakemake(args.workdir):
+        print(f"a Snakemake process is running in {args.workdir}: its lock is kept")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``dev`` group (hidden from the main help's job list: it says 'developer commands')."""
+    dev = sub.add_parser("dev", help="developer and workflow commands (run-case, kernel-version, unlock-stale)")
+    actions = dev.add_subparsers(dest="action", required=True, metavar="ACTION")
+    run = actions.add_parser("run-case", help="run one grid case for the workflow (records non-steady outcomes)")
+    run.add_argument("--out", required=True, help="case file to produce")
+    run.add_argument("--code-version", required=True, help="code_version the case file must carry")
+    run.add_argument("--threads", type=int, default=1, help="OpenMP threads")
+    run.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
+    run.add_argument("kernel_args", nargs=argparse.REMAINDER, help="-- then the kernel's case arguments")
+    run.set_defaults(func=cmd_run_case)
+    version = actions.add_parser("kernel-version", help="print (and check) the code_version the kernel writes")
+    version.add_argument("--capsim", default=None, help="kernel executable (default: bin/capsim)")
+    version.add_argument("--expect", help="fail unless the kernel writes this version")
+    version.add_argument("--out", help="also write the version to this file")
+    version.set_defaults(func=cmd_kernel_version)
+    unlock = actions.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
+    unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
+    unlock.set_defaults(func=cmd_unlock_stale)

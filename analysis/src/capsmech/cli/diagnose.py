@@ -1,0 +1,202 @@
+"""``capsmech diagnose`` (tube batches) and ``capsmech diagnose-shear`` (Couette batches): which
+effect the base model lacks, from what the fits leave; and ``capsmech make-batch``, synthetic
+tube batches with an undeclared effect to check the method on."""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from capsmech.api import as_database, diagnose
+from capsmech.cli.common import add_database_option
+from capsmech.diagnosis.shear import ERROR_PX, LAMBDA_VALUE, PIXEL_SIZE, THETA_ERROR
+from capsmech.errors import CapsmechError
+from capsmech.io.database import DatabaseError
+from capsmech.io.measurements import MeasurementError, read_measurements
+
+
+def _levels(text: str, option: str) -> list[float]:
+    """A comma-separated list of positive levels (empty: no such candidate)."""
+    name = "--" + option.replace("_", "-")
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise MeasurementError(f"{name}: not a comma-separated list of numbers: {text!r}") from None
+    if any(not (math.isfinite(v) and v > 0) for v in values):
+        raise MeasurementError(f"{name}: levels must be > 0 (0 is the base law): {text!r}")
+    return values
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """``diagnose``: which candidate effect the batch's contour residuals support."""
+    from capsmech.diagnosis.effect_grid import (
+        case_count,
+        estimated_core_minutes,
+        write_grid,
+    )
+    from capsmech.diagnosis.report import write_report
+    from capsmech.diagnosis.sequential import SequentialDiagnosis
+
+    levels = {option: _levels(getattr(args, option), option) for option in ("prestress_levels", "kb_levels")}
+    database = as_database(args.database, "tube", "diagnose")
+    try:
+        outcome = diagnose(args.measurements, database, args.law, effect_databases=args.effects_database,
+                           other_laws=args.other_law, prestress_levels=levels["prestress_levels"],
+                           kb_levels=levels["kb_levels"], candidates=args.candidate, max_effects=args.max_effects,
+                           offcentre_table=None if args.offcentre_table == "none" else args.offcentre_table,
+                           progress=sys.stderr.isatty())
+    except ValueError as err:
+        if isinstance(err, CapsmechError):
+            raise
+        raise MeasurementError(f"{args.measurements}: {err}") from None
+    sequence = outcome if isinstance(outcome, SequentialDiagnosis) else None
+    result = sequence.rounds[0] if sequence is not None else outcome
+    for r in result.results:
+        if r.needs is None:
+            continue
+        path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
+                          header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
+                                 "candidate needs.\nRun: make database GRID=" + r.needs["name"])
+        print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
+              f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
+              f"make database GRID={r.needs['name']} (grid written to {path})")
+    for capsule, why in result.excluded:
+        print(f"capsmech diagnose: left out {capsule}: {why}")
+    for fit in result.offcentre:
+        print(f"capsmech diagnose: off-centre {fit.summary}")
+    print(f"verdict: {result.verdict}")
+    if sequence is not None and sequence.effects:
+        for k, later in enumerate(sequence.rounds[1:], start=2):
+            # The values each round was run with (the effects list holds the final ones).
+            fixed = ", ".join(f"{r.chosen.name} = {r.chosen.theta:.3g}" for r in sequence.rounds[:k - 1])
+            print(f"with {fixed} fixed: {later.verdict}")
+        print(f"effects found: {sequence.verdict}; G_s {sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
+    if args.out:
+        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+        for k, later in enumerate(sequence.rounds[1:] if sequence is not None else [], start=2):
+            out = Path(args.out).with_name(f"{Path(args.out).stem}_round{k}{Path(args.out).suffix}")
+            print(f"wrote {write_report(later, out, Path(args.measurements).name + f' (round {k})')}")
+    return 0
+
+
+def cmd_make_batch(args: argparse.Namespace) -> int:
+    """``make-batch``: a synthetic tube batch with undeclared effects (capsmech.diagnosis.undeclared_tube)."""
+    from capsmech.diagnosis.undeclared_tube import make_batch, write_batch
+
+    effects = args.effect or []
+    strengths = args.strength or []
+    if len(strengths) != len(effects):
+        raise MeasurementError(f"--strength: give one per --effect ({len(effects)} effects, {len(strengths)} strengths)")
+    try:
+        batch = make_batch(dict(zip(effects, strengths)), n_capsules=args.n, law=args.law, g_s=args.g_s,
+                           seed=args.seed, workers=args.workers)
+    except ValueError as err:
+        raise MeasurementError(str(err)) from None
+    csv_path, truth = write_batch(batch, Path(args.out) / f"{args.name}.csv")
+    print(f"wrote {csv_path} ({len(batch.rows)} capsules) and {truth}")
+    return 0
+
+
+def cmd_diagnose_shear(args: argparse.Namespace) -> int:
+    """``diagnose-shear``: print the verdict (and write the report)."""
+    from capsmech.diagnosis.shear import (
+        ShearGroups,
+        default_candidates,
+        diagnose_shear,
+        lambda_key,
+        write_report,
+    )
+    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, parse_quantity
+
+    args.pixel_size = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um")
+    for option in ("pixel_size", "error_px", "theta_error"):
+        value = getattr(args, option)
+        if not (math.isfinite(value) and value > 0):
+            raise MeasurementError(f"--{option.replace('_', '-')}: must be a positive number, got {value}")
+    capsules = read_measurements(args.measurements, "shear")
+    databases = []
+    for option, path in (("--database", args.database), ("--lambda-database", args.lambda_database)):
+        databases.append(as_database(path, "shear", f"diagnose-shear {option}"))
+    if args.law not in databases[0].laws:
+        raise DatabaseError(f"--law: {args.database} has no law {args.law!r} (it has {', '.join(databases[0].laws)})")
+    key = lambda_key(args.law, args.lambda_value)
+    if key not in databases[1].laws:
+        raise DatabaseError(f"--lambda-value: {args.lambda_database} has no law {key!r} "
+                            f"(it has {', '.join(databases[1].laws)})")
+    candidates = default_candidates(args.law, databases[0].laws, args.lambda_value)
+    try:
+        result = diagnose_shear(capsules, ShearGroups(databases), args.law, candidates,
+                                pixel_size=args.pixel_size * 1e-6, error_px=args.error_px,
+                                theta_error=math.radians(args.theta_error))
+    except ValueError as err:
+        raise MeasurementError(f"{args.measurements}: {err}") from None
+    for r in result.results:
+        state = r.note or (f"BIC drop {r.bic_drop:.1f}, CV p = {r.cv_p_value:.2g}, "
+                           f"{'supported' if r.supported else 'not supported'}")
+        print(f"{r.name}: {state}")
+    print(f"verdict: {result.verdict}")
+    if args.out:
+        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+    return 0
+
+
+def _add_diagnose_shear(sub: argparse._SubParsersAction) -> None:
+    """The ``diagnose-shear`` subcommand's arguments."""
+    p = sub.add_parser("diagnose-shear", help="which effect (viscosity ratio, law) a shear batch's G_s drift supports")
+    p.add_argument("measurements", metavar="CSV", help="shear measurements (capsmech.io.measurements format)")
+    add_database_option(p, "shear-paper", "shear database made with lambda = 1")
+    add_database_option(p, "shear-microrheometry", "shear database at the candidate viscosity ratio "
+                        "(law keys <law>+lambda<X>)", option="--lambda-database")
+    p.add_argument("--lambda-value", default=LAMBDA_VALUE, help=f"that viscosity ratio, as in the law keys (default {LAMBDA_VALUE})")
+    p.add_argument("--law", default="NH", help="base law key (default NH)")
+    p.add_argument("--pixel-size", default=f"{PIXEL_SIZE * 1e6:g}um",
+                   help="pixel size of the noise model where the CSV has no pixel_size column, e.g. 0.5um "
+                        f"(bare numbers: um; default {PIXEL_SIZE * 1e6:g}um)")
+    p.add_argument("--error-px", type=float, default=ERROR_PX, help="error bound of each semi-axis [px] (default 1)")
+    p.add_argument("--theta-error", type=float, default=math.degrees(THETA_ERROR),
+                   help="standard deviation of a measured theta [deg], for batches with a theta column (default 1)")
+    p.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figure beside it)")
+    p.set_defaults(func=cmd_diagnose_shear)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``diagnose``, ``diagnose-shear`` and ``make-batch``."""
+    diag = sub.add_parser("diagnose", help="which effect the base model lacks, from the batch's contour residuals")
+    diag.add_argument("measurements", metavar="CSV", help="tube measurements with contour files")
+    add_database_option(diag, "tube-paper", "base tube database")
+    diag.add_argument("--law", default="NH", metavar="KEY", help="base law key (one; default NH)")
+    diag.add_argument("--other-law", action="append", metavar="KEY",
+                      help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05 "
+                           "(default: every other law of the database)")
+    diag.add_argument("--effects-database", action="append", metavar="NAME|H5",
+                      help="tube database of effect law groups (repeatable; default: the shipped tube-prestress "
+                           "and tube-kb)")
+    diag.add_argument("--prestress-levels", default="0.04,0.06,0.08", metavar="A1,A2,..",
+                      help="pre-stress levels of the prestress candidate (default 0.04,0.06,0.08; empty: no candidate)")
+    diag.add_argument("--kb-levels", default="0.0025,0.005,0.01", metavar="K1,K2,..",
+                      help="bending stiffness levels of the kb candidate (default 0.0025,0.005,0.01; empty: no candidate)")
+    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "laws"),
+                      help="test only these candidates (repeatable; default all: the effect library)")
+    diag.add_argument("--max-effects", type=int, default=2, metavar="N",
+                      help="effects to look for one after another, each fixed before the next (default 2; 1: one)")
+    diag.add_argument("--offcentre-table", default="offcentre", metavar="NAME|H5",
+                      help="antisymmetric modes to fit the offset of capsules screened out as asymmetric "
+                           "(default: the shipped table 'offcentre'; none: leave them out unfitted)")
+    diag.add_argument("--grid-dir", default="config", metavar="DIR",
+                      help="where grids of candidates that need simulations are written (default config)")
+    diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
+    diag.set_defaults(func=cmd_diagnose)
+    _add_diagnose_shear(sub)
+    mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")
+    mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "GH_nu", "SK_C"),
+                    help="effect to switch on (repeatable; none: no effect)")
+    mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, k_b, nu_s, C)")
+    mb.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    mb.add_argument("--name", default="batch", help="file stem (default batch)")
+    mb.add_argument("-n", type=int, default=24, help="capsules (default 24)")
+    mb.add_argument("--law", default="NH", help="base law (default NH)")
+    mb.add_argument("--g-s", type=float, default=0.04, help="G_s of the material [N/m] (default 0.04)")
+    mb.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    mb.add_argument("--workers", type=int, default=1, help="kernel runs at a time (default 1)")
+    mb.set_defaults(func=cmd_make_batch)
