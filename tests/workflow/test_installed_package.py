@@ -78,3 +78,54 @@ def test_fit_tube_by_database_name_from_another_folder(installed: Path) -> None:
     assert [row["id"] for row in rows] == capsules
     finite = [row for row in rows if math.isfinite(float(row["G_s [N/m]"] or "nan"))]
     assert len(finite) >= 0.8 * len(rows), f"G_s finite for {len(finite)} of {len(rows)} capsules"
+
+
+GETTING_STARTED = REPO / "docs" / "getting-started.md"
+
+
+def _quick_start() -> tuple[list[str], str]:
+    """The `$ capsmech` lines of the getting-started page's quick start, and its Python block."""
+    import re
+
+    text = GETTING_STARTED.read_text(encoding="utf-8")
+    quick = text[text.index("## Five minutes"):]
+    commands = [line[2:].strip() for block in re.findall(r"^```console[ \t]*\n(.*?)^```", quick, re.M | re.S)
+                for line in block.splitlines() if line.startswith("$ capsmech ")]
+    python = re.findall(r"^```python[ \t]*\n(.*?)^```", quick, re.M | re.S)
+    return commands, python[0] if python else ""
+
+
+@pytest.mark.slow
+def test_the_quick_start_runs_as_the_docs_show_it(installed: Path) -> None:
+    """Every quick-start command of docs/getting-started.md, verbatim, in a folder outside the
+    repository holding a copy of data/examples (the commands name it relatively), with the
+    installed package; diagnose is left to tests/python/test_diagnose.py (it takes minutes).
+    The population verdict printed is the one the page states; the page's Python block runs."""
+    import re
+    import shlex
+    import shutil
+
+    commands, python = _quick_start()
+    assert any(c.startswith("capsmech fit-tube") for c in commands) and python, "no quick start found"
+    work = installed.parent / "quickstart"
+    shutil.copytree(REPO / "data" / "examples", work / "data" / "examples")
+    outputs = {}
+    for command in commands:
+        words = shlex.split(command)
+        if words[1] == "diagnose":
+            continue
+        run = subprocess.run([str(installed / "bin" / "capsmech"), *words[1:]], cwd=work, env=_clean_env(),
+                             text=True, capture_output=True, timeout=600)
+        assert run.returncode == 0, f"{command}:\n{run.stdout[-2000:]}{run.stderr[-4000:]}"
+        outputs[words[1]] = run.stdout
+    # The verdict the page states ("the verdict is NH, G_s = 0.0400 ± 0.0013 N/m") is the one printed.
+    stated = re.search(r"verdict is (\S+), G_s = ([0-9.]+) ± ([0-9.]+) N/m", GETTING_STARTED.read_text(encoding="utf-8"))
+    printed = re.search(r"verdict: (\S+), G_s = ([0-9.]+) \+- ([0-9.]+) N/m", outputs["population"])
+    assert stated and printed, outputs["population"]
+    assert printed.group(1) == stated.group(1)
+    for k in (2, 3):
+        assert abs(float(printed.group(k)) - float(stated.group(k))) <= 0.5 * 10 ** -len(stated.group(k).split(".")[1])
+    run = subprocess.run([str(installed / "bin" / "python"), "-c", python], cwd=work, env=_clean_env(), text=True,
+                         capture_output=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-4000:]
+    assert (work / "population.png").stat().st_size > 0
