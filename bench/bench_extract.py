@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.cli.main import main
+from capsmech.imaging.rendering import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.imaging.rendering import FrameStyle, outline_from_meridian, render_frame, write_tiff_stack
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
 
 REPO = Path(__file__).resolve().parents[1]
 DATABASE = database_path("tube-paper")

@@ -23,8 +23,9 @@ import numpy as np
 
 from capsmech.io.case import decode_str
 from capsmech.io.catalog import CATALOG, database_path
-from capsmech.io.database import database_identity
+from capsmech.workflow.assembly import database_identity
 from capsmech.workflow.grid import load_grid
+
 from make_offcentre_table import identity as offcentre_identity
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,9 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.cli.main import main as capsmech
-from capsmech.imaging.rendering import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
-                                 write_tiff_stack)
 from capsmech.diagnosis.synthetic import simulate_tube
+from capsmech.imaging.rendering import (
+    FrameStyle,
+    blurred,
+    drawn_lengths,
+    outline_from_meridian,
+    render_frame,
+    write_tiff_stack,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "data" / "examples" / "frames"

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from itertools import repeat
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,8 @@ def main() -> int:
         a = rng.uniform(0.88, 1.02, N_CAPSULES)
         ca = np.exp(rng.uniform(np.log(0.03), np.log(0.10), N_CAPSULES))
         with ThreadPoolExecutor(max_workers=2) as pool:
-            capsules = list(pool.map(lambda p: simulate_tube(p[0], p[1], law), zip(a, ca)))
+            # The law goes in as an argument (not through a closure over the loop variable).
+            capsules = list(pool.map(simulate_tube, a, ca, repeat(law, N_CAPSULES)))
         rows = tube_batch(capsules, g_s=G_S, seed=seed, pixel_size_um=PIXEL_SIZE_UM)
         name = f"tube_batch_{law}"
         write_tube_csv(rows, OUT / f"{name}.csv",

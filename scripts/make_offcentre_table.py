@@ -19,9 +19,9 @@ from pathlib import Path
 
 import h5py
 
-from capsmech.io.case import read_case
 from capsmech.diagnosis.offcentre import build_table
 from capsmech.diagnosis.synthetic import run_tube_3d
+from capsmech.io.case import read_case
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "analysis" / "src" / "capsmech" / "databases" / "effects" / "offcentre" / "table.h5"

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from capsmech.diagnosis.offcentre import OffcentreTable, fit_offcentre_capsule
+from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.measurements import read_measurements
-from capsmech.diagnosis.offcentre import OffcentreTable, fit_offcentre_capsule
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

@@ -20,13 +20,13 @@ import sys
 import time
 from pathlib import Path
 
+from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
+from capsmech.diagnosis.report import write_report
+from capsmech.diagnosis.sequential import diagnose_sequential
+from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 from capsmech.io.catalog import database_path, effect_database_paths
 from capsmech.io.database import load_database
-from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
-from capsmech.diagnosis.sequential import diagnose_sequential
-from capsmech.diagnosis.report import write_report
 from capsmech.io.measurements import read_measurements
-from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

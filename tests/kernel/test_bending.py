@@ -17,8 +17,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from capsmech.workflow.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
 from capsmech.io.case import read_case
+from capsmech.workflow.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
+
 from conftest import NEUTRAL_FLOW_ARGS, REPO, _executable, assert_neutral_effect_is_base, run_quiet
 
 

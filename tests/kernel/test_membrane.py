@@ -1,7 +1,6 @@
 """Membrane mechanics: constitutive laws, P1 forces as the energy gradient, Laplace law."""
 from __future__ import annotations
 
-
 import pytest
 
 

@@ -16,6 +16,7 @@ import subprocess
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import NEUTRAL_FLOW_ARGS, assert_neutral_effect_is_base, run_quiet
 
 

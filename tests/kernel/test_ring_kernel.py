@@ -17,7 +17,6 @@ from scipy import integrate, special
 from conftest import axi
 
 
-
 def kernel_matrix(r0, z0, r, z) -> np.ndarray:
     v = axi("kernel", float(r0), float(z0), float(r), float(z))
     return np.array([[v["m_rr"], v["m_rz"]], [v["m_zr"], v["m_zz"]]])

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error, cached_capsim, run_killed_and_resumed
 
 

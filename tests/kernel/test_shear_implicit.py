@@ -20,6 +20,7 @@ import h5py
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error, cached_capsim, uninterrupted_and_resumed
 
 ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error, uninterrupted_and_resumed
 
 BAD_TUBE_INPUTS = [

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import REPO
 from test_tube import haberman_sayre_velocity
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import REPO
 
 PROBE = REPO / "bin" / "tube3d_probe"

@@ -18,6 +18,7 @@ import h5py
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error
 from test_tube import haberman_sayre_velocity
 

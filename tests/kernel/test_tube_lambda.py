@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error, axi
 
 

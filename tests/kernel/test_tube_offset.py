@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import assert_usage_error
 from test_tube_3d import COARSE_WALL, run_capsim
 

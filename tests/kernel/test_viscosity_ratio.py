@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from capsmech.io.case import read_case
+
 from conftest import REPO, assert_usage_error, run_killed_and_resumed
 
 PROBE = REPO / "bin" / "double_layer_probe"

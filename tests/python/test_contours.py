@@ -19,13 +19,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.io.catalog import database_path
-from capsmech.io.contours import (ContourError, full_profile, modified_hausdorff, profile_misfit, read_contour,
-                               symmetry_axis)
-from capsmech.io.database import load_database
-from capsmech.inversion.fitting import fit_tube_rows
-from capsmech.io.measurements import Capsule, MeasurementError, read_measurements
 from capsmech.diagnosis.synthetic import noisy_contour
+from capsmech.inversion.fitting import fit_tube_rows
+from capsmech.io.catalog import database_path
+from capsmech.io.contours import (
+    ContourError,
+    full_profile,
+    modified_hausdorff,
+    profile_misfit,
+    read_contour,
+    symmetry_axis,
+)
+from capsmech.io.database import load_database
+from capsmech.io.measurements import Capsule, MeasurementError, read_measurements
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "data" / "examples"

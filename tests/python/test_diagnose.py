@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import contour_offset_candidate, offset_contour, tube_radius_candidate
 from capsmech.diagnosis.diagnose import diagnose
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
 
 # Each diagnosis refits the batch some 20 times (minutes): make validate, not make test.

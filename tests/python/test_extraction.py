@@ -13,14 +13,21 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
+from capsmech.diagnosis.synthetic import simulate_tube
+from capsmech.imaging.extraction import ExtractionError, FrameStack, extract, measure_capsules, read_frames
+from capsmech.imaging.rendering import (
+    FrameStyle,
+    blurred,
+    drawn_lengths,
+    outline_from_meridian,
+    render_frame,
+    render_stack,
+    write_tiff_stack,
+)
+from capsmech.inversion.fitting import fit_tube_rows
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.imaging.extraction import ExtractionError, FrameStack, extract, measure_capsules, read_frames
-from capsmech.inversion.fitting import fit_tube_rows
 from capsmech.io.measurements import read_measurements
-from capsmech.imaging.rendering import (FrameStyle, blurred, drawn_lengths, outline_from_meridian, render_frame,
-                                 render_stack, write_tiff_stack)
-from capsmech.diagnosis.synthetic import simulate_tube
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = database_path("tube-paper")

@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.diagnosis.synthetic import simulate_tube, tube_batch, write_tube_csv
+from capsmech.inversion.fitting import fit_tube_rows, shear_inverter
+from capsmech.inversion.population import population_verdict
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.inversion.fitting import fit_tube_rows, shear_inverter
 from capsmech.io.measurements import read_measurements
-from capsmech.inversion.population import population_verdict
-from capsmech.diagnosis.synthetic import simulate_tube, tube_batch, write_tube_csv
 
 REPO = Path(__file__).resolve().parents[2]
 TUBE_DB = database_path("tube-paper")

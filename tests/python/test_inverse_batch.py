@@ -16,10 +16,10 @@ import pytest
 from scipy.interpolate import LinearNDInterpolator
 
 from capsmech.inversion import inverters as inverse
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.inversion.fitting import fit_tube_rows, tube_inverter
 from capsmech.inversion.inverters import FIVE_FITS, TubeInverter, TubeTable
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
 
 REPO = Path(__file__).resolve().parents[2]

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.inversion.fitting import shear_inverter
 from capsmech.inversion.microrheometry import PAPER_EXAMPLE, compare_methods, modulus_ratio
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
 
 REPO = Path(__file__).resolve().parents[2]
 SHEAR_DB = database_path("shear-paper")

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import contour_offset_candidate, tube_radius_candidate
 from capsmech.diagnosis.diagnose import diagnose
 from capsmech.inversion.fitting import fit_tube_rows
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
 from capsmech.diagnosis.candidates import contour_offset_candidate, tube_radius_candidate
 from capsmech.diagnosis.diagnose import diagnose
-from capsmech.inversion.fitting import tube_inverter
-from capsmech.io.measurements import read_measurements
 from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable, fit_offcentre_capsule, fit_offset
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
+from capsmech.io.measurements import read_measurements
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -173,11 +173,11 @@ def test_the_shipped_table_is_reproduced_by_the_kernel(table, tmp_path):
     import sys
 
     sys.path.insert(0, str(ROOT / "scripts"))
-    from make_offcentre_table import B0, SETTINGS
-
-    from capsmech.io.case import read_case
     from capsmech.diagnosis.offcentre import mode_from_cases
     from capsmech.diagnosis.synthetic import run_tube_3d
+    from capsmech.io.case import read_case
+
+    from make_offcentre_table import B0, SETTINGS
 
     runs = {b: run_tube_3d(0.7, 0.05, tmp_path / f"b{b}.h5", SETTINGS["t_max"], offset=b, offset_mode="held",
                            level=SETTINGS["level"], wall=SETTINGS["wall"], tube_length=SETTINGS["tube_length"],

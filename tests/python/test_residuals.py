@@ -1,4 +1,4 @@
-"""Residuals of fitted capsules (capsmech.diagnosis.residuals, issue 7 part 1): numerical facts.
+"""Residuals of fitted capsules (capsmech.inversion.residuals, issue 7 part 1): numerical facts.
 
 - The volume radius of a contour is exact for a spheroid, and equal from either half.
 - A contour offset outward by delta along its normals has the residual profile +delta at
@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from capsmech.diagnosis.synthetic import noisy_contour
+from capsmech.inversion.residuals import batch_profile, profile_residual, size_residual
 from capsmech.io.catalog import database_path
 from capsmech.io.contours import full_profile, resample_curve, volume_radius
-from capsmech.diagnosis.residuals import batch_profile, profile_residual, size_residual
-from capsmech.diagnosis.synthetic import noisy_contour
 
 PX_PER_L = 100.0
 
@@ -92,8 +92,8 @@ def test_fitted_batch_size_residuals_are_noise_and_catch_a_scaled_image():
     uncertainties; the same contours scaled by 3 % (a wrong pixel size) show +0.03."""
     from pathlib import Path
 
-    from capsmech.io.database import load_database
     from capsmech.inversion.fitting import fit_tube_rows
+    from capsmech.io.database import load_database
     from capsmech.io.measurements import Capsule, read_measurements
 
     root = Path(__file__).resolve().parents[2]

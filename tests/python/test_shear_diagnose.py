@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
-from capsmech.io.catalog import database_path
-from capsmech.io.database import load_database
-from capsmech.inversion.fitting import shear_inverter
-from capsmech.io.measurements import Capsule, read_measurements
 from capsmech.diagnosis.shear import ShearGroups, diagnose_shear, length_error, modulus, score_group, weighted_mean
 from capsmech.diagnosis.undeclared_shear import law_key, read_shear_truth
+from capsmech.inversion.fitting import shear_inverter
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
+from capsmech.io.measurements import Capsule, read_measurements
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

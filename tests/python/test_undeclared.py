@@ -20,23 +20,37 @@ import filecmp
 import math
 import subprocess
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from capsmech.diagnosis.candidates import (
+    BlendedLaw,
+    DatabaseSet,
+    candidate_library,
+    interpolation_weights,
+    law_candidate,
+    prestress_candidate,
+)
+from capsmech.diagnosis.diagnose import NOT_ASSESSED, diagnose, screen_asymmetric
+from capsmech.diagnosis.effect_grid import case_count
+from capsmech.diagnosis.report import write_report
+from capsmech.diagnosis.scoring import (
+    BatchScore,
+    CandidateResult,
+    compare_supported,
+    noise_levels,
+    rivals_of,
+    score_batch,
+)
+from capsmech.diagnosis.sequential import _apply_all, joint_refine
+from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
-from capsmech.diagnosis.diagnose import NOT_ASSESSED, diagnose, screen_asymmetric
-from capsmech.diagnosis.scoring import BatchScore, CandidateResult, compare_supported, noise_levels, rivals_of, score_batch
-from capsmech.diagnosis.candidates import BlendedLaw, DatabaseSet, candidate_library, interpolation_weights, law_candidate, prestress_candidate
-from capsmech.diagnosis.sequential import _apply_all, joint_refine
-from capsmech.diagnosis.report import write_report
-from capsmech.diagnosis.effect_grid import case_count
-from capsmech.workflow.grid import validate_grid
 from capsmech.io.measurements import read_measurements
-from capsmech.diagnosis.undeclared_tube import expected_candidates, read_truth
+from capsmech.workflow.grid import validate_grid
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"
@@ -48,17 +62,17 @@ ONE_EFFECT = ["batch_B", "batch_C", "batch_D", "batch_E", "batch_G", "batch_H"]
 KB = database_path("tube-kb")
 
 
-@lru_cache(maxsize=None)
+@cache
 def databases() -> DatabaseSet:
     return DatabaseSet([load_database(TUBE), *(load_database(p) for p in (PRESTRESS, KB) if p.is_file())])
 
 
-@lru_cache(maxsize=None)
+@cache
 def batch(name: str):
     return read_measurements(BATCHES / f"{name}.csv", "tube")
 
 
-@lru_cache(maxsize=None)
+@cache
 def diagnosis(name: str, library: str = "full"):
     """The diagnosis of a shipped batch, with the whole library or (``"short"``, the default
     suite) only the pre-stress and GH_nu0.5 candidates with pre-stress on its grid alone (no

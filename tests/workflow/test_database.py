@@ -14,11 +14,18 @@ import h5py
 import numpy as np
 import pytest
 
-from capsmech.io.database import (DatabaseError, ShearDatabase, TubeDatabase, assemble_database,
-                               expected_units, load_database, resample_by_arclength)
-from capsmech.workflow.grid import expand_cases, validate_grid
 from capsmech.io.case import read_case
+from capsmech.io.database import (
+    DatabaseError,
+    ShearDatabase,
+    TubeDatabase,
+    expected_units,
+    load_database,
+)
+from capsmech.workflow.assembly import assemble_database, resample_by_arclength
+from capsmech.workflow.grid import expand_cases, validate_grid
 from capsmech.workflow.runner import CaseRunError, is_failure_record, run_case, source_code_version
+
 from conftest import REPO
 
 CAPSIM = REPO / "bin" / "capsim"

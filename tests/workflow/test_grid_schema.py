@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from capsmech.workflow.grid import GridError, Law, expand_cases, load_grid, parse_law, validate_grid
+
 from conftest import SMOKE, run_snakemake
 
 SMOKE_GRID = yaml.safe_load(SMOKE.read_text())

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capsmech.io.case import read_case
 from capsmech.io.catalog import CATALOG, database_path
 from capsmech.io.database import RESULTS, load_database
 from capsmech.workflow.grid import expand_cases
-from capsmech.io.case import read_case
 from capsmech.workflow.runner import run_case, source_code_version
+
 from conftest import REPO
 
 #: The shipped capsmech databases, by name (the catalog also ships other tables, e.g. the

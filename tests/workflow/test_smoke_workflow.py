@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from capsmech.io.case import read_case
 from capsmech.io.database import RESULTS, expected_units, load_database
 from capsmech.workflow.grid import expand_cases, load_grid
-from capsmech.io.case import read_case
 from capsmech.workflow.runner import clear_stale_lock, source_code_version
+
 from conftest import LOCAL_PROFILE, REPO, SMOKE, SNAKEFILE, run_snakemake, snakemake_argv
 
 GRID = load_grid(SMOKE)

@@ -17,9 +17,6 @@ Errors a user can cause are ``CapsmechError``; warnings are ``CapsmechWarning``.
 
 from __future__ import annotations
 
-# Set before the submodules are imported: some of them record it in the files they write.
-__version__ = "0.1.0"
-
 from capsmech.api import (
     diagnose,
     fit_shear,
@@ -34,6 +31,7 @@ from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_cas
 from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
 from capsmech.plotting import plot_case, save_figure
+from capsmech.version import __version__
 
 __all__ = [
     "CapsmechError",

@@ -15,7 +15,7 @@ import math
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias, cast, overload
 
 import pandas as pd
 
@@ -28,7 +28,7 @@ from capsmech.inversion.fitting import (
 )
 from capsmech.inversion.population import PopulationVerdict, population_verdict
 from capsmech.inversion.population import plot_population as plot_population_rows
-from capsmech.io.database import Database, DatabaseError, load_database
+from capsmech.io.database import Database, DatabaseError, ShearDatabase, TubeDatabase, load_database
 from capsmech.io.measurements import Capsule, read_measurements
 
 if TYPE_CHECKING:
@@ -38,11 +38,19 @@ if TYPE_CHECKING:
     from capsmech.diagnosis.offcentre import OffcentreTable
     from capsmech.diagnosis.sequential import SequentialDiagnosis
 
-DatabaseLike = Database | str | Path
-CapsulesLike = Sequence[Capsule] | str | Path
-ResultsLike = pd.DataFrame | Iterable[Mapping[str, Any]] | str | Path
+DatabaseLike: TypeAlias = Database | str | Path
+CapsulesLike: TypeAlias = Sequence[Capsule] | str | Path
+ResultsLike: TypeAlias = pd.DataFrame | Iterable[Mapping[str, Any]] | str | Path
 
 
+# The flow checked gives the type: load_database makes a TubeDatabase of a tube file, a
+# ShearDatabase of a shear one.
+@overload
+def as_database(database: DatabaseLike, flow: Literal["tube"], caller: str) -> TubeDatabase: ...
+@overload
+def as_database(database: DatabaseLike, flow: Literal["shear"], caller: str) -> ShearDatabase: ...
+@overload
+def as_database(database: DatabaseLike, flow: str, caller: str) -> Database: ...
 def as_database(database: DatabaseLike, flow: str, caller: str) -> Database:
     """A loaded database of ``flow``: ``database`` itself, or the one its name or path gives.
 
@@ -166,11 +174,17 @@ def _result_rows(results: ResultsLike | Sequence[str | Path]) -> list[dict[str, 
     if isinstance(results, (str, Path)):
         results = [results]
     if isinstance(results, pd.DataFrame):
-        return results.to_dict("records")
+        return _records(results)
     items = list(results)
     if items and isinstance(items[0], (str, Path)):
-        return [row for path in items for row in read_results(path).to_dict("records")]
-    return [dict(row) for row in items]
+        # Results files (the first says it of all).
+        return [row for path in cast("list[str | Path]", items) for row in _records(read_results(path))]
+    return [dict(row) for row in cast("list[Mapping[str, Any]]", items)]
+
+
+def _records(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    # pandas types the keys as Hashable; the columns of capsmech's frames are str.
+    return cast("list[dict[str, Any]]", frame.to_dict("records"))
 
 
 def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict:

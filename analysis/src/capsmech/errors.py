@@ -13,6 +13,10 @@ class CapsmechError(Exception):
     """Base class of capsmech's errors: a message that names what is wrong and where."""
 
 
+class DatabaseError(CapsmechError, ValueError):
+    """A database cannot be assembled or loaded; the message names the file and the item."""
+
+
 class CapsmechWarning(UserWarning):
     """Base class of capsmech's warnings."""
 

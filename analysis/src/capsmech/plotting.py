@@ -48,6 +48,7 @@ def plot_case(case: CaseResult) -> Figure:
     fig = Figure(figsize=(10, 4.2), layout="constrained")
     ax_h, ax_p = fig.subplots(1, 2)
 
+    names: list[str]
     if case.flow == "tube":
         names = [n for n in ("L_z", "L_p", "v_c") if n in case.history]
     else:
@@ -77,8 +78,8 @@ def plot_case(case: CaseResult) -> Figure:
         ax_p.set_ylabel(_axis_label(case, "profile", "r"))
     elif case.profile:
         y = list(case.profile["y"]) + [case.profile["y"][0]]  # close the contour
-        z = list(case.profile["z"]) + [case.profile["z"][0]]
-        ax_p.plot(y, z, "-", lw=1.5)
+        z_closed = list(case.profile["z"]) + [case.profile["z"][0]]
+        ax_p.plot(y, z_closed, "-", lw=1.5)
         ax_p.set_aspect("equal", adjustable="datalim")
         ax_p.set_xlabel(_axis_label(case, "profile", "y"))
         ax_p.set_ylabel(_axis_label(case, "profile", "z"))

@@ -4,13 +4,23 @@ printed with their units, and the option kinds that must mean the same everywher
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any, cast
 
 from capsmech.formatting import bracketed_unit, fmt, format_table
 
-__all__ = ["EXIT_ERROR", "add_database_option", "add_law_option", "bracketed_unit", "fmt", "format_table"]
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["EXIT_ERROR", "add_database_option", "add_law_option", "bracketed_unit", "fmt", "format_table", "records"]
 
 #: Exit status for errors reported by capsmech itself (argparse uses the same).
 EXIT_ERROR = 2
+
+
+def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    """The rows of a results DataFrame as dicts (``frame.to_dict("records")``)."""
+    # pandas types the keys as Hashable; the columns of capsmech's frames are str.
+    return cast("list[dict[str, Any]]", frame.to_dict("records"))
 
 
 def add_database_option(parser: argparse.ArgumentParser, default: str, what: str, option: str = "--database") -> None:

@@ -22,7 +22,8 @@ def cmd_databases(args: argparse.Namespace) -> int:
 
 def cmd_database(args: argparse.Namespace) -> int:
     """``database assemble``: case files -> database file; ``database show``: summarise one."""
-    from capsmech.io.database import assemble_database, load_database
+    from capsmech.io.database import load_database
+    from capsmech.workflow.assembly import assemble_database
     from capsmech.workflow.grid import load_grid
 
     if args.action == "assemble":

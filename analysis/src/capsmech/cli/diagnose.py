@@ -50,8 +50,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if isinstance(err, CapsmechError):
             raise
         raise MeasurementError(f"{args.measurements}: {err}") from None
-    sequence = outcome if isinstance(outcome, SequentialDiagnosis) else None
-    result = sequence.rounds[0] if sequence is not None else outcome
+    sequence: SequentialDiagnosis | None
+    if isinstance(outcome, SequentialDiagnosis):
+        sequence, result = outcome, outcome.rounds[0]
+    else:
+        sequence, result = None, outcome
     for r in result.results:
         if r.needs is None:
             continue
@@ -69,7 +72,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):
             # The values each round was run with (the effects list holds the final ones).
-            fixed = ", ".join(f"{r.chosen.name} = {r.chosen.theta:.3g}" for r in sequence.rounds[:k - 1])
+            # Every round before round k chose an effect (a round that chooses none is the last).
+            chosen = [r.chosen for r in sequence.rounds[:k - 1] if r.chosen is not None]
+            fixed = ", ".join(f"{c.name} = {c.theta:.3g}" for c in chosen)
             print(f"with {fixed} fixed: {later.verdict}")
         print(f"effects found: {sequence.verdict}; G_s {sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
     if args.out:

@@ -10,7 +10,7 @@ import sys
 import warnings
 
 from capsmech.api import as_database, check_laws, fit_shear, fit_tube
-from capsmech.cli.common import add_database_option, add_law_option, format_table
+from capsmech.cli.common import add_database_option, add_law_option, format_table, records
 from capsmech.errors import OutsideDatabaseWarning
 from capsmech.inversion.fitting import write_results
 from capsmech.io.measurements import read_measurements
@@ -34,9 +34,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
         else:
             results = fit_shear(capsules, database, laws)
     units = results.attrs["units"]
-    print(format_table(results.to_dict("records"), SHOWN[flow], units))
+    print(format_table(records(results), SHOWN[flow], units))
     for out in args.out or []:
-        print(f"wrote {write_results(results.to_dict('records'), units, out, database)}")
+        print(f"wrote {write_results(records(results), units, out, database)}")
     fitted = results[results["flag"] == ""]
     unfitted = results[results["flag"] != ""]
     if not unfitted.empty:

@@ -12,10 +12,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from capsmech import __version__
 from capsmech.cli import case, compare, databases, dev, diagnose, extract, fit, population
 from capsmech.cli.common import EXIT_ERROR
 from capsmech.errors import CapsmechError
+from capsmech.version import __version__
 
 DESCRIPTION = """\
 capsmech: the shear modulus G_s of microcapsules' membranes from images of capsules flowing

@@ -4,18 +4,18 @@ from __future__ import annotations
 import argparse
 
 from capsmech.api import plot_population, population, population_table, read_results
-from capsmech.cli.common import format_table
+from capsmech.cli.common import format_table, records
 from capsmech.inversion.fitting import write_results
 from capsmech.plotting import save_figure
 
 
 def cmd_population(args: argparse.Namespace) -> int:
     """Drift of G_s with Delta per law from fit-tube results; the law that fits."""
-    results = [row for path in args.results for row in read_results(path).to_dict("records")]
+    results = [row for path in args.results for row in records(read_results(path))]
     verdict = population(results)
     table = population_table(verdict)
     units = table.attrs["units"]
-    print(format_table(table.to_dict("records"),
+    print(format_table(records(table),
                        ["law", "n", "G_s_mean", "G_s_std", "drift", "drift_ci_low", "drift_ci_high", "p_value"],
                        {**units, "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta"}))
     if verdict.shape is not None:
@@ -31,7 +31,7 @@ def cmd_population(args: argparse.Namespace) -> int:
     if args.plot:
         print(f"wrote {save_figure(plot_population(results, verdict), args.plot)}")
     for out in args.out or []:
-        print(f"wrote {write_results(table.to_dict('records'), units, out)}")
+        print(f"wrote {write_results(records(table), units, out)}")
     return 0
 
 

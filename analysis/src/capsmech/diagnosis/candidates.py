@@ -41,7 +41,8 @@ class Candidate:
     unit: str
     values: tuple[float, ...]
     neutral: float
-    apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str]]
+    #: (capsules, value) -> (capsules, law): the law a key, or a BlendedLaw between keys.
+    apply: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str | BlendedLaw]]
     #: Law groups the candidate needs from the databases (beyond the base law).
     laws: tuple[str, ...] = ()
     #: "capsules" (a measurement effect: changes the data, keeps the law it was built on) or
@@ -52,7 +53,7 @@ class Candidate:
 def contour_offset_candidate(base_law: str | BlendedLaw, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
     """Traced contour offset outward by delta pixels (needs a ``pixel_size`` column)."""
 
-    def apply(capsules: Sequence[Capsule], delta: float) -> tuple[list[Capsule], str]:
+    def apply(capsules: Sequence[Capsule], delta: float) -> tuple[list[Capsule], str | BlendedLaw]:
         out = []
         for c in capsules:
             pixel = c["pixel_size"]
@@ -71,7 +72,7 @@ def contour_offset_candidate(base_law: str | BlendedLaw, max_px: float = 3.0, st
 def tube_radius_candidate(base_law: str | BlendedLaw, max_rel: float = 0.045, step: float = 0.015) -> Candidate:
     """The capillary radius is l (1 + eps) instead of the nominal l."""
 
-    def apply(capsules: Sequence[Capsule], eps: float) -> tuple[list[Capsule], str]:
+    def apply(capsules: Sequence[Capsule], eps: float) -> tuple[list[Capsule], str | BlendedLaw]:
         out = []
         for c in capsules:
             values = dict(c.values)
@@ -87,7 +88,7 @@ def law_candidate(base_law: str, other_law: str) -> Candidate:
     """Another database group (law, nu_s, or a law key with an effect) instead of the base:
     one discrete parameter, 0 = base, 1 = the other group."""
 
-    def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str]:
+    def apply(capsules: Sequence[Capsule], which: float) -> tuple[list[Capsule], str | BlendedLaw]:
         return list(capsules), other_law if which >= 0.5 else base_law
 
     return Candidate(f"law {other_law}", "group", "", (0.0, 1.0), 0.0, apply, laws=(other_law,))
@@ -120,9 +121,9 @@ def interpolation_weights(levels: Sequence[float], value: float) -> list[tuple[i
     between two levels (pre-stress removes the parachute between alpha = 0 and 0.04), and a
     quadratic carries that into the next interval (measured on the pre-stress batch: alpha
     0.0482 [0.0474, 0.0490] and chi2 418 against the linear blend's 0.0508 and 366, truth 0.05)."""
-    levels = np.asarray(levels, dtype=float)
-    k = int(np.clip(np.searchsorted(levels, value) - 1, 0, len(levels) - 2))
-    w = (value - levels[k]) / (levels[k + 1] - levels[k])
+    grid = np.asarray(levels, dtype=float)
+    k = int(np.clip(np.searchsorted(grid, value) - 1, 0, len(grid) - 2))
+    w = (value - grid[k]) / (grid[k + 1] - grid[k])
     return [(k, 1 - w), (k + 1, w)]
 
 
@@ -153,10 +154,13 @@ class _BlendedInverter:
         return self.nearer.fit(L_z, L_p)
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
-        profiles = [inverter.profile(a_over_l, Ca_s) for inverter in self.inverters]
-        if any(p is None for p in profiles):
+        profiles = [p for p in (inverter.profile(a_over_l, Ca_s) for inverter in self.inverters) if p is not None]
+        if len(profiles) < len(self.inverters):
             return None
-        return sum(w * p for w, p in zip(self.weights, profiles))
+        blend = self.weights[0] * profiles[0]
+        for w, p in zip(self.weights[1:], profiles[1:]):
+            blend = blend + w * p
+        return blend
 
     def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
         return sum(w * inverter.velocity_ratio(a_over_l, Ca_s) for w, inverter in zip(self.weights, self.inverters))

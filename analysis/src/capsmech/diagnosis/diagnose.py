@@ -2,7 +2,7 @@
 
 For a batch fitted with a base law, each candidate effect adds one parameter theta (shared
 by the batch) to the forward model. The batch is refitted over a grid of theta, and every
-capsule's contour residual (``capsmech.diagnosis.residuals.profile_residual``) is scored by
+capsule's contour residual (``capsmech.inversion.residuals.profile_residual``) is scored by
 
     chi2_i(theta) = sum over PROFILE_POINTS points of (d(s) / sigma_i)**2,
 
@@ -72,7 +72,6 @@ from capsmech.diagnosis.candidates import (
     contour_offset_candidate,
     tube_radius_candidate,
 )
-from capsmech.diagnosis.residuals import PreparedContour
 from capsmech.diagnosis.scoring import (
     REFINE_EVALUATIONS,
     BatchScore,
@@ -84,6 +83,7 @@ from capsmech.diagnosis.scoring import (
     score_batch,
 )
 from capsmech.inversion.fitting import tube_inverter
+from capsmech.inversion.residuals import PreparedContour
 from capsmech.io.contours import contour_asymmetry
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
@@ -106,7 +106,8 @@ NOT_ASSESSED: dict[str, str] = {
 class Diagnosis:
     """Every candidate's result and the verdict."""
 
-    base_law: str
+    #: A law key, or a BlendedLaw in a later round of a sequential diagnosis.
+    base_law: str | BlendedLaw
     results: list[CandidateResult]
     chosen: CandidateResult | None
     base: BatchScore | None = field(default=None, repr=False)
@@ -178,7 +179,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
                          + (f" ({len(excluded)} more left out as asymmetric)" if excluded else ""))
     if sigma is None:
         sigma = noise_levels(with_contours, database, base_law)
-    prepared = [PreparedContour(c.contour) for c in with_contours]
+    # (every capsule of with_contours has one)
+    prepared = [PreparedContour(c.contour) for c in with_contours if c.contour is not None]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
     base_database = _base_database(database)
     results = []
@@ -225,6 +227,7 @@ def screen_asymmetric(capsules: Sequence[Capsule]) -> tuple[list[Capsule], list[
     or not yet steady. Returns the capsules kept and, for the others, (id, reason)."""
     kept, excluded = [], []
     for capsule in capsules:
+        assert capsule.contour is not None, "screen_asymmetric takes capsules with contours"
         asymmetry, limit, _ = contour_asymmetry(capsule.contour, capsule["pixel_size"])
         if asymmetry > limit:
             excluded.append((capsule.id, f"asymmetric contour: its halves differ by {asymmetry:.4f} a "

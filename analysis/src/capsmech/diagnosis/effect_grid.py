@@ -31,17 +31,17 @@ MARGIN = 1
 def bracketing_nodes(nodes: Sequence[float], values: np.ndarray, margin: int = MARGIN) -> list[float]:
     """The nodes on either side of every finite value (the end node for values beyond), and
     ``margin`` more nodes beyond the outermost on each side."""
-    nodes = np.sort(np.asarray(nodes, dtype=float))
+    axis = np.sort(np.asarray(nodes, dtype=float))
     chosen: set[int] = set()
     for value in np.asarray(values, dtype=float):
         if not math.isfinite(value):
             continue
-        k = int(np.clip(np.searchsorted(nodes, value) - 1, 0, len(nodes) - 2)) if len(nodes) > 1 else 0
-        chosen.update((k, min(k + 1, len(nodes) - 1)))
+        k = int(np.clip(np.searchsorted(axis, value) - 1, 0, len(axis) - 2)) if len(axis) > 1 else 0
+        chosen.update((k, min(k + 1, len(axis) - 1)))
     if not chosen:
         return []
-    low, high = max(min(chosen) - margin, 0), min(max(chosen) + margin, len(nodes) - 1)
-    return [float(v) for v in nodes[low:high + 1]]
+    low, high = max(min(chosen) - margin, 0), min(max(chosen) + margin, len(axis) - 1)
+    return [float(v) for v in axis[low:high + 1]]
 
 
 def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over_l: np.ndarray,
@@ -50,7 +50,7 @@ def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over
     base = database.grid
     tube = base["tube"]
     name = f"effects_{effect}"
-    grid = {
+    grid: dict[str, Any] = {
         "name": name,
         "description": f"{effect} candidate of capsmech diagnose: {', '.join(laws)} around a batch's fitted points",
         # Where the shipped effect databases live, so that a refill is found by name (tube-<effect>).

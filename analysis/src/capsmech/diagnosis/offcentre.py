@@ -29,13 +29,17 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from capsmech.diagnosis.residuals import PreparedContour
 from capsmech.errors import CapsmechError
+from capsmech.inversion.residuals import PreparedContour
+
+if TYPE_CHECKING:
+    from capsmech.io.case import CaseResult
 
 FORMAT = "capsmech-offcentre-table"
 #: Points of the antisymmetric mode along the meridian.
@@ -148,7 +152,7 @@ def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarr
     """(s, A): the antisymmetric displacement of a closed section against a meridian.
 
     The section is folded about its axis of best mirror symmetry, as a measured contour is
-    (``capsmech.diagnosis.residuals.PreparedContour``; pass one to fold it once for many meridians);
+    (``capsmech.inversion.residuals.PreparedContour``; pass one to fold it once for many meridians);
     A = (upper - lower) / 2 of the halves' signed normal distances from the meridian, in the
     units of the inputs.
     """
@@ -157,7 +161,7 @@ def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarr
     return s, 0.5 * (upper - lower)
 
 
-def mode_from_cases(held: object, centred: object, points: int = MODE_POINTS) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+def mode_from_cases(held: CaseResult, centred: CaseResult, points: int = MODE_POINTS) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """m(s) and the second-order coefficients from a held off-centre case and a centred one.
 
     Both are ``capsmech.io.case.CaseResult`` of the 3D tube at the same (a/l, Ca_s) and mesh; the
@@ -178,7 +182,7 @@ def mode_from_cases(held: object, centred: object, points: int = MODE_POINTS) ->
     return s, antisymmetric / b0, second
 
 
-def build_table(pairs: Sequence[tuple[object, object]], source: str, points: int = MODE_POINTS) -> OffcentreTable:
+def build_table(pairs: Sequence[tuple[CaseResult, CaseResult]], source: str, points: int = MODE_POINTS) -> OffcentreTable:
     """An ``OffcentreTable`` from (held, centred) case pairs filling a rectangular grid."""
     keys = [(round(float(h.a_over_l), 6), round(float(h.Ca_s), 6)) for h, _ in pairs]
     a_axis, ca_axis = sorted({k[0] for k in keys}), sorted({k[1] for k in keys})
@@ -339,6 +343,7 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
         # nearest grid point until the corrected fit, which must lie inside, is known.
         inside = table.clamp(a_over_l, ca)
         coefficients = table.second_order_at(*inside)
+        assert coefficients is not None  # clamped into the grid
         offset = fit_offset(prepared, meridian * l, l, table, *inside)
         b2 = offset.offset**2
         refit = inverter.fit(L_z - coefficients["L_z"] * b2, L_p - coefficients["L_p"] * b2)
@@ -349,7 +354,9 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
     if table.outside(a_over_l, ca):
         return OffcentreCapsuleFit(capsule.id, offset, (math.nan, math.nan), centred, nan3,
                                    table.outside(a_over_l, ca) + " with the offset")
-    velocity = inverter.velocity_ratio(a_over_l, ca) + table.second_order_at(a_over_l, ca)["vc_over_V"] * b2
+    second_order = table.second_order_at(a_over_l, ca)
+    assert second_order is not None  # inside the table: checked above
+    velocity = inverter.velocity_ratio(a_over_l, ca) + second_order["vc_over_V"] * b2
     g_s = mu * v_c / (ca * velocity) if math.isfinite(v_c) and math.isfinite(mu) else math.nan
     half_width = 2.0 * math.hypot(offset.error, MODE_RELATIVE_ERROR * offset.offset)
     return OffcentreCapsuleFit(capsule.id, offset, (offset.offset - half_width, offset.offset + half_width), centred,

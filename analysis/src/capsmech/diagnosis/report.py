@@ -45,10 +45,10 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
     written: dict[str, Path] = {}
     shown = _shown(diagnosis)
     base = diagnosis.base
-    pairs = [("before (base law)", base, "tab:grey")]
-    if shown is not None and shown.after is not None:
-        pairs.append((f"after: {_label(shown)}", shown.after, "tab:blue"))
     if base is not None and base.residual.size:
+        pairs = [("before (base law)", base, "tab:grey")]
+        if shown is not None and shown.after is not None:
+            pairs.append((f"after: {_label(shown)}", shown.after, "tab:blue"))
         fig, ax = plt.subplots(figsize=(6, 3.6))
         s = np.linspace(0, 1, PROFILE_POINTS)
         for label, score, colour in pairs:

@@ -12,11 +12,11 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import minimize, minimize_scalar
 
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate
-from capsmech.diagnosis.residuals import PreparedContour
+from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
 from capsmech.inversion.population import law_drift
+from capsmech.inversion.residuals import PreparedContour
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
@@ -151,7 +151,7 @@ def _law_inverter(database, law: str | BlendedLaw):
     return law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
 
 
-def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw, sigma: np.ndarray,
+def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, law: str | BlendedLaw, sigma: np.ndarray,
                 prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
     """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
     capsule. A capsule whose lengths the law cannot reproduce starts from its fit in ``starts``
@@ -187,7 +187,8 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase, law: str | 
     return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual)
 
 
-def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase, law: str | BlendedLaw) -> np.ndarray:
+def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet,
+                 law: str | BlendedLaw) -> np.ndarray:
     """Each capsule's tracing-noise level: the rms over the meridian of the half difference of
     its contour's two halves (the standard error of the mean residual at a point), measured
     against its length-based fit."""
@@ -232,7 +233,8 @@ def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, floa
     return summary, p
 
 
-def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase, base_law: str,
+def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet,
+                       base_law: str | BlendedLaw,
                        sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour],
                        refine_evaluations: int = REFINE_EVALUATIONS) -> CandidateResult:
     """Refit the batch over the candidate's grid; fit theta (refined with at most
@@ -296,14 +298,14 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     # through the three lowest points only would pass through the refinement's points, so
     # close to the batch's minimum that every theta_i would be pinned there.
     on_grid = np.isin(values, grid_values)
-    gains, thetas = [], []
+    gain_list, theta_list = [], []
     for i in range(result.capsules):
         others = total - table[:, i]
         theta_i = _window_minimum(values, others, on_grid)
-        thetas.append(theta_i)
+        theta_list.append(theta_i)
         held_out = float(np.interp(theta_i, values, table[:, i]))
-        gains.append(float(base.chi2[usable][i]) - held_out)
-    gains, thetas = np.array(gains), np.array(thetas)
+        gain_list.append(float(base.chi2[usable][i]) - held_out)
+    gains, thetas = np.array(gain_list), np.array(theta_list)
     # The interval holds two things: the scatter between capsules (two jackknife standard
     # errors of the leave-one-out fits; model error included, which a chi2 rise alone would
     # not see) and the flatness of the batch's chi2 around its minimum (every evaluated
@@ -347,14 +349,14 @@ def compare_supported(results: Sequence[CandidateResult], base: BatchScore) -> C
     the two-effect batch the bending candidate won that way (26352 over 23 capsules) against
     pre-stress (22451 over 21), whose chi2 on the common capsules is 468 against bending's 1764.
     The choice is made on the capsules every supported candidate fits, at its fitted value."""
-    supported = [r for r in results if r.supported and r.after is not None]
+    supported = [(r, r.after) for r in results if r.supported and r.after is not None]
     if not supported:
         return None
     common = np.isfinite(base.chi2)
-    for r in supported:
-        common &= np.isfinite(r.after.chi2)
+    for _, after in supported:
+        common &= np.isfinite(after.chi2)
     n_points = max(int(common.sum()), 1) * PROFILE_POINTS
-    for r in supported:
-        r.bic_drop_common = float(np.sum(base.chi2[common] - r.after.chi2[common]) - math.log(n_points))
-    return max(supported, key=lambda r: r.bic_drop_common)
+    for r, after in supported:
+        r.bic_drop_common = float(np.sum(base.chi2[common] - after.chi2[common]) - math.log(n_points))
+    return max((r for r, _ in supported), key=lambda r: r.bic_drop_common)
 

@@ -53,7 +53,8 @@ def _apply_all(capsules: Sequence[Capsule], base_law: str, fixed: Sequence[tuple
                library: Callable[[str | BlendedLaw], Sequence[Candidate]]) -> tuple[list[Capsule], str | BlendedLaw]:
     """The batch and law with the effects ``fixed`` switched on: measurement effects change the
     capsules, a model effect the law; each candidate is rebuilt (by name) on the law so far."""
-    capsules, law = list(capsules), base_law
+    law: str | BlendedLaw = base_law
+    capsules = list(capsules)
     for candidate, theta in sorted(fixed, key=lambda f: f[0].acts_on != "law"):
         rebuilt = next(c for c in library(law) if c.name == candidate.name)
         capsules, law = rebuilt.apply(capsules, theta)
@@ -143,9 +144,9 @@ def joint_refine(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
     n_usable = int(usable.sum())
     rise = PROFILE_RISE * max(1.0, total[k] / (n_usable * PROFILE_POINTS))
     flat = values[total <= total[k] + rise]
-    intervals = tuple((float(flat[:, j].min()), float(flat[:, j].max())) for j in range(2))
+    low_high = [(float(flat[:, j].min()), float(flat[:, j].max())) for j in range(2)]
     return JointFit((first.name, second.name), (float(theta_1), float(theta_2)),
-                    (float(values[k, 0]), float(values[k, 1])), intervals,  # type: ignore[arg-type]
+                    (float(values[k, 0]), float(values[k, 1])), (low_high[0], low_high[1]),
                     chi2_start, float(total[k]), n_usable, values, total)
 
 

@@ -47,7 +47,7 @@ exceeds 1 (scatter beyond the noise model), and the drift of G_s with D12 as the
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -279,7 +279,7 @@ class ShearGroups:
         return theta_curve(self._database(key).law(key).steady_rows())
 
 
-def default_candidates(base_law: str, laws: Sequence[str], lambda_value: str = LAMBDA_VALUE) -> dict[str, str]:
+def default_candidates(base_law: str, laws: Iterable[str], lambda_value: str = LAMBDA_VALUE) -> dict[str, str]:
     """Candidate name -> law key: the viscosity ratio, then every other law without an effect."""
     out = {f"viscosity ratio lambda = {lambda_value}": lambda_key(base_law, lambda_value)}
     out.update({f"law {key}": key for key in laws if key != base_law and "+" not in key})

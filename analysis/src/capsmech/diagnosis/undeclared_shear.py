@@ -83,8 +83,8 @@ def simulate_shear(Ca_s: float, key: str, threads: int = 1, capsim: str | Path |
     if case.status != "steady":
         nan = math.nan
         return ShearCapsule(float(Ca_s), key, nan, nan, nan, nan, nan, case.status, case.message)
-    return ShearCapsule(float(Ca_s), key, *(case.steady_value(k) for k in ("D12", "L1", "L2", "L3", "theta")),
-                        case.status, case.message)
+    d12, l1, l2, l3, theta = (case.steady_value(k) for k in ("D12", "L1", "L2", "L3", "theta"))
+    return ShearCapsule(float(Ca_s), key, d12, l1, l2, l3, theta, case.status, case.message)
 
 
 def cached_simulator(folder: str | Path, simulate: Simulator | None = None) -> Simulator:

@@ -115,8 +115,10 @@ def make_batch(effects: str | Mapping[str, float], strength: float | None = None
     for row in rows:
         row["tube_radius"] = TUBE_RADIUS_UM
         if delta_px:
-            row["contour"] = offset_contour(row["contour"], delta_px)
-            row["L_z"] = row["L_z"] + 2 * delta_px * PIXEL_SIZE_UM
+            contour, length = row["contour"], row["L_z"]
+            assert isinstance(contour, np.ndarray) and isinstance(length, float)  # rows with contours
+            row["contour"] = offset_contour(contour, delta_px)
+            row["L_z"] = length + 2 * delta_px * PIXEL_SIZE_UM
     truth, k = [], 0
     for j, capsule in enumerate(capsules):
         truth.append({"id": f"s{j + 1:03d}", "law": key, "a_over_l": capsule.a_over_l, "Ca_s": capsule.Ca_s,

@@ -158,7 +158,7 @@ def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | No
         elif meta.get("fps"):
             frame_rate = float(meta["fps"])
         unit = str(meta.get("unit", "")).lower()
-        x_resolution = tif.pages[0].tags.get("XResolution")
+        x_resolution = tif.pages.first.tags.get("XResolution")
         if x_resolution is not None and unit in ("um", "micron", "µm", "\\u00b5m"):
             num, den = x_resolution.value
             if num > 0 and den > 0:

@@ -97,7 +97,9 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
         contour_path = contour_dir / f"{cap_id}.txt"
-        _write_text(contour_path, contour_text(by_index[cap.representative].contour))
+        contour = by_index[cap.representative].contour
+        assert contour is not None  # the representative frame is a measured one
+        _write_text(contour_path, contour_text(contour))
         contour_files.append(contour_path)
         row = [cap_id, _g(cap.L_z_px * pixel_size_um), _g(cap.L_p_px * pixel_size_um),
                _g(cap.v_c_px_s * pixel_size_um * 1e-3), _g(walls.radius_px * pixel_size_um), _g(pixel_size_um)]
@@ -138,10 +140,12 @@ def write_overlay(path: str | Path, image: np.ndarray, frame: FrameResult, walls
     for row in (walls.top_row, walls.bottom_row):
         ax.axhline(row, color="deepskyblue", lw=1)
     ax.axhline(walls.axis_row, color="gold", lw=0.8, ls="--")
-    closed = np.vstack([frame.contour, frame.contour[:1]])
+    contour = frame.contour
+    assert contour is not None, "write_overlay draws a measured frame (one with a contour)"
+    closed = np.vstack([contour, contour[:1]])
     ax.plot(closed[:, 0], closed[:, 1], "-", color="red", lw=1)
     ax.plot([frame.x_front, frame.x_rear_axis], [walls.axis_row, walls.axis_row], "o", color="lime", ms=4)
-    rim = frame.contour[np.argmin(frame.contour[:, 0])]
+    rim = contour[np.argmin(contour[:, 0])]
     ax.plot([rim[0]], [rim[1]], "o", color="magenta", ms=4)
     ax.axvline(frame.x_rear, color="magenta", lw=0.6, ls=":")
     ax.set_xlim(-0.5, cols - 0.5)

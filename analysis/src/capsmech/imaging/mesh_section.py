@@ -60,7 +60,8 @@ def plane_section(nodes: np.ndarray, triangles: np.ndarray, normal_axis: int = 1
     # edge is shared by the two triangles of that edge, which links the segments into a curve.
     edges: list[tuple[int, int]] = []
     for tri in crossing:
-        ends = [tuple(sorted((int(tri[k]), int(tri[(k + 1) % 3])))) for k in range(3)]
+        pairs = [(int(tri[k]), int(tri[(k + 1) % 3])) for k in range(3)]
+        ends = [(min(pair), max(pair)) for pair in pairs]
         edges.extend(e for e in ends if positive[e[0]] != positive[e[1]])
     keys = {e: i for i, e in enumerate(dict.fromkeys(edges))}
     links = np.array([keys[e] for e in edges]).reshape(-1, 2)

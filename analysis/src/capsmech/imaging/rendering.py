@@ -219,13 +219,13 @@ def write_tiff_stack(path: str | Path, frames: np.ndarray, pixel_size_um: float 
 
     path = Path(path)
     metadata: dict[str, object] = {"axes": "TYX" if frames.ndim == 3 else "YX"}
-    kwargs: dict[str, object] = {}
+    resolution = None  # (imwrite's default)
     if pixel_size_um is not None:
         metadata["unit"] = "um"
-        kwargs["resolution"] = (1 / pixel_size_um, 1 / pixel_size_um)
+        resolution = (1 / pixel_size_um, 1 / pixel_size_um)
     if frame_rate is not None:
         metadata["finterval"] = 1 / frame_rate
     tmp = path.with_name(path.name + ".tmp")
-    tifffile.imwrite(tmp, frames, imagej=True, metadata=metadata, **kwargs)
+    tifffile.imwrite(tmp, frames, imagej=True, metadata=metadata, resolution=resolution)
     os.replace(tmp, path)
     return path

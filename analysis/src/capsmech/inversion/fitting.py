@@ -23,7 +23,6 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from capsmech.diagnosis.residuals import size_residual, velocity_residual
 from capsmech.inversion.inverters import (
     FIVE_FITS,
     FiveFits,
@@ -33,6 +32,7 @@ from capsmech.inversion.inverters import (
     TubeTable,
     profile_elongation,
 )
+from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,

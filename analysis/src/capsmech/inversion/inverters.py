@@ -292,10 +292,10 @@ class TubeInverter:
             parts = [self.fit_many(L_z[i:i + _BATCH], L_p[i:i + _BATCH], v_c_all[i:i + _BATCH] if has_modulus
                                    else None, mu_all[i:i + _BATCH] if has_modulus else None)
                      for i in range(0, n, _BATCH)]
-            return TubeFits(*(np.concatenate([getattr(part, name) for part in parts])
-                              for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s")),
-                            flag=[f for part in parts for f in part.flag])
-        out = TubeFits(*(np.full(n, np.nan) for _ in range(4)), flag=[""] * n)
+            a_over_l, Ca_s, vc_over_V, G_s = (np.concatenate([getattr(part, name) for part in parts])
+                                              for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s"))
+            return TubeFits(a_over_l, Ca_s, vc_over_V, G_s, flag=[f for part in parts for f in part.flag])
+        out = TubeFits(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), flag=[""] * n)
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
         for i in np.flatnonzero(~valid):

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import stats
 
 if TYPE_CHECKING:
@@ -71,20 +72,20 @@ class LawDrift:
         return self.p_value < ALPHA
 
 
-def law_drift(law: str, delta: Sequence[float], g_s: Sequence[float]) -> LawDrift:
+def law_drift(law: str, delta: ArrayLike, g_s: ArrayLike) -> LawDrift:
     """Regress G_s / mean(G_s) on Delta for one law (needs at least 3 capsules)."""
-    delta, g_s = np.asarray(delta, dtype=float), np.asarray(g_s, dtype=float)
-    keep = np.isfinite(delta) & np.isfinite(g_s)
-    delta, g_s = delta[keep], g_s[keep]
-    if len(delta) < 3:
-        raise ValueError(f"law {law}: {len(delta)} capsules with G_s and Delta, the drift test needs 3")
-    if np.ptp(delta) == 0:
+    x, g = np.asarray(delta, dtype=float), np.asarray(g_s, dtype=float)
+    keep = np.isfinite(x) & np.isfinite(g)
+    x, g = x[keep], g[keep]
+    if len(x) < 3:
+        raise ValueError(f"law {law}: {len(x)} capsules with G_s and Delta, the drift test needs 3")
+    if np.ptp(x) == 0:
         raise ValueError(f"law {law}: every capsule has the same Delta, the drift cannot be measured")
-    mean = float(g_s.mean())
-    fit = stats.linregress(delta, g_s / mean)
-    t_crit = stats.t.ppf(1 - ALPHA / 2, len(delta) - 2)
+    mean = float(g.mean())
+    fit = stats.linregress(x, g / mean)
+    t_crit = stats.t.ppf(1 - ALPHA / 2, len(x) - 2)
     t_stat = fit.slope / fit.stderr if fit.stderr > 0 else math.inf
-    return LawDrift(law=law, n=len(delta), mean=mean, std=float(g_s.std(ddof=1)), slope=float(fit.slope),
+    return LawDrift(law=law, n=len(x), mean=mean, std=float(g.std(ddof=1)), slope=float(fit.slope),
                     ci_low=float(fit.slope - t_crit * fit.stderr), ci_high=float(fit.slope + t_crit * fit.stderr),
                     t=float(t_stat), p_value=float(fit.pvalue))
 
@@ -138,9 +139,9 @@ def shape_comparison(rows: Iterable[Mapping[str, Any]]) -> ShapeComparison | Non
     excluded); None when fewer than two laws or ``MIN_SHAPE_PAIRS`` capsules have one."""
     misfit: dict[str, dict[str, float]] = {}
     for row in rows:
-        h = _number(row.get("H_over_a"))
-        if not row.get("flag") and np.isfinite(h):
-            misfit.setdefault(str(row["law"]), {})[str(row["id"])] = h
+        value = _number(row.get("H_over_a"))
+        if not row.get("flag") and np.isfinite(value):
+            misfit.setdefault(str(row["law"]), {})[str(row["id"])] = value
     laws = sorted(misfit)
     if len(laws) < 2:
         return None
@@ -151,7 +152,7 @@ def shape_comparison(rows: Iterable[Mapping[str, Any]]) -> ShapeComparison | Non
     p_values = {(a, b): float(stats.wilcoxon(h[a], h[b]).pvalue) for i, a in enumerate(laws) for b in laws[i + 1:]}
     median = {law: float(np.median(h[law])) for law in laws}
     smallest = min(laws, key=median.__getitem__)
-    decisive = all(p_values[tuple(sorted((smallest, other)))] < ALPHA for other in laws if other != smallest)
+    decisive = all(p_values[(min(smallest, other), max(smallest, other))] < ALPHA for other in laws if other != smallest)
     return ShapeComparison(len(common), median, p_values, smallest if decisive else None)
 
 

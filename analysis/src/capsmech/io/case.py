@@ -421,7 +421,7 @@ def _check_xyz(ds: h5py.Dataset, name: str, where: str) -> np.ndarray:
 
 def _read_meridian_mesh(datasets: dict[str, h5py.Dataset], where: str) -> dict[str, np.ndarray]:
     """Read the axisymmetric ``/mesh``: reference and current meridians, (n, 2) of (r, z)."""
-    out = {}
+    out: dict[str, np.ndarray] = {}
     for name in ("reference_meridian", "meridian"):
         if name not in datasets:
             raise CaseFileError(f"{where}: '/mesh' has no dataset '{name}'")

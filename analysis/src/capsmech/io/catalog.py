@@ -40,8 +40,8 @@ from pathlib import Path
 
 import h5py
 
+from capsmech.errors import DatabaseError
 from capsmech.io.case import decode_str
-from capsmech.io.database import DatabaseError
 
 #: The package folder (below ``capsmech``) that holds the shipped files.
 PACKAGE_FOLDER = "databases"

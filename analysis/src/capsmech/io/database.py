@@ -28,34 +28,20 @@ carry NaN in every result column and profile: they are recorded, never dropped.
 from __future__ import annotations
 
 import json
-import math
-import os
-from collections.abc import Mapping
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
-from capsmech import __version__
-from capsmech.errors import CapsmechError
+from capsmech.errors import DatabaseError
 from capsmech.io.case import (
-    EFFECT_DEFAULTS,
     STATUSES,
-    CaseResult,
     decode_str,
     require_hdf5_file,
 )
-from capsmech.workflow.grid import (
-    Case,
-    expand_cases,
-    flow_settings,
-    grid_json,
-    parse_law,
-)
-from capsmech.workflow.runner import read_outcome
+from capsmech.io.catalog import database_path
 
 FORMAT = "capsmech-database"
 FORMAT_VERSION = 1
@@ -77,33 +63,6 @@ LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
 TEXT_COLUMNS = ("status", "message")
 
 
-class DatabaseError(CapsmechError, ValueError):
-    """A database cannot be assembled or loaded; the message names the file and the item."""
-
-
-def database_identity(grid: Mapping[str, Any], flow: str) -> dict[str, Any]:
-    """Return the identity a grid gives its ``flow`` database: name, version, accuracy.
-
-    Parameters
-    ----------
-    grid : mapping
-        The validated grid; its optional ``<flow>.database`` holds ``name``, ``version`` and
-        ``accuracy``.
-    flow : str
-        'tube' or 'shear'.
-
-    Returns
-    -------
-    dict
-        ``name`` (default ``'<flow>-<grid name>'``), ``version`` (default 1) and
-        ``accuracy`` (default ``'not stated by grid <grid name>'``).
-    """
-    given = grid.get(flow, {}).get("database", {})
-    return {"name": str(given.get("name", f"{flow}-{grid['name']}")),
-            "version": int(given.get("version", 1)),
-            "accuracy": str(given.get("accuracy", f"not stated by grid {grid['name']}"))}
-
-
 def expected_units(flow: str) -> dict[str, str]:
     """Return the units of every dataset of a law group of a ``flow`` database."""
     names, length = PROFILES[flow]
@@ -119,168 +78,9 @@ def expected_units(flow: str) -> dict[str, str]:
 # ---------------------------------------------------------------------------
 
 
-def resample_by_arclength(x: np.ndarray, y: np.ndarray, n: int, closed: bool) -> np.ndarray:
-    """Resample a polyline to ``n`` points equally spaced in arclength.
-
-    Parameters
-    ----------
-    x, y : numpy.ndarray
-        Coordinates of the polyline's points, in order.
-    n : int
-        Number of output points.
-    closed : bool
-        True for a closed contour (the segment back to the first point counts, and the
-        first point is not repeated); False for an open curve (both ends kept).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape (2, n): resampled x and y.
-    """
-    points = np.column_stack([x, y]).astype(float)
-    if closed:
-        points = np.vstack([points, points[:1]])
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
-    targets = np.linspace(0.0, s[-1], n, endpoint=not closed)
-    return np.vstack([np.interp(targets, s, points[:, 0]), np.interp(targets, s, points[:, 1])])
-
-
 # ---------------------------------------------------------------------------
 # Assembly
 # ---------------------------------------------------------------------------
-
-
-def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
-    """Fail when a case file is not the run the grid asks for (wrong file in the place)."""
-    expected = parse_law(case.law.key)
-    pairs = [("flow", case.flow, result.flow), ("law", expected.name, result.law)]
-    mismatch = [f"{name} {found!r}, grid wants {want!r}" for name, want, found in pairs if want != found]
-    numbers = [("Ca_s", case.Ca_s, result.Ca_s)]
-    if case.a_over_l is not None:
-        numbers.append(("a_over_l", case.a_over_l, result.a_over_l))
-    if expected.nu_s is not None:
-        numbers.append(("nu_s", expected.nu_s, result.nu_s))
-    if expected.C is not None:
-        numbers.append(("C", expected.C, result.C))
-    wanted_effects = dict(expected.effects)
-    for name, neutral in EFFECT_DEFAULTS.items():
-        numbers.append((name, wanted_effects.get(name, neutral), result.effects.get(name, neutral)))
-    mismatch += [f"{name} {found!r}, grid wants {want!r}" for name, want, found in numbers
-                 if not math.isclose(want, found, rel_tol=1e-12, abs_tol=1e-15)]
-    if mismatch:
-        raise DatabaseError(f"{path}: not the case of the grid: " + "; ".join(mismatch))
-
-
-def _case_row(case: Case, path: Path, points: int) -> dict[str, Any]:
-    """Read one case file (or failure record) into a database row."""
-    if not path.is_file():
-        raise DatabaseError(f"{path}: case file missing (run the workflow to compute it)")
-    status, message, code_version, result = read_outcome(path)
-    flow = case.flow
-    row: dict[str, Any] = {name: getattr(case, attr) for name, (attr, _) in PARAMETERS[flow].items()}
-    row.update(status=status, message=message, code_version=code_version,
-               wall_time_s=math.nan if result is None else result.wall_time_s)
-    names, _ = PROFILES[flow]
-    row.update({name: math.nan for name in RESULTS[flow]})
-    row.update({f"profile_{c}": np.full(points, np.nan) for c in names})
-    if result is None:
-        return row
-    _check_case_matches(case, result, path)
-    if status != "steady":
-        return row
-    for name, (source, unit, _) in RESULTS[flow].items():
-        found = result.unit(f"steady/{source}")
-        if found != unit:
-            raise DatabaseError(f"{path}: '/steady/{source}' has units {found!r}, expected {unit!r}")
-        row[name] = result.steady_value(source)
-    for c in names:
-        if result.unit(f"profile/{c}") != PROFILES[flow][1]:
-            raise DatabaseError(f"{path}: '/profile/{c}' has units {result.unit(f'profile/{c}')!r}, "
-                                f"expected {PROFILES[flow][1]!r}")
-    resampled = resample_by_arclength(result.profile[names[0]], result.profile[names[1]], points,
-                                      closed=flow == "shear")
-    row.update({f"profile_{c}": resampled[i] for i, c in enumerate(names)})
-    return row
-
-
-def _write_dataset(group: h5py.Group, name: str, data: Any, units: str) -> None:
-    """Write one dataset with its ``units`` attribute (text as variable-length UTF-8)."""
-    if name in TEXT_COLUMNS:
-        ds = group.create_dataset(name, data=np.array(data, dtype=object), dtype=h5py.string_dtype())
-    else:
-        ds = group.create_dataset(name, data=np.asarray(data, dtype=float))
-    ds.attrs["units"] = units
-
-
-def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path, out: str | Path,
-                      *, created: str | None = None) -> Path:
-    """Assemble the case files of one flow of a grid into a database file.
-
-    Parameters
-    ----------
-    grid : mapping
-        The validated grid (see :mod:`capsmech.workflow.grid`).
-    flow : str
-        'tube' or 'shear'.
-    cases_dir : str or Path
-        Directory holding ``<flow>/<law>/<case>.h5``.
-    out : str or Path
-        Database file to write (``OUT.tmp`` first, renamed when complete).
-    created : str, optional
-        Creation time recorded in the provenance; default now (UTC, ISO 8601).
-
-    Returns
-    -------
-    Path
-        The database file.
-
-    Raises
-    ------
-    DatabaseError
-        If a case file is missing, is not the grid's case, has unexpected units, or the
-        cases were written by different kernel versions.
-    """
-    cases = expand_cases(grid, flow)
-    if not cases:
-        raise DatabaseError(f"grid {grid['name']!r} has no {flow} cases")
-    points = int(grid.get("profile_points", 64))
-    cases_dir, out = Path(cases_dir), Path(out)
-    rows: dict[str, list[dict[str, Any]]] = {}
-    for case in cases:
-        rows.setdefault(case.law.key, []).append(_case_row(case, cases_dir / case.relative_path, points))
-    versions = sorted({row["code_version"] for law_rows in rows.values() for row in law_rows})
-    if len(versions) != 1:
-        raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "
-                            "rerun the workflow so that every case is recomputed by one kernel")
-    units = expected_units(flow)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        f.attrs.update({
-            **database_identity(grid, flow),
-            "format": FORMAT, "format_version": FORMAT_VERSION, "flow": flow,
-            "grid_name": grid["name"], "grid": grid_json(grid),
-            "settings": json.dumps(flow_settings(grid, flow), sort_keys=True),
-            "code_version": versions[0],
-            "created": created or datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "case_count": len(cases), "profile_points": points,
-            "capsmech_version": __version__, "length_scale": LENGTH_SCALE[flow],
-        })
-        for key, law_rows in rows.items():
-            law = parse_law(key)
-            group = f.create_group(key)
-            group.attrs.update({
-                "law": law.name,
-                "nu_s": math.nan if law.nu_s is None else law.nu_s,
-                "C": math.nan if law.C is None else law.C,
-                **{name: dict(law.effects).get(name, neutral) for name, neutral in EFFECT_DEFAULTS.items()},
-                "case_count": len(law_rows),
-                "steady_count": sum(row["status"] == "steady" for row in law_rows),
-            })
-            for name, unit in units.items():
-                _write_dataset(group, name, [row[name] for row in law_rows], unit)
-    os.replace(tmp, out)
-    return out
 
 
 # ---------------------------------------------------------------------------
@@ -435,7 +235,8 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
                                 f"expected {unit!r}")
     status = np.array(group["status"].asstr()[()], dtype=str)
     rows = len(status)
-    columns, profiles = {}, {}
+    columns: dict[str, np.ndarray] = {}
+    profiles: dict[str, np.ndarray] = {}
     for name in units:
         if name in TEXT_COLUMNS:
             continue
@@ -479,7 +280,6 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
         version, or a column is missing, has other units or another length (the message
         names the file and dataset).
     """
-    from capsmech.io.catalog import database_path  # the catalog imports this module
 
     path = database_path(path)
     where = require_hdf5_file(path, "database", DatabaseError)

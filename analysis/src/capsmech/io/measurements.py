@@ -64,6 +64,7 @@ import csv
 import math
 import re
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,7 +85,7 @@ TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius":
                 "pixel_size": ("length", False), "contour": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
                  "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False)}
-UNITS = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
+UNITS: dict[str, Mapping[str, float | None]] = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
          "angle": ANGLE_UNITS}
 HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 #: A header cell read: column name, unit, scale to SI (None for id, and for px until a row's pixel_size).
@@ -305,13 +306,18 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
             raise MeasurementError(f"{path}:{line}: id {capsule_id!r} already used on line {ids[capsule_id]}")
         ids[capsule_id] = line
         values: dict[str, float] = {}
-        pixel = raw["pixel_size"][0] * raw["pixel_size"][2] if "pixel_size" in raw else None
+        pixel: float | None = None
+        if "pixel_size" in raw:
+            size, _, size_scale = raw["pixel_size"]
+            assert size_scale is not None  # a physical length: the header refuses pixel_size in px
+            pixel = size * size_scale
         for name, (value, unit, scale) in raw.items():
             if unit == "px":
                 if pixel is None:
                     raise MeasurementError(f"{path}:{line}: field {name!r} is in px but the row has no pixel_size")
                 values[name] = value * pixel
             else:
+                assert scale is not None  # px is the only unit without an SI scale
                 values[name] = value * scale
         contour = None
         if contour_cell is not None:

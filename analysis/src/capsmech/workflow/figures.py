@@ -134,7 +134,7 @@ def lengths_figure(database: TubeDatabase, laws: Sequence[str], ca_max: float = 
                 ax.plot(table.columns["Ca_s"][rows][order], table.columns[name][rows][order],
                         LINESTYLES[i % len(LINESTYLES)], marker=MARKERS[j % len(MARKERS)], color=f"C{i}",
                         ms=4, lw=1, label=f"{key}, a/l = {size:g}")
-    for ax, (name, label) in zip(axes, quantities):
+    for ax, (_, label) in zip(axes, quantities):
         ax.set_xlabel("Ca_s [-]")
         ax.set_ylabel(f"{label} [-]")
         ax.grid(True, alpha=0.3)
