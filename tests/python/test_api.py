@@ -150,3 +150,43 @@ def test_law_is_repeatable_wherever_it_takes_several():
     for command in (["fit-tube", "x.csv"], ["fit-shear", "x.csv"], ["compare-methods"]):
         args = parser.parse_args([*command, "--law", "NH", "--law", "GH_nu0.5"])
         assert args.law == ["NH", "GH_nu0.5"], command
+
+
+def test_extract_returns_the_capsules_of_the_shipped_film_with_units():
+    """The rendered film data/examples/frames/capsule_NH.tif (scripts/make_example_frames.py):
+    its truth file holds the lengths, velocity and tube radius it was drawn with; the film's
+    TIFF metadata give the calibration, so none is passed."""
+    import csv
+
+    folder = ROOT / "data" / "examples" / "frames"
+    with (folder / "truth.csv").open(encoding="utf-8") as stream:
+        truth = next(csv.DictReader(line for line in stream if not line.startswith("#")))
+    found = capsmech.extract(folder / "capsule_NH.tif")
+    assert found.pixel_size_um == float(truth["pixel_size [um]"])
+    assert found.frame_rate == float(truth["frame_rate [1/s]"])
+    assert len(found.frames) == 20 and list(found.frames["index"]) == list(range(20))
+    measured = found.capsules[found.capsules["flag"] == ""]
+    assert len(measured) == 1
+    row = measured.iloc[0]
+    assert found.capsules.attrs["units"]["L_z"] == "um" and found.capsules.attrs["units"]["v_c"] == "mm/s"
+    # Within two pixels (the membrane line's width) of the drawn lengths, 1 % of the velocity.
+    pixel = found.pixel_size_um
+    assert abs(row["L_z"] - float(truth["L_z [um]"])) < 2 * pixel
+    assert abs(row["L_p"] - float(truth["L_p [um]"])) < 2 * pixel
+    assert abs(row["tube_radius"] - float(truth["tube_radius [um]"])) < pixel
+    assert abs(row["v_c"] / float(truth["v_c [mm/s]"]) - 1) < 0.01
+    # The good frames are the film's measured ones: 20 less the 4 cut by the border and 1 blurred.
+    assert row["good_frames"] == (found.frames["flag"] == "").sum() == 15
+
+
+def test_extract_without_calibration_names_the_parameter(tmp_path):
+    import imageio.v3 as iio
+    import tifffile
+
+    # The film's frames as PNG files: the same images, without the TIFF's calibration.
+    for k, page in enumerate(tifffile.imread(ROOT / "data" / "examples" / "frames" / "capsule_NH.tif")[:5]):
+        iio.imwrite(tmp_path / f"frame_{k}.png", page)
+    with pytest.raises(capsmech.CapsmechError, match="^pixel_size: required"):
+        capsmech.extract(str(tmp_path / "frame_*.png"))
+    with pytest.raises(capsmech.CapsmechError, match="^frame_rate: required"):
+        capsmech.extract(str(tmp_path / "frame_*.png"), pixel_size="0.6um")

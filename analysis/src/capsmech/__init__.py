@@ -11,6 +11,7 @@ The public API (every function documented in ``capsmech.api``)::
     verdict = capsmech.population(results)              # which law: verdict.best, verdict.reason
     figure = capsmech.plot_population(results)          # a matplotlib Figure
     diagnosis = capsmech.diagnose(capsules, db, law="NH")   # which effect the model lacks
+    found = capsmech.extract("film.tif", pixel_size="0.5um")  # frames -> found.capsules (DataFrame)
 
 Errors a user can cause are ``CapsmechError``; warnings are ``CapsmechWarning``.
 """
@@ -18,7 +19,9 @@ Errors a user can cause are ``CapsmechError``; warnings are ``CapsmechWarning``.
 from __future__ import annotations
 
 from capsmech.api import (
+    Extraction,
     diagnose,
+    extract,
     fit_shear,
     fit_tube,
     plot_population,
@@ -42,7 +45,9 @@ __all__ = [
     "NotSteadyError",
     "OutsideDatabaseWarning",
     "__version__",
+    "Extraction",
     "diagnose",
+    "extract",
     "fit_shear",
     "fit_tube",
     "load_database",

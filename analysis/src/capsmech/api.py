@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeAlias, cast, overload
 
@@ -315,3 +316,129 @@ def _offcentre(table: OffcentreTable | str | Path | None) -> OffcentreTable | No
         return OffcentreTable.read(table)
     except OffcentreError as err:
         raise DatabaseError(f"offcentre_table: {err}") from None
+
+
+@dataclass
+class Extraction:
+    """What ``extract`` found in a stack of frames.
+
+    Attributes
+    ----------
+    capsules : DataFrame
+        One row per capsule passage: ``id``, ``good_frames``, ``frames``, ``L_z``, ``L_p``
+        [um] with their spreads over the good frames, ``v_c`` [mm/s] with its standard error,
+        ``tube_radius`` [um], ``flag`` (``""`` measured, ``too_few_frames``, ``not_moving``)
+        and ``reason``; units in ``attrs["units"]``.
+    frames : DataFrame
+        One row per frame: index, label, passage (-1: none), flag (empty: measured) and the
+        frame's lengths [px].
+    pixel_size_um, frame_rate : float
+        The calibration used [um per pixel, frames per second].
+    walls, stack, results, measurements
+        The walls found, the frames and the per-frame and per-capsule objects (what the
+        writers of ``capsmech.imaging.extraction_output`` take).
+    """
+
+    capsules: pd.DataFrame
+    frames: pd.DataFrame
+    pixel_size_um: float
+    frame_rate: float
+    walls: Any
+    stack: Any
+    results: list[Any]
+    measurements: list[Any]
+
+
+#: Columns of ``Extraction.capsules`` and their units (lengths as the measurement CSV has them).
+EXTRACTION_UNITS = {"id": "", "good_frames": "1", "frames": "1", "L_z": "um", "L_z_spread": "um", "L_p": "um",
+                    "L_p_spread": "um", "v_c": "mm/s", "v_c_se": "mm/s", "tube_radius": "um", "flag": "",
+                    "reason": ""}
+
+
+def _quantity(value: float | str | None, name: str, units: dict[str, float], default_unit: str) -> float | None:
+    from capsmech.imaging.extraction_output import parse_quantity
+
+    if value is None or isinstance(value, (int, float)):
+        return None if value is None else float(value)
+    return parse_quantity(value, name, units, default_unit)
+
+
+def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str | None = None,
+            frame_rate: float | str | None = None, *, flow_direction: str = "right", capsule_id: str | None = None,
+            max_asymmetry: float = 0.05, max_line_width: float = 10.0, min_frames: int = 3,
+            progress: bool = False) -> Extraction:
+    """Measure the capsules of a stack of frames of a tube: lengths, velocity, contours.
+
+    Parameters
+    ----------
+    frames : path, glob pattern or sequence of them
+        A multi-page TIFF, image files or folders, in frame order.
+    pixel_size : float or str, optional
+        One pixel [um], or a quantity with its unit (``"0.5um"``); default the TIFF's metadata.
+    frame_rate : float or str, optional
+        Frames per second (``1000``, ``"1kHz"``); default the TIFF's frame interval.
+    flow_direction : {"right", "left"}
+        The flow's direction in the images (left: the frames are mirrored first).
+    capsule_id : str, optional
+        Id of the capsule (several: ``ID-1``, ``ID-2``, ...); default the first file's name.
+    max_asymmetry, max_line_width, min_frames
+        A frame is flagged when its halves differ by more than ``max_asymmetry`` of L_z/2 or
+        its line is wider than ``max_line_width`` [px]; a capsule needs ``min_frames`` good ones.
+    progress : bool
+        A progress bar on stderr.
+
+    Returns
+    -------
+    Extraction
+        ``capsules`` and ``frames`` as DataFrames, and what the writers need.
+
+    Raises
+    ------
+    ExtractionError
+        Unreadable frames, no walls, or no calibration in the files or the arguments.
+    """
+    from tqdm import tqdm
+
+    from capsmech.imaging.extraction import (
+        ExtractionError,
+        ExtractionSettings,
+        measure_capsules,
+        read_frames,
+    )
+    from capsmech.imaging.extraction import extract as extract_frames
+    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, RATE_UNITS_HZ, default_ids
+
+    paths = [frames] if isinstance(frames, (str, Path)) else list(frames)
+    pixel_um = _quantity(pixel_size, "pixel_size", PIXEL_UNITS_UM, "um")
+    rate = _quantity(frame_rate, "frame_rate", RATE_UNITS_HZ, "Hz")
+    settings = ExtractionSettings(max_asymmetry=max_asymmetry, max_line_width_px=max_line_width,
+                                  min_good_frames=min_frames)
+    stack = read_frames(paths, flow_direction)
+    pixel_um = pixel_um or stack.pixel_size_um
+    rate = rate or stack.frame_rate
+    if pixel_um is None:
+        raise ExtractionError("pixel_size: required (the files carry no pixel size)")
+    if rate is None:
+        raise ExtractionError("frame_rate: required (the files carry no frame interval)")
+    bar = tqdm(total=len(stack), desc="frames", unit="frame", disable=not progress, leave=False)
+
+    def advance(done: int, total: int) -> None:
+        bar.update(done - bar.n)
+
+    walls, results = extract_frames(stack, settings, advance)
+    bar.close()
+    measurements = measure_capsules(results, rate, settings)
+    ids = default_ids(capsule_id or Path(stack.labels[0].split("[")[0]).stem, len(measurements))
+    rows = []
+    for cap_id, cap in zip(ids, measurements):
+        flag = "" if cap.ok else ("too_few_frames" if "good frame" in cap.problem else "not_moving")
+        rows.append({"id": cap_id, "good_frames": len(cap.good_frames), "frames": len(cap.frames),
+                     "L_z": cap.L_z_px * pixel_um, "L_z_spread": cap.L_z_spread_px * pixel_um,
+                     "L_p": cap.L_p_px * pixel_um, "L_p_spread": cap.L_p_spread_px * pixel_um,
+                     "v_c": cap.v_c_px_s * pixel_um * 1e-3, "v_c_se": cap.v_c_se_px_s * pixel_um * 1e-3,
+                     "tube_radius": walls.radius_px * pixel_um, "flag": flag, "reason": cap.problem})
+    frame_rows = [{"index": r.index, "label": r.label, "passage": r.passage, "flag": r.flag, "objects": r.objects,
+                   "L_z_px": r.L_z_px, "L_p_px": r.L_p_px, "centroid_x_px": r.centroid_x,
+                   "asymmetry": r.asymmetry} for r in results]
+    return Extraction(_frame(rows, EXTRACTION_UNITS), pd.DataFrame(frame_rows), float(pixel_um), float(rate),
+                      walls, stack, results, measurements)

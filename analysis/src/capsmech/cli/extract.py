@@ -6,6 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from capsmech.api import extract
+from capsmech.cli.common import format_table, records
+from capsmech.imaging.extraction import ExtractionError
+
 
 def cmd_extract(args: argparse.Namespace) -> int:
     """``extract``: frames of a capsule in the tube -> measurement CSV, contours, report, overlays.
@@ -14,38 +18,30 @@ def cmd_extract(args: argparse.Namespace) -> int:
     are printed and the per-frame report is still written), 2 for unreadable files or bad
     options (``ExtractionError``).
     """
-    from capsmech.imaging.extraction import (
-        ExtractionError,
-        ExtractionSettings,
-        extract,
-        measure_capsules,
-        progress_printer,
-        read_frames,
-    )
     from capsmech.imaging.extraction_output import (
         PIXEL_UNITS_UM,
         RATE_UNITS_HZ,
         VISCOSITY_UNITS_PA_S,
-        default_ids,
         parse_quantity,
         write_frame_report,
         write_measurements,
         write_overlay,
     )
 
+    mu = parse_quantity(args.mu, "--mu", VISCOSITY_UNITS_PA_S, "Pa s") if args.mu else None
     pixel_um = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um") if args.pixel_size else None
     rate = parse_quantity(args.frame_rate, "--frame-rate", RATE_UNITS_HZ, "Hz") if args.frame_rate else None
-    mu = parse_quantity(args.mu, "--mu", VISCOSITY_UNITS_PA_S, "Pa s") if args.mu else None
-    settings = ExtractionSettings(max_asymmetry=args.max_asymmetry, max_line_width_px=args.max_line_width,
-                                  min_good_frames=args.min_frames)
-    stack = read_frames(args.frames, args.flow_direction)
-    pixel_um = pixel_um or stack.pixel_size_um
-    rate = rate or stack.frame_rate
-    if pixel_um is None:
-        raise ExtractionError("--pixel-size: required (the files carry no pixel size)")
-    if rate is None:
-        raise ExtractionError("--frame-rate: required (the files carry no frame interval)")
-    walls, results = extract(stack, settings, progress_printer())
+    try:
+        found = extract(args.frames, pixel_um, rate, flow_direction=args.flow_direction,
+                        capsule_id=args.id, max_asymmetry=args.max_asymmetry, max_line_width=args.max_line_width,
+                        min_frames=args.min_frames, progress=sys.stderr.isatty())
+    except ExtractionError as err:
+        # A calibration neither the files nor the options give: the API names its parameter,
+        # the command line its option.
+        raise ExtractionError(str(err).replace("pixel_size:", "--pixel-size:")
+                              .replace("frame_rate:", "--frame-rate:")) from None
+    walls, results, stack = found.walls, found.results, found.stack
+    pixel_um, rate = found.pixel_size_um, found.frame_rate
     out = Path(args.out)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
     write_frame_report(report, results)
@@ -60,30 +56,27 @@ def cmd_extract(args: argparse.Namespace) -> int:
     good = sum(r.good for r in results)
     print(f"{good} frames measured" + (", flagged: " + ", ".join(f"{n} {k}" for k, n in sorted(flags.items()))
                                        if flags else "") + f" (per frame: {report})")
-    capsules = measure_capsules(results, rate, settings)
-    measured = [c for c in capsules if c.ok]
-    ids = default_ids(args.id or Path(stack.labels[0].split("[")[0]).stem, len(capsules))
-    for cap_id, cap in zip(ids, capsules):
-        if not cap.ok:
-            print(f"capsule {cap_id} (frames {cap.frames[0]}-{cap.frames[-1]}) not measured: {cap.problem}")
-    if not measured:
-        why = "no capsule in any frame" if not capsules else "no capsule had enough good frames"
+    capsules = found.capsules
+    for row, cap in zip(records(capsules), found.measurements):
+        if row["flag"]:
+            print(f"capsule {row['id']} (frames {cap.frames[0]}-{cap.frames[-1]}) not measured: {row['reason']}")
+    measured = capsules[capsules["flag"] == ""]
+    if measured.empty:
+        why = "no capsule in any frame" if capsules.empty else "no capsule had enough good frames"
         print(f"capsmech: nothing measured ({why}); {out} not written", file=sys.stderr)
         return 1
-    kept_ids = [i for i, c in zip(ids, capsules) if c.ok]
-    csv_path, _ = write_measurements(out, measured, results, walls, pixel_um, kept_ids, mu,
+    kept = [cap for cap in found.measurements if cap.ok]
+    csv_path, _ = write_measurements(out, kept, results, walls, pixel_um, list(measured["id"]), mu,
                                      source=" ".join(str(f) for f in args.frames), flow_direction=args.flow_direction)
-    print(f"{'id':>12} {'frames':>7} {'L_z [um]':>16} {'L_p [um]':>16} {'v_c [mm/s]':>18}")
-    for cap_id, cap in zip(kept_ids, measured):
-        print(f"{cap_id:>12} {len(cap.good_frames):>7} {cap.L_z_px * pixel_um:>8.4g} +- {cap.L_z_spread_px * pixel_um:<4.2g}"
-              f" {cap.L_p_px * pixel_um:>8.4g} +- {cap.L_p_spread_px * pixel_um:<4.2g}"
-              f" {cap.v_c_px_s * pixel_um * 1e-3:>9.5g} +- {cap.v_c_se_px_s * pixel_um * 1e-3:<5.2g}")
-        if args.overlay:
+    print(format_table(records(measured), ["id", "good_frames", "L_z", "L_z_spread", "L_p", "L_p_spread", "v_c",
+                                           "v_c_se"], capsules.attrs["units"]))
+    if args.overlay:
+        for row, cap in zip(records(measured), kept):
             frame = next(r for r in results if r.index == cap.representative)
-            title = (f"{cap_id}, frame {frame.index}: L_z = {cap.L_z_px * pixel_um:.4g} um, L_p = "
-                     f"{cap.L_p_px * pixel_um:.4g} um, tube radius {walls.radius_px * pixel_um:.4g} um, "
-                     f"v_c = {cap.v_c_px_s * pixel_um * 1e-3:.4g} mm/s")
-            print(f"wrote {write_overlay(Path(args.overlay) / f'{cap_id}.png', stack.frames[frame.index], frame, walls, title)}")
+            title = (f"{row['id']}, frame {frame.index}: L_z = {row['L_z']:.4g} um, L_p = {row['L_p']:.4g} um, "
+                     f"tube radius {row['tube_radius']:.4g} um, v_c = {row['v_c']:.4g} mm/s")
+            path = write_overlay(Path(args.overlay) / f"{row['id']}.png", stack.frames[frame.index], frame, walls, title)
+            print(f"wrote {path}")
     print(f"wrote {csv_path}")
     return 0
 
