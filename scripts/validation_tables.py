@@ -1,0 +1,126 @@
+#!/usr/bin/env python3
+"""The validation tables that are computed from the shipped data, not pasted (issue 21, item 6).
+
+Each table is a function of the files capsmech ships (its databases, the example batches and
+film) and takes seconds. The documentation's hook (docs/hooks/validation_tables.py) puts each
+one where a page holds its marker ``<!-- generated-table NAME -->``, at every ``make docs``;
+this script prints them::
+
+    .venv/bin/python scripts/validation_tables.py            # every table
+    .venv/bin/python scripts/validation_tables.py databases  # one
+
+Tables measured by long runs (kernel convergence, refill times, diagnoses over many batches)
+stay on their pages as records of a run, each naming the test or script that measured it.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+
+def _markdown(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def databases() -> str:
+    """Every shipped database: flow, law groups, cases and steady cases, range, kernel, accuracy."""
+    from capsmech.io.catalog import shipped_databases
+    from capsmech.io.database import load_database
+
+    rows = []
+    for entry in shipped_databases():
+        if entry.kind != "database":
+            continue
+        db = load_database(entry.name)
+        cases = sum(len(table) for table in db.laws.values())
+        steady = sum(int((table.status == "steady").sum()) for table in db.laws.values())
+        ca = np.concatenate([np.asarray(table.column("Ca_s", steady_only=False)) for table in db.laws.values()])
+        span = f"Ca_s {ca.min():g}-{ca.max():g}"
+        if db.flow == "tube":
+            al = np.concatenate([np.asarray(table.column("a_over_l", steady_only=False)) for table in db.laws.values()])
+            span = f"a/l {al.min():.2f}-{al.max():.2f}, " + span
+        rows.append([f"`{entry.name}`", db.flow, ", ".join(db.laws), str(cases), str(steady), span,
+                     str(db.code_version), db.accuracy or "—"])
+    return _markdown(["name", "flow", "law groups", "cases", "steady", "range", "kernel", "accuracy"], rows)
+
+
+def tube_steady_range() -> str:
+    """The largest steady Ca_s per a/l and law of the paper-grid tube database."""
+    from capsmech.io.database import load_database
+
+    db = load_database("tube-paper")
+    sizes = sorted({float(v) for table in db.laws.values() for v in table.column("a_over_l", steady_only=False)})
+    rows = []
+    for law, table in db.laws.items():
+        a = np.asarray(table.column("a_over_l", steady_only=False), dtype=float)
+        ca = np.asarray(table.column("Ca_s", steady_only=False), dtype=float)
+        steady = np.asarray(table.status) == "steady"
+        cells = []
+        for size in sizes:
+            here = steady & np.isclose(a, size)
+            cells.append(f"{ca[here].max():g}" if here.any() else "—")
+        rows.append([law, *cells])
+    return _markdown(["law \\ a/l", *(f"{s:.2f}" for s in sizes)], rows)
+
+
+def compare_methods() -> str:
+    """``capsmech compare-methods`` on the shipped shear databases (the paper's three laws)."""
+    from capsmech.inversion.microrheometry import compare_methods as compare
+    from capsmech.inversion.microrheometry import comparison_table
+    from capsmech.io.database import ShearDatabase, load_database
+
+    base, with_lambda = load_database("shear-paper"), load_database("shear-microrheometry")
+    assert isinstance(base, ShearDatabase) and isinstance(with_lambda, ShearDatabase)
+    return comparison_table(compare(base, with_lambda, "+lambda0.001", ("NH", "GH_nu0.5", "GH_nu0.2")))
+
+
+def example_fits() -> str:
+    """Every law of the paper grid on the two shipped example batches: capsules fitted / measured,
+    median contour misfit H/a, mean G_s and its spread, against the batch's true law and G_s."""
+    import csv
+    from pathlib import Path
+
+    import capsmech
+
+    root = Path(__file__).resolve().parents[1] / "data" / "examples"
+    rows = []
+    for batch in ("tube_batch_NH", "tube_batch_GH_nu0.5"):
+        with (root / f"{batch}_truth.csv").open(encoding="utf-8") as stream:
+            truth = list(csv.DictReader(line for line in stream if not line.startswith("#")))
+        g_true = np.median([float(t["G_s [N/m]"]) for t in truth])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", capsmech.OutsideDatabaseWarning)
+            results = capsmech.fit_tube(root / f"{batch}.csv", "tube-paper")
+        for law, fits in results.groupby("law", sort=False):
+            fitted = fits[fits["flag"] == ""]
+            g = fitted["G_s"].to_numpy(dtype=float)
+            g_text = f"{g.mean():.4f} ± {g.std(ddof=1):.4f}" if len(g) > 1 else "—"
+            misfit = float(np.nanmedian(fitted["H_over_a"])) if len(fitted) else math.nan
+            rows.append([f"`{batch}`", law, f"{len(fitted)}/{len(fits)}",
+                         "—" if math.isnan(misfit) else f"{misfit:.4f}", g_text, f"{g_true:g}"])
+    return _markdown(["batch", "law", "fitted", "median H/a", "G_s [N/m]", "true G_s [N/m]"], rows)
+
+
+TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
+                                        "compare-methods": compare_methods, "example-fits": example_fits}
+
+
+def main(argv: list[str]) -> int:
+    names = argv or list(TABLES)
+    unknown = [n for n in names if n not in TABLES]
+    if unknown:
+        print(f"unknown table(s) {', '.join(unknown)}; known: {', '.join(TABLES)}", file=sys.stderr)
+        return 2
+    for name in names:
+        print(f"## {name}\n\n{TABLES[name]()}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
