@@ -190,3 +190,17 @@ def test_extract_without_calibration_names_the_parameter(tmp_path):
         capsmech.extract(str(tmp_path / "frame_*.png"))
     with pytest.raises(capsmech.CapsmechError, match="^frame_rate: required"):
         capsmech.extract(str(tmp_path / "frame_*.png"), pixel_size="0.6um")
+
+
+def test_the_cli_shows_a_capsmech_warning_as_one_line():
+    """What a notebook sees as an InputWarning, the command line prints as one line (a fresh
+    interpreter: pytest records warnings in-process instead of showing them)."""
+    import subprocess
+    import sys
+
+    spreadsheet = ROOT / "tests" / "python" / "data" / "spreadsheet" / "tube_excel.csv"
+    run = subprocess.run([sys.executable, "-m", "capsmech.cli", "fit-tube", str(spreadsheet), "--law", "NH"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    warned = [line for line in run.stderr.splitlines() if "warning" in line.lower()]
+    assert warned == [f"capsmech: warning: {spreadsheet}:2: ignored column(s) not in the tube format: 'note'"]

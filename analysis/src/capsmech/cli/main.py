@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import TextIO
 
 from capsmech.cli import case, compare, databases, dev, diagnose, extract, fit, population
 from capsmech.cli.common import EXIT_ERROR
-from capsmech.errors import CapsmechError
+from capsmech.errors import CapsmechError, CapsmechWarning
 from capsmech.version import __version__
 
 DESCRIPTION = """\
@@ -38,6 +40,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None) -> None:
+    """capsmech's warnings as one line each on stderr (``capsmech: warning: ...``), others as Python shows them."""
+    if issubclass(category, CapsmechWarning):
+        print(f"capsmech: warning: {message}", file=file or sys.stderr)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+_python_showwarning = warnings.showwarning
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``capsmech`` command line.
 
@@ -52,6 +66,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit status: the kernel's for ``simulate``; 0 on success; 1 when a job could measure or
         fit nothing; 2 for errors.
     """
+    shown, warnings.showwarning = warnings.showwarning, _show_warning
+    try:
+        return _run(argv)
+    finally:
+        warnings.showwarning = shown
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    """``main`` with capsmech's warnings shown as one line."""
     parser = build_parser()
     args, rest = parser.parse_known_args(list(sys.argv[1:] if argv is None else argv))
     if args.command != "simulate" and rest:
