@@ -83,6 +83,14 @@ def test_outside_the_table_is_a_flag_not_a_number(table, inverter, batch_o):
     assert np.isnan(fit.offset) and "outside the off-centre table" in fit.flag
 
 
+def test_no_round_is_refused_not_a_crash(table, inverter, batch_o):
+    # iterations=0 would report lengths refitted with an offset never fitted (it raised
+    # UnboundLocalError before, found by mypy's possibly-undefined check).
+    capsules, _, _ = batch_o
+    with pytest.raises(ValueError, match="iterations: at least one round"):
+        fit_offcentre_capsule(capsules[0], inverter, table, iterations=0)
+
+
 def test_the_fit_is_odd_in_the_offset(table, inverter, batch_o):
     # Mirroring the contour up-down swaps its halves: the antisymmetric part changes sign.
     capsules, _, fits = batch_o

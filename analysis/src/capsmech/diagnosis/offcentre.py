@@ -313,8 +313,10 @@ def fit_offcentre_capsule(capsule, inverter, table: OffcentreTable, iterations: 
         The base law's inverter.
     table : OffcentreTable
     iterations : int
-        Rounds of offset fit and length refit.
+        Rounds of offset fit and length refit (at least 1: the offset is fitted in a round).
     """
+    if iterations < 1:
+        raise ValueError(f"iterations: at least one round fits the offset, got {iterations}")
     nan3 = (math.nan, math.nan, math.nan)
     l = capsule["tube_radius"]
     L_z, L_p, v_c, mu = capsule["L_z"] / l, capsule["L_p"] / l, capsule["v_c"], capsule["mu"]
