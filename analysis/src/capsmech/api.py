@@ -189,28 +189,34 @@ def _records(frame: pd.DataFrame) -> list[dict[str, Any]]:
 
 
 def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict:
-    """Which membrane law gives one G_s at every deformation (paper section 4.4).
+    """Which membrane law describes the batch (paper section 4.4, over every measured capsule).
 
     Parameters
     ----------
     results : DataFrame, rows, or results file(s)
-        ``fit_tube`` results with several laws.
+        ``fit_tube`` results with several laws (columns id, law, Delta, G_s, H_over_a, flag).
 
     Returns
     -------
     PopulationVerdict
-        ``best`` (the law, or None when no law fits), ``reason``, ``drifts`` per law and the
-        contour comparison; ``population_table(verdict)`` gives it as a DataFrame.
+        ``kind`` ('law', 'cannot_tell' or 'none'), ``best`` (the law, or None), ``candidates``
+        (the laws not told apart), ``reason``, ``g_s`` and ``g_s_interval`` [N/m], the
+        ``evidence`` per law (capsules fitted, median contour score, p-value against the
+        reference law, G_s, drift), the capsules ``left_out`` and why;
+        ``population_table(verdict)`` gives the evidence as a DataFrame and
+        ``capsmech.inversion.population.verdict_dict`` as JSON-ready data.
     """
     return population_verdict(_result_rows(results))
 
 
 def population_table(verdict: PopulationVerdict) -> pd.DataFrame:
-    """The verdict per law: n, mean G_s [N/m] and its spread, drift per unit Delta with its 95 %
-    interval, p-value, and 'supported' / 'no drift' / 'drifts'."""
+    """The evidence per law, best ranked first: capsules fitted of those used, median contour
+    score, p-value against the reference law, mean G_s [N/m] with its spread and 95 % interval,
+    drift per unit Delta with its 95 % interval and p-value, and the law's status ('verdict',
+    'candidate', 'fits < half', 'drifts', 'worse contours', 'no verdict')."""
     from capsmech.inversion.population import POPULATION_UNITS, population_rows
 
-    return _frame(population_rows(verdict.drifts, verdict.best), POPULATION_UNITS)
+    return _frame(population_rows(verdict), POPULATION_UNITS)
 
 
 def plot_population(results: ResultsLike | Sequence[str | Path], verdict: PopulationVerdict | None = None) -> Figure:

@@ -1,44 +1,76 @@
-"""``capsmech population``: which law gives a G_s that does not drift with the deformation."""
+"""``capsmech population``: which law describes the batch (contours of every capsule, and a G_s
+that does not drift with the deformation), with the evidence per law."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import Any
 
 from capsmech.api import plot_population, population, population_table, read_results
 from capsmech.cli.common import format_table, records
 from capsmech.inversion.fitting import write_results
+from capsmech.inversion.population import FAIL_SCORE, write_verdict_json
 from capsmech.plotting import save_figure
+
+#: Columns printed and their units (--out writes every column of the table, separately).
+PRINTED = {"law": "", "fitted": "", "H_median": "1", "p_contours": "1", "G_s_mean": "N/m", "G_s_std": "N/m",
+           "G_s_95": "N/m", "drift": "1/Delta", "drift_95": "1/Delta", "drift_p": "1", "status": ""}
+
+
+def _interval(low: float, high: float) -> str:
+    return "n/a" if low != low or high != high else f"{low:.3g}..{high:.3g}"
+
+
+def _printed(table: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The table's rows as printed: fitted/used, the intervals as 'low..high'."""
+    return [{"law": r["law"], "fitted": f"{int(r['fitted'])}/{int(r['used'])}", "H_median": r["score_median"],
+             "p_contours": r["p_vs_reference"], "G_s_mean": r["G_s_mean"], "G_s_std": r["G_s_std"],
+             "G_s_95": _interval(r["G_s_low"], r["G_s_high"]), "drift": r["drift"],
+             "drift_95": _interval(r["drift_ci_low"], r["drift_ci_high"]), "drift_p": r["drift_p"],
+             "status": r["status"]} for r in table]
+
+
+def _rows(paths: list[str]) -> list[dict[str, Any]]:
+    """The result rows of every file; where several files use the same capsule id, each id is
+    qualified by its file's name (``file:id``) so that capsules of different batches stay apart."""
+    per_file = [(Path(path), records(read_results(path))) for path in paths]
+    ids = [{(str(row["id"]), str(row["law"])) for row in rows} for _, rows in per_file]
+    clash = len(per_file) > 1 and sum(len(i) for i in ids) > len(set().union(*ids))
+    if not clash:
+        return [row for _, rows in per_file for row in rows]
+    return [{**row, "id": f"{path.stem}:{row['id']}"} for path, rows in per_file for row in rows]
 
 
 def cmd_population(args: argparse.Namespace) -> int:
-    """Drift of G_s with Delta per law from fit-tube results; the law that fits."""
-    results = [row for path in args.results for row in records(read_results(path))]
+    """The law the batch supports, with the evidence per law (see capsmech.inversion.population)."""
+    results = _rows(args.results)
     verdict = population(results)
     table = population_table(verdict)
     units = table.attrs["units"]
-    print(format_table(records(table),
-                       ["law", "n", "G_s_mean", "G_s_std", "drift", "drift_ci_low", "drift_ci_high", "p_value"],
-                       {**units, "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta"}))
-    if verdict.shape is not None:
-        shape = verdict.shape
-        print(f"contour misfit H/a over the {shape.n} capsules every law fits: "
-              + ", ".join(f"{law} median {m:.4f}" for law, m in shape.median.items())
-              + "; paired signed-rank p: " + ", ".join(f"{a}/{b} {p:.2g}" for (a, b), p in shape.p_values.items()))
-    drifts, best = verdict.drifts, verdict.best
-    if best is None:
-        print(f"verdict: no law fits the batch ({verdict.reason})")
-    else:
-        print(f"verdict: {best}, G_s = {drifts[best].mean:.4g} +- {drifts[best].std:.2g} N/m ({verdict.reason})")
+    print(f"capsules: {verdict.measured} measured, {verdict.used} used"
+          + (f", {len(verdict.left_out)} left out for every law" if verdict.left_out else ""))
+    for cid, why in verdict.left_out:
+        print(f"  left out {cid}: {why}")
+    print(format_table(_printed(records(table)), list(PRINTED), PRINTED, digits=3))
+    print(f"fitted: capsules the law reproduces of those used; H_median: median contour misfit H/a, {FAIL_SCORE:g} "
+          f"for a capsule the law cannot fit; p_contours: paired signed-rank p that {verdict.reference} fits the "
+          "contours no better (one-sided); G_s_95: 95 % interval of the mean G_s; drift: slope of G_s/mean per unit "
+          "Delta, with its 95 % interval and the p-value of no drift")
+    print(verdict.line())
     if args.plot:
         print(f"wrote {save_figure(plot_population(results, verdict), args.plot)}")
     for out in args.out or []:
         print(f"wrote {write_results(records(table), units, out)}")
+    if args.json:
+        print(f"wrote {write_verdict_json(verdict, args.json)}")
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``population``."""
-    pop = sub.add_parser("population", help="which law gives a G_s that does not drift with deformation")
+    pop = sub.add_parser("population", help="which law describes the batch, with its G_s and the evidence per law")
     pop.add_argument("results", nargs="+", metavar="RESULTS.csv", help="fit-tube results")
     pop.add_argument("--plot", metavar="FIG.png", help="draw G_s against Delta (paper figure 10)")
     pop.add_argument("--out", action="append", metavar="FILE", help="write the per-law table (.csv or .h5; repeatable)")
+    pop.add_argument("--json", metavar="FILE.json", help="write the verdict and its evidence as JSON")
     pop.set_defaults(func=cmd_population)

@@ -1,28 +1,101 @@
-"""Population analysis (paper section 4.4): which membrane law gives one G_s at every deformation.
+"""Population analysis (paper section 4.4): which membrane law describes a batch, and its G_s.
 
 G_s is a material property: fitted with the right law it does not drift with the capsules'
-deformation, measured by the mean profile elongation Delta = p / (2 pi a). For each law the
-fitted G_s of a batch are regressed on Delta (least squares, ``scipy.stats.linregress``); the
-drift is the slope relative to the mean G_s, with its 95 % confidence interval (Student t)
-and the p-value of "no drift".
+deformation, measured by the mean profile elongation Delta = p / (2 pi a), and the law's
+steady shapes reproduce every capsule. ``population_verdict`` weighs both kinds of evidence
+over **every measured capsule** of a batch of ``fit-tube`` result rows (one row per capsule
+and law).
 
-The drift test alone has little power where two laws map the same lengths onto each other by
-a rescaling of G_s (an NH fit of a GH nu_s = 0.5 batch gives twice the modulus and no drift
-over Delta 1.03-1.2). The contours tell those laws apart: each capsule's misfit H/a to the
-profile fitted with each law is compared across the batch by a paired Wilcoxon signed-rank
-test (``shape_comparison``). The verdict (``population_verdict``):
+Capsules
+--------
+A flag that is the same for every law says nothing about the law: an asymmetric contour, an
+invalid input (and, for shear rows, an imprecise D12). Such a capsule is left out of the
+comparison for every law, with its reason (``PopulationVerdict.left_out``). Every other
+capsule is *used*. A law-dependent failure (``outside_database``, ``central_fit_outside``,
+``profile_misfit``, any other flag, or no row of that law for the capsule) is evidence
+against that law: the law cannot reproduce the capsule. A ``no_velocity`` row is a fit
+(its shape counts) without a G_s. Fewer than ``MIN_CAPSULES`` (5) used capsules: no verdict.
 
-- when the contours single out a law (smaller H/a than every other law, p < alpha), that law,
-  provided its G_s does not drift; if it drifts, no law (the two tests disagree);
-- otherwise (no contours, or no significant difference) the law whose drift is least
-  significant (largest p-value) among those with p >= alpha; when every law drifts, none.
+Criterion: the contours
+-----------------------
+Each used capsule gets, under each law, a misfit score: its contour misfit H/a when the law
+fits it, ``FAIL_SCORE`` (1, a contour missed by a whole radius; a fitted capsule has H/a <=
+0.06) when the law cannot. Where the capsule has no contour, a fit scores 0, so that only
+"fitted or not" counts. Two laws are compared by a **paired one-sided Wilcoxon signed-rank
+test** of the score differences over the used capsules (``p_better[(a, b)]``: p-value of "a
+fits no better than b"; capsules with equal scores, e.g. fitted by neither law, carry no
+information and drop out). Why this criterion rather than a batch likelihood:
+
+- it counts every used capsule: a capsule one law cannot fit is the largest possible
+  difference in the other law's favour, whatever the value of ``FAIL_SCORE``, because the
+  test uses only the ranks of the differences;
+- it is exact without a noise model: under "the two laws fit equally well" the sign of each
+  capsule's difference is a fair coin, which is all the test assumes. A likelihood would need
+  the distribution of H/a, a modified Hausdorff distance that is dominated, for the right
+  law, by the database's interpolation error (H/a 0.006-0.03 on the example batches) rather
+  than by the tracing noise (the halves differ by 0.005 a): a chi-square against the tracing
+  noise alone would call small model differences decisive;
+- a law's median score is its typical misfit, and it is 1 when the law fits fewer than half
+  of the capsules.
+
+Criterion: the drift
+--------------------
+For each law the fitted G_s are regressed on Delta (least squares, ``law_drift``): the
+slope of G_s/mean(G_s) per unit Delta, its 95 % interval (Student t) and the p-value of "no
+drift". A law whose G_s drifts (p < ``ALPHA``) is not the verdict.
+
+Verdict
+-------
+A law is *eligible* when it fits at least half of the used capsules. Each eligible law whose
+G_s does not drift is a *candidate* unless another eligible law fits the contours
+significantly better (``p_better`` < ``CONTOUR_LEVEL`` = 0.025, one-sided: the two-sided 5 %
+level in the direction of the better law; a law exactly as good as the right one thus beats
+it by chance in at most 2.5 % of batches, and is then named only if it also survives the
+drift test and every other law). Then:
+
+- one candidate: ``kind = 'law'``, that law, with G_s the mean over the capsules it fits and
+  the 95 % interval of that mean (Student t; ``G_s_std`` is the spread between capsules);
+- several: ``kind = 'cannot_tell'`` ("cannot tell A from B"): neither the contours nor the
+  drift separate them. No law and no single G_s; ``G_s_interval`` is the hull of the
+  candidates' intervals when these overlap (G_s lies in it whichever candidate is right),
+  else None;
+- none: ``kind = 'none'``, "no law of the database fits", with the reason (every law fits
+  fewer than half of the capsules; every eligible law drifts; or the contours favour a law
+  whose G_s drifts, so that the two tests disagree).
+
+JSON (``verdict_dict``, ``write_verdict_json``; ``capsmech population --json FILE``)::
+
+    {"verdict": "law" | "none" | "cannot_tell",
+     "law": "NH" | null,                       # the law when verdict == "law"
+     "candidates": ["GH_nu0.5", "SK_C1"],       # the law, the laws not told apart, or []
+     "G_s": 0.0400 | null,                      # N/m, verdict == "law" only
+     "G_s_std": 0.0013 | null,                  # N/m, spread between capsules
+     "G_s_interval": [0.0391, 0.0409] | null,   # N/m, 95 % (see above for cannot_tell)
+     "reason": "...",                           # the verdict in words
+     "reference": "NH" | null,                  # the law the p-values are against
+     "criterion": {"score": ..., "test": ..., "alpha": 0.05, "contour_level": 0.025,
+                   "fail_score": 1.0,
+                   "min_capsules": 5, "min_fitted_fraction": 0.5},
+     "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
+     "laws": {"NH": {"fitted": 10, "used": 10, "measured": 10, "score_median": 0.0121,
+                     "p_vs_reference": null, "G_s_mean": 0.04, "G_s_std": 0.0013,
+                     "G_s_interval": [..], "drift": 0.2, "drift_interval": [..],
+                     "drift_p": 0.40, "drift_n": 10, "status": "verdict",
+                     "status_reason": "..."}, ...},
+     "capsules": {"measured": 10, "used": 10,
+                  "left_out": [{"id": "s003", "reason": "asymmetric contour: ..."}]}}
+
+Numbers that cannot be computed are null (never NaN). ``status`` is one of 'verdict',
+'candidate', 'fits < half', 'drifts', 'worse contours', 'no verdict' (too few capsules).
 """
 from __future__ import annotations
 
 import csv
+import json
 import math
+import os
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,11 +103,30 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import stats
 
+from capsmech.errors import CapsmechError
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-#: Significance level of the drift test.
+#: Significance level of the drift test and of the contour comparison (two-sided).
 ALPHA = 0.05
+#: A law is beaten on the contours when ``p_better`` (one-sided) is below this: the two-sided
+#: 5 % level, in the direction of the better law.
+CONTOUR_LEVEL = ALPHA / 2
+#: A batch needs this many usable capsules for a verdict (issue 19: "fewer than 5: none").
+MIN_CAPSULES = 5
+#: Fraction of the used capsules a law must fit to be the verdict.
+MIN_FITTED_FRACTION = 0.5
+#: Misfit score of a capsule a law cannot reproduce (worse than any fitted H/a <= 0.06).
+FAIL_SCORE = 1.0
+#: Flags that are the same for every law: the capsule is left out for every law.
+LAW_INDEPENDENT_FLAGS = ("asymmetric", "invalid_input", "imprecise")
+#: A fit whose shape counts but that has no G_s.
+NO_G_S_FLAGS = ("no_velocity",)
+
+
+class PopulationInputError(CapsmechError, ValueError):
+    """Result rows that cannot be compared (no capsule id, a capsule twice for one law)."""
 
 
 @dataclass(frozen=True)
@@ -90,41 +182,113 @@ def law_drift(law: str, delta: ArrayLike, g_s: ArrayLike) -> LawDrift:
                     t=float(t_stat), p_value=float(fit.pvalue))
 
 
-#: Capsules with a contour misfit under every law that the shape comparison needs (the
-#: two-sided signed-rank test cannot reach p < 0.05 with fewer than 6 pairs).
-MIN_SHAPE_PAIRS = 6
-
-
 @dataclass(frozen=True)
-class ShapeComparison:
-    """Contour misfit H/a of the same capsules under each law.
+class LawEvidence:
+    """What the batch says about one law.
 
     Attributes
     ----------
-    n : int
-        Capsules fitted (without flag, finite H/a) by every law compared.
-    median : dict
-        Median H/a per law over those capsules.
-    p_values : dict
-        Two-sided p-value of the paired signed-rank test per pair of laws (sorted keys).
-    best : str or None
-        The law whose H/a is the smallest and smaller than each other law's with p < alpha.
+    law : str
+        Law key.
+    fitted, used, measured : int
+        Used capsules the law fits (shape reproduced, flag empty or ``no_velocity``); capsules
+        used (measured minus those left out); capsules measured.
+    score_median : float
+        Median misfit score over the used capsules (H/a, ``FAIL_SCORE`` where not fitted).
+    p_vs_reference : float
+        One-sided p-value of "the reference law fits no better than this one" (NaN for the
+        reference itself).
+    g_s_mean, g_s_std : float
+        Mean of the fitted G_s [N/m] and their spread between capsules (NaN below 2).
+    g_s_interval : tuple of float
+        95 % interval of the mean G_s (Student t), NaN below 2 capsules.
+    drift : LawDrift or None
+        The drift test; None when it cannot be made (``drift_note`` says why).
+    status : str
+        'verdict', 'candidate', 'fits < half', 'drifts', 'worse contours' or 'no verdict'.
+    status_reason : str
+        The status in words.
     """
 
-    n: int
-    median: dict[str, float]
-    p_values: dict[tuple[str, str], float]
-    best: str | None
+    law: str
+    fitted: int
+    used: int
+    measured: int
+    score_median: float
+    p_vs_reference: float
+    g_s_mean: float
+    g_s_std: float
+    g_s_interval: tuple[float, float]
+    drift: LawDrift | None
+    drift_note: str
+    status: str
+    status_reason: str
 
 
 @dataclass(frozen=True)
 class PopulationVerdict:
-    """Drift per law, the shape comparison (None without contours) and the law reported."""
+    """The law the batch supports, with its evidence.
 
-    drifts: dict[str, LawDrift]
-    shape: ShapeComparison | None
+    Attributes
+    ----------
+    kind : str
+        'law', 'cannot_tell' or 'none'.
+    best : str or None
+        The law when ``kind == 'law'``.
+    candidates : tuple of str
+        The law, or the laws that cannot be told apart; empty for 'none'.
+    reason : str
+        The verdict in words.
+    evidence : dict
+        ``LawEvidence`` per law: the verdict or candidates first, then by median score.
+    drifts : dict
+        ``LawDrift`` per law where the drift could be measured.
+    p_better : dict
+        ``p_better[(a, b)]``: one-sided paired signed-rank p-value of "a fits no better than b".
+    reference : str or None
+        The law ``LawEvidence.p_vs_reference`` is against: the verdict, the first candidate, or
+        the best-ranked eligible law.
+    measured, used : int
+        Capsules measured and used.
+    left_out : list of (id, reason)
+        Capsules left out for every law, and why.
+    g_s, g_s_std : float
+        Mean G_s of the verdict's law and its spread between capsules [N/m]; NaN otherwise.
+    g_s_interval : tuple of float or None
+        95 % interval of G_s [N/m] (see the module for 'cannot_tell'); None when none.
+    """
+
+    kind: str
     best: str | None
+    candidates: tuple[str, ...]
     reason: str
+    evidence: dict[str, LawEvidence]
+    drifts: dict[str, LawDrift]
+    p_better: dict[tuple[str, str], float]
+    reference: str | None
+    measured: int
+    used: int
+    left_out: list[tuple[str, str]] = field(default_factory=list)
+    g_s: float = math.nan
+    g_s_std: float = math.nan
+    g_s_interval: tuple[float, float] | None = None
+
+    def line(self) -> str:
+        """The verdict on one line (what ``capsmech population`` prints)."""
+        if self.kind == "law" and self.best is not None and not math.isfinite(self.g_s):
+            return f"verdict: {self.best}, no G_s (no capsule has one: v_c or mu missing) ({self.reason})"
+        if self.kind == "law" and self.best is not None:
+            interval = self.g_s_interval
+            where = (f"95 % interval of the mean {interval[0]:.4g}-{interval[1]:.4g} N/m; "
+                     if interval is not None else "")
+            return (f"verdict: {self.best}, G_s = {self.g_s:.4g} +- {self.g_s_std:.2g} N/m "
+                    f"({where}{self.reason})")
+        if self.kind == "cannot_tell":
+            names = " from ".join([", ".join(self.candidates[:-1]), self.candidates[-1]])
+            where = (f"; G_s {self.g_s_interval[0]:.4g}-{self.g_s_interval[1]:.4g} N/m whichever it is"
+                     if self.g_s_interval is not None else "; their G_s disagree")
+            return f"verdict: cannot tell {names}{where} ({self.reason})"
+        return f"verdict: none ({self.reason})"
 
 
 def _number(value: Any) -> float:
@@ -134,71 +298,261 @@ def _number(value: Any) -> float:
         return math.nan
 
 
-def shape_comparison(rows: Iterable[Mapping[str, Any]]) -> ShapeComparison | None:
-    """Compare the laws by the contour misfit ``H_over_a`` of fit-tube rows (flagged rows
-    excluded); None when fewer than two laws or ``MIN_SHAPE_PAIRS`` capsules have one."""
-    misfit: dict[str, dict[str, float]] = {}
+def _flag(row: Mapping[str, Any]) -> str:
+    flag = row.get("flag")
+    if flag is None or (isinstance(flag, float) and math.isnan(flag)):
+        return ""
+    return str(flag)
+
+
+def _mean_interval(values: np.ndarray) -> tuple[float, float, tuple[float, float]]:
+    """(mean, std, 95 % interval of the mean), NaN where fewer than 2 values."""
+    if len(values) == 0:
+        return math.nan, math.nan, (math.nan, math.nan)
+    mean = float(values.mean())
+    if len(values) < 2:
+        return mean, math.nan, (math.nan, math.nan)
+    std = float(values.std(ddof=1))
+    half = float(stats.t.ppf(1 - ALPHA / 2, len(values) - 1)) * std / math.sqrt(len(values))
+    return mean, std, (mean - half, mean + half)
+
+
+def paired_p(better: np.ndarray, worse: np.ndarray) -> float:
+    """One-sided paired Wilcoxon signed-rank p-value of "``better`` is not smaller than
+    ``worse``" (exact for up to 50 capsules; equal pairs drop out; 1 when every pair is equal)."""
+    d = np.asarray(better, dtype=float) - np.asarray(worse, dtype=float)
+    d = d[d != 0]
+    if len(d) == 0:
+        return 1.0
+    return float(stats.wilcoxon(d, alternative="less").pvalue)
+
+
+def _group(rows: Iterable[Mapping[str, Any]]) -> tuple[list[str], list[str], dict[str, dict[str, Mapping[str, Any]]]]:
+    """(capsule ids in order, laws in order, rows by capsule and law)."""
+    ids: list[str] = []
+    laws: list[str] = []
+    table: dict[str, dict[str, Mapping[str, Any]]] = {}
     for row in rows:
-        value = _number(row.get("H_over_a"))
-        if not row.get("flag") and np.isfinite(value):
-            misfit.setdefault(str(row["law"]), {})[str(row["id"])] = value
-    laws = sorted(misfit)
-    if len(laws) < 2:
-        return None
-    common = sorted(set.intersection(*(set(misfit[law]) for law in laws)))
-    if len(common) < MIN_SHAPE_PAIRS:
-        return None
-    h = {law: np.array([misfit[law][c] for c in common]) for law in laws}
-    p_values = {(a, b): float(stats.wilcoxon(h[a], h[b]).pvalue) for i, a in enumerate(laws) for b in laws[i + 1:]}
-    median = {law: float(np.median(h[law])) for law in laws}
-    smallest = min(laws, key=median.__getitem__)
-    decisive = all(p_values[(min(smallest, other), max(smallest, other))] < ALPHA for other in laws if other != smallest)
-    return ShapeComparison(len(common), median, p_values, smallest if decisive else None)
+        if "id" not in row or "law" not in row:
+            raise PopulationInputError("population: every result row needs an 'id' and a 'law' (fit-tube results)")
+        cid, law = str(row["id"]), str(row["law"])
+        if cid not in table:
+            ids.append(cid)
+            table[cid] = {}
+        if law not in laws:
+            laws.append(law)
+        if law in table[cid]:
+            raise PopulationInputError(f"population: capsule {cid!r} appears twice for law {law} (two batches with "
+                                       "the same capsule ids? give each capsule its own id)")
+        table[cid][law] = row
+    return ids, laws, table
+
+
+def _left_out(by_law: Mapping[str, Mapping[str, Any]]) -> tuple[str, str] | None:
+    """(flag code, reason) of a capsule's law-independent flag, None when it has none."""
+    for row in by_law.values():
+        if _flag(row) in LAW_INDEPENDENT_FLAGS:
+            return _flag(row), str(row.get("reason") or "") or f"{_flag(row)} (the same for every law)"
+    return None
 
 
 def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
-    """Drift per law from fit-tube result rows (columns id, law, Delta, G_s, flag, and
-    H_over_a where contours were measured) and the law the data support (see the module)."""
-    rows = list(rows)
-    by_law: dict[str, tuple[list[float], list[float]]] = {}
-    for row in rows:
-        if row.get("flag"):
-            continue
-        delta, g = by_law.setdefault(str(row["law"]), ([], []))
-        delta.append(float(row["Delta"]))
-        g.append(float(row["G_s"]))
-    drifts = {law: law_drift(law, d, g) for law, (d, g) in by_law.items() if len(d) >= 3}
-    shape = shape_comparison(rows)
-    if shape is not None and shape.best is not None and shape.best in drifts:
-        if drifts[shape.best].drifts:
-            return PopulationVerdict(drifts, shape, None, f"the contours favour {shape.best}, but its G_s drifts "
-                                     f"with Delta (p = {drifts[shape.best].p_value:.2g}): the tests disagree")
-        return PopulationVerdict(drifts, shape, shape.best, f"contours fit best (median H/a "
-                                 f"{shape.median[shape.best]:.4f}, n = {shape.n}) and G_s does not drift "
-                                 f"(p = {drifts[shape.best].p_value:.2g})")
-    steady = [d for d in drifts.values() if not d.drifts]
-    if not steady:
-        return PopulationVerdict(drifts, shape, None, "every law's G_s drifts with the deformation (p < 0.05)")
-    best = max(steady, key=lambda d: d.p_value).law
-    why = "no contours to compare" if shape is None else "the contours do not tell the laws apart"
-    return PopulationVerdict(drifts, shape, best, f"{why}; G_s does not drift (p = {drifts[best].p_value:.2g})")
+    """The law the batch supports (see the module) from fit-tube result rows (columns id, law,
+    Delta, G_s, flag, reason, and H_over_a where contours were measured)."""
+    ids, laws, table = _group(rows)
+    flagged = {cid: flag for cid in ids if (flag := _left_out(table[cid])) is not None}
+    left_out = [(cid, reason) for cid, (_, reason) in flagged.items()]
+    out = set(flagged)
+    used = [cid for cid in ids if cid not in out]
+
+    # Scores and fitted G_s per law over the used capsules.
+    scores = {law: np.full(len(used), FAIL_SCORE) for law in laws}
+    any_contours = False
+    fitted = {law: np.zeros(len(used), dtype=bool) for law in laws}
+    for k, cid in enumerate(used):
+        fits = {law: row for law, row in table[cid].items() if _flag(row) in ("", *NO_G_S_FLAGS)}
+        misfit = {law: _number(row.get("H_over_a")) for law, row in fits.items()}
+        contours = bool(fits) and all(np.isfinite(h) for h in misfit.values())
+        any_contours = any_contours or contours
+        for law in fits:
+            fitted[law][k] = True
+            scores[law][k] = misfit[law] if contours else 0.0
+    drifts: dict[str, LawDrift] = {}
+    drift_notes: dict[str, str] = {}
+    g_stats = {}
+    for law in laws:
+        mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and _flag(table[cid][law]) == ""]
+        delta = np.array([_number(r.get("Delta")) for r in mine])
+        g = np.array([_number(r.get("G_s")) for r in mine])
+        g_stats[law] = _mean_interval(g[np.isfinite(g)])
+        try:
+            drifts[law] = law_drift(law, delta, g)
+        except ValueError as exc:
+            drift_notes[law] = str(exc)
+
+    n = len(used)
+    p_better = {(a, b): paired_p(scores[a], scores[b]) for a in laws for b in laws if a != b} if n else {}
+    medians = {law: float(np.median(scores[law])) if n else math.nan for law in laws}
+    means = {law: float(np.mean(scores[law])) if n else math.nan for law in laws}
+    order = sorted(laws, key=lambda law: (medians[law], means[law], law))
+    count = {law: int(fitted[law].sum()) for law in laws}
+    eligible = [law for law in order if n and count[law] >= MIN_FITTED_FRACTION * n]
+
+    status: dict[str, tuple[str, str]] = {}
+    for law in order:
+        if n < MIN_CAPSULES:
+            status[law] = ("no verdict", f"{n} usable capsules, a verdict needs {MIN_CAPSULES}")
+        elif law not in eligible:
+            status[law] = ("fits < half", f"fits {count[law]} of {n} capsules, fewer than half")
+        elif law in drifts and drifts[law].drifts:
+            status[law] = ("drifts", f"G_s drifts with Delta (p = {drifts[law].p_value:.2g})")
+        else:
+            rivals = [(p_better[(other, law)], other) for other in eligible if other != law]
+            beaten = min(rivals) if rivals else (1.0, "")
+            if beaten[0] < CONTOUR_LEVEL:
+                status[law] = ("worse contours", f"{beaten[1]} fits the contours better (p = {beaten[0]:.2g})")
+            else:
+                note = (f"G_s does not drift (p = {drifts[law].p_value:.2g})" if law in drifts
+                        else "drift not measured: " + drift_notes[law])
+                status[law] = ("candidate", f"no law fits the contours significantly better; {note}")
+    candidates = [law for law in order if status[law][0] == "candidate"]
+
+    kind, best, g_s, g_s_std, interval = "none", None, math.nan, math.nan, None
+    if n < MIN_CAPSULES:
+        codes = sorted({code for code, _ in flagged.values()})
+        why = "; ".join(f"{sum(c == code for c, _ in flagged.values())} {code} ("
+                        + ", ".join(cid for cid, (c, _) in flagged.items() if c == code) + ")" for code in codes)
+        reason = (f"{n} usable capsules of {len(ids)} measured, a verdict needs {MIN_CAPSULES}"
+                  + (f"; left out for every law: {why}" if why else ""))
+    elif len(candidates) == 1:
+        kind = "law"
+        best = candidates[0]
+        g_s, g_s_std, (low, high) = g_stats[best]
+        interval = (low, high) if np.isfinite(low) else None
+        others = [law for law in order if law != best]
+        against = "; ".join(f"{law}: {status[law][1]}" for law in others)
+        drift = f"G_s does not drift (p = {drifts[best].p_value:.2g})" if best in drifts else "drift not measured"
+        shape = f"median H/a {medians[best]:.4f}" if any_contours else "no contours (fitted or not counted)"
+        reason = (f"fits {count[best]} of {n} capsules, {shape}, {drift}"
+                  + (f"; {against}" if against else ""))
+    elif candidates:
+        kind = "cannot_tell"
+        lows = [g_stats[law][2][0] for law in candidates]
+        highs = [g_stats[law][2][1] for law in candidates]
+        if all(np.isfinite(lows + highs)) and max(lows) <= min(highs):
+            interval = (min(lows), max(highs))
+        top = candidates[0]
+        ps = ", ".join(f"{law} p = {p_better[(top, law)]:.2g}" for law in candidates[1:])
+        reason = (f"the contours do not tell them apart ({top} fits best; against it {ps}) and the drift does "
+                  "not separate them"
+                  + "; " + ", ".join(f"{law}: G_s = {g_stats[law][0]:.4g} N/m" for law in candidates))
+    elif not eligible:
+        most = max(order, key=lambda law: count[law]) if order else None
+        reason = (f"no law of the database fits: every law fits fewer than half of the {n} usable capsules"
+                  + (f" (the most, {most}, fits {count[most]})" if most else ""))
+    else:
+        outshone = [law for law in eligible if status[law][0] == "worse contours"]
+        details = "; ".join(f"{law}: {status[law][1]}" for law in eligible)
+        if outshone:
+            reason = (f"no law of the database fits: the laws whose G_s does not drift fit the contours worse than "
+                      f"a law whose G_s drifts ({details}): the tests disagree")
+        else:
+            reason = ("no law of the database fits: every law that fits at least half of the capsules has a G_s "
+                      f"that drifts with Delta ({details})")
+
+    reference = best or (candidates[0] if candidates else (eligible[0] if eligible else (order[0] if order else None)))
+    evidence = {}
+    # The verdict and the candidates first, then by contour score.
+    for law in sorted(order, key=lambda law: (law not in candidates, order.index(law))):
+        mean, std, g_interval = g_stats[law]
+        evidence[law] = LawEvidence(
+            law=law, fitted=count[law], used=n, measured=len(ids), score_median=medians[law],
+            p_vs_reference=p_better.get((reference, law), math.nan) if reference else math.nan,
+            g_s_mean=mean, g_s_std=std, g_s_interval=g_interval, drift=drifts.get(law),
+            drift_note=drift_notes.get(law, ""),
+            status="verdict" if law == best else status[law][0], status_reason=status[law][1])
+    return PopulationVerdict(kind=kind, best=best, candidates=tuple(candidates) if kind != "none" else (),
+                             reason=reason, evidence=evidence, drifts=drifts, p_better=p_better, reference=reference,
+                             measured=len(ids), used=n, left_out=left_out, g_s=g_s, g_s_std=g_s_std,
+                             g_s_interval=interval)
 
 
-#: Columns of the population table (``write_population``) and their units.
-POPULATION_UNITS = {"law": "", "n": "1", "G_s_mean": "N/m", "G_s_std": "N/m", "drift": "1",
-                    "drift_ci_low": "1", "drift_ci_high": "1", "t": "1", "p_value": "1", "verdict": ""}
+#: Columns of the population table (``population_rows``, ``write_population``) and their units.
+POPULATION_UNITS = {"law": "", "fitted": "1", "used": "1", "score_median": "1", "p_vs_reference": "1",
+                    "G_s_mean": "N/m", "G_s_std": "N/m", "G_s_low": "N/m", "G_s_high": "N/m",
+                    "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta", "drift_p": "1",
+                    "status": ""}
 
 
-def population_rows(drifts: Mapping[str, LawDrift], best: str | None) -> list[dict[str, Any]]:
-    """One row per law (columns of ``POPULATION_UNITS``); the verdict is 'supported' for the
-    law reported, 'no drift' for another law that does not drift, 'drifts' otherwise."""
+def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
+    """One row per law, best ranked first (columns of ``POPULATION_UNITS``): capsules fitted of
+    those used, median misfit score, p-value against the reference law, mean G_s with its
+    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value, and
+    the law's status ('verdict', 'candidate', 'fits < half', 'drifts', 'worse contours',
+    'no verdict')."""
     rows = []
-    for law, d in drifts.items():
-        verdict = "supported" if law == best else ("drifts" if d.drifts else "no drift")
-        rows.append({"law": law, "n": float(d.n), "G_s_mean": d.mean, "G_s_std": d.std, "drift": d.slope,
-                     "drift_ci_low": d.ci_low, "drift_ci_high": d.ci_high, "t": d.t, "p_value": d.p_value,
-                     "verdict": verdict})
+    for law, e in verdict.evidence.items():
+        d = e.drift
+        rows.append({"law": law, "fitted": float(e.fitted), "used": float(e.used), "score_median": e.score_median,
+                     "p_vs_reference": e.p_vs_reference, "G_s_mean": e.g_s_mean, "G_s_std": e.g_s_std,
+                     "G_s_low": e.g_s_interval[0], "G_s_high": e.g_s_interval[1],
+                     "drift": d.slope if d else math.nan, "drift_ci_low": d.ci_low if d else math.nan,
+                     "drift_ci_high": d.ci_high if d else math.nan, "drift_p": d.p_value if d else math.nan,
+                     "status": e.status})
     return rows
+
+
+def _json_number(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def _json_pair(pair: tuple[float, float] | None) -> list[float] | None:
+    if pair is None or not all(math.isfinite(v) for v in pair):
+        return None
+    return [float(pair[0]), float(pair[1])]
+
+
+def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
+    """The verdict as plain JSON-ready data (schema in the module docstring; null, never NaN)."""
+    laws = {}
+    for law, e in verdict.evidence.items():
+        d = e.drift
+        laws[law] = {"fitted": e.fitted, "used": e.used, "measured": e.measured,
+                     "score_median": _json_number(e.score_median), "p_vs_reference": _json_number(e.p_vs_reference),
+                     "G_s_mean": _json_number(e.g_s_mean), "G_s_std": _json_number(e.g_s_std),
+                     "G_s_interval": _json_pair(e.g_s_interval),
+                     "drift": _json_number(d.slope) if d else None,
+                     "drift_interval": _json_pair((d.ci_low, d.ci_high)) if d else None,
+                     "drift_p": _json_number(d.p_value) if d else None, "drift_n": d.n if d else None,
+                     "status": e.status, "status_reason": e.status_reason + (f" ({e.drift_note})" if e.drift_note
+                                                                            and d is None else "")}
+    return {"verdict": verdict.kind, "law": verdict.best, "candidates": list(verdict.candidates),
+            "G_s": _json_number(verdict.g_s), "G_s_std": _json_number(verdict.g_s_std),
+            "G_s_interval": _json_pair(verdict.g_s_interval), "reason": verdict.reason,
+            "reference": verdict.reference,
+            "criterion": {"score": "contour misfit H/a of a fitted capsule, fail_score where the law cannot fit it",
+                          "test": "paired one-sided Wilcoxon signed-rank over the used capsules; drift: least-squares "
+                                  "slope of G_s/mean(G_s) on Delta, Student t",
+                          "alpha": ALPHA, "contour_level": CONTOUR_LEVEL, "fail_score": FAIL_SCORE, "min_capsules": MIN_CAPSULES,
+                          "min_fitted_fraction": MIN_FITTED_FRACTION},
+            "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
+            "laws": laws,
+            "capsules": {"measured": verdict.measured, "used": verdict.used,
+                         "left_out": [{"id": cid, "reason": why} for cid, why in verdict.left_out]}}
+
+
+def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:
+    """Write ``verdict_dict(verdict)`` to ``path`` whole or not at all (temporary file renamed)."""
+    path = Path(path)
+    text = json.dumps(verdict_dict(verdict), indent=2, allow_nan=False) + "\n"
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
 
 
 def read_results(path: str | Path) -> list[dict[str, Any]]:
@@ -217,12 +571,14 @@ def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawD
 
     fig = Figure(figsize=(6, 4.2), layout="constrained")
     ax = fig.subplots()
-    rows = [r for r in rows if not r.get("flag")]
+    rows = [r for r in rows if not _flag(r)]
     for law in drifts:
         mine = [r for r in rows if r["law"] == law]
-        delta = np.array([float(r["Delta"]) for r in mine])
-        g = np.array([float(r["G_s"]) for r in mine])
-        err = np.array([float(r.get("G_s_spread", "nan")) for r in mine])
+        delta = np.array([_number(r["Delta"]) for r in mine])
+        g = np.array([_number(r["G_s"]) for r in mine])
+        err = np.array([_number(r.get("G_s_spread", "nan")) for r in mine])
+        keep = np.isfinite(delta) & np.isfinite(g)
+        delta, g, err = delta[keep], g[keep], err[keep]
         line = ax.errorbar(delta, g, yerr=np.where(np.isfinite(err), err, 0), fmt="o", ms=4, capsize=2,
                            label=f"{law}: drift {drifts[law].slope:+.2f}/unit Δ (p = {drifts[law].p_value:.2g})")
         x = np.linspace(delta.min(), delta.max(), 2)
