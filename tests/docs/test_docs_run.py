@@ -34,6 +34,9 @@ NOT_RUN = {
                                       "tests/kernel/test_shear.py runs it",
     "capsmech show shear.h5": "needs the shear run above",
     "capsmech extract 'film/": "a placeholder for a user's own film",
+    "capsmech extract recording.tif": "a placeholder for a user's recording; --background, --frame-times, "
+                                      "--channel-width and --walls are run on real and rendered stacks by "
+                                      "tests/python/test_real_frames.py and test_extraction.py",
     "capsmech diagnose-shear shear.csv": "a placeholder for a user's own batch (the same command on a shipped "
                                          "batch runs above)",
 }

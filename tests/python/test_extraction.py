@@ -242,3 +242,140 @@ def test_unreadable_files_and_bad_options_exit_2_naming_the_problem(tmp_path, ca
     with pytest.raises(ExtractionError, match="flow direction"):
         read_frames([tiff], flow_direction="up")
     assert not (tmp_path / "m.csv").exists()
+
+
+# ---------------------------------------------------------------------------
+# Real-microscope defects, rendered (issue 20): tilt, gradients, dirt, walls, silhouettes, times
+# ---------------------------------------------------------------------------
+
+
+def tilted(frames: np.ndarray, tilt_deg: float) -> np.ndarray:
+    """Frames rotated so that horizontal lines get the slope atan(tilt) (rows down), edges repeated."""
+    from scipy import ndimage
+
+    pad = 60
+    out = []
+    for frame in frames:
+        big = np.pad(frame.astype(float), ((pad, pad), (pad, pad)), mode="edge")
+        big = ndimage.rotate(big, -tilt_deg, reshape=False, order=3, mode="nearest")
+        out.append(np.clip(np.round(big[pad:-pad, pad:-pad]), 0, 255).astype(np.uint8))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.3, -1.5, 2.4])
+def test_a_tilted_channel_is_levelled_to_005_deg_and_measured(tube_db, tilt_deg):
+    from capsmech.imaging.extraction import extract_stack
+
+    outline = database_outline(tube_db, "NH", 0.9, 0.06)
+    style = FrameStyle(tube_radius_px=50.0, axis_row=100.3)
+    frames = render_stack(outline, 10, 130.0, 6.0, style, seed=4)
+    channel, results = extract_stack(stack_of(tilted(frames, tilt_deg)))
+    assert channel.tilt_deg == pytest.approx(tilt_deg, abs=0.05)
+    assert channel.walls.radius_px == pytest.approx(50.0, abs=0.5)
+    L_z, L_p = (length * 50.0 for length in drawn_lengths(outline))
+    good = [r for r in results if r.good]
+    assert len(good) >= 8, [r.flag for r in results]
+    assert abs(np.mean([r.L_z_px for r in good]) - L_z) < 0.5
+    assert abs(np.mean([r.L_p_px for r in good]) - L_p) < 0.75
+
+
+def test_gradient_dirt_and_doubled_walls_vanish_against_the_stack_background(tube_db):
+    """A 30 % illumination gradient along the channel, static dirt in it, a second (outer) line
+    beside each wall and a bright band inside each: the flat field removes all of them."""
+    from capsmech.imaging.extraction import extract_stack
+
+    outline = database_outline(tube_db, "NH", 0.85, 0.05)
+    style = FrameStyle(tube_radius_px=50.0, axis_row=100.0)
+    frames = render_stack(outline, 12, 110.0, 9.0, style, seed=6).astype(float)
+    rows, cols = frames.shape[1:]
+    y, x = np.mgrid[0:rows, 0:cols]
+    gradient = 1 - 0.3 * x / cols
+    dirt = 1 - 0.5 * np.exp(-((x - 330) ** 2 + (y - 70) ** 2) / 8.0) - 0.4 * np.exp(-((x - 60) ** 2 + (y - 135) ** 2) / 6.0)
+    extra = 1 - 0.5 * (np.exp(-(y - 45.5) ** 2 / 1.5) + np.exp(-(y - 154.5) ** 2 / 1.5))      # outer lines
+    band = 1 + 0.15 * (np.exp(-(y - 53.0) ** 2 / 2.0) + np.exp(-(y - 147.0) ** 2 / 2.0))     # bright bands
+    frames = np.clip(frames * gradient * dirt * extra * band, 0, 255).astype(np.uint8)
+    channel, results = extract_stack(stack_of(frames))
+    assert channel.background_source == "temporal median"
+    assert channel.walls.top_row == pytest.approx(50.0, abs=0.5) and channel.walls.bottom_row == pytest.approx(150.0, abs=0.5)
+    L_z, L_p = (length * 50.0 for length in drawn_lengths(outline))
+    inside = [r for r in results if not r.flag.startswith("touches")]
+    assert len(inside) >= 9 and all(r.good for r in inside), [r.flag for r in results]
+    assert all(r.objects == 1 for r in inside)                       # the dirt is no object
+    assert abs(np.mean([r.L_z_px for r in inside]) - L_z) < 0.5
+
+
+def test_a_wall_cut_by_the_image_edge_is_placed_at_the_channel_width(tube_db):
+    from capsmech.imaging.extraction import extract_stack
+
+    outline = database_outline(tube_db, "NH", 0.85, 0.05)
+    style = FrameStyle(tube_radius_px=50.0, axis_row=100.0)
+    frames = render_stack(outline, 6, 130.0, 5.0, style, seed=8)[:, 53:, :]      # top wall (row 50) cut off
+    with pytest.raises(ExtractionError, match="only the bottom wall is in view.*--channel-width"):
+        extract_stack(stack_of(frames))
+    channel, results = extract_stack(stack_of(frames), channel_width_px=100.0)
+    assert channel.walls.bottom_row == pytest.approx(97.0, abs=0.3)
+    assert channel.walls.top_row == pytest.approx(-3.0, abs=0.3) and "placed" in channel.walls.source
+    assert sum(r.good for r in results) >= 5, [r.flag for r in results]
+
+
+def test_filled_silhouettes_are_traced_by_their_outer_edge():
+    from scipy import ndimage
+
+    from capsmech.imaging.extraction import extract_stack
+
+    style = FrameStyle(tube_radius_px=40.0, axis_row=80.0, shape=(160, 320))
+    rng = np.random.default_rng(9)
+    frames = []
+    for k in range(8):
+        frame = render_frame([], style, rng).astype(float)
+        y, x = np.mgrid[0:160, 0:320]
+        disk = (((x - 100 - 15 * k) / 22.0) ** 2 + ((y - 80) / 18.0) ** 2 <= 1).astype(float)
+        frames.append(np.clip(frame * (1 - 0.5 * ndimage.gaussian_filter(disk, 0.7)), 0, 255).astype(np.uint8))
+    _, results = extract_stack(stack_of(frames))
+    assert all(r.kind == "silhouette" and r.contour_at == "outer edge of the silhouette" for r in results)
+    assert all(r.good for r in results), [r.flag for r in results]
+    # The drawn ellipse spans 44 px; the edge, at a fifth of the contrast, lies ~0.6 px outside it.
+    assert all(abs(r.extent_px - 44.0) < 2.0 for r in results), [r.extent_px for r in results]
+
+
+def test_walls_given_width_checked_frame_times_with_a_gap_and_an_overlay_per_frame(tube_db, tmp_path, capsys):
+    outline = database_outline(tube_db, "NH", 0.85, 0.05)
+    style = FrameStyle(tube_radius_px=50.0, axis_row=100.0)
+    rng = np.random.default_rng(3)
+    # Two capsules' passages with a gap of 50 frame intervals between them, the second faster in time.
+    frames = [render_frame([(outline, 110 + 6 * k)], style, rng) for k in range(5)]
+    frames += [render_frame([(outline, 110 + 6 * k)], style, rng) for k in range(5)]
+    frames.append(render_frame([(outline, 15)], style, rng))          # flagged: touches the border
+    tiff = write_tiff_stack(tmp_path / "gap.tif", np.stack(frames))
+    times = [k / 1000 for k in range(5)] + [0.055 + k / 500 for k in range(5)] + [0.07]
+    (tmp_path / "times.csv").write_text("page,time_s\n" + "".join(f"{k},{t}\n" for k, t in enumerate(times)))
+    out = tmp_path / "m.csv"
+    assert main(["extract", str(tiff), "--pixel-size", "1um", "--frame-rate", "1000", "--frame-times",
+                 str(tmp_path / "times.csv"), "--walls", "50,150", "--channel-width", "120um", "--out", str(out),
+                 "--overlay", str(tmp_path / "ov")]) == 0
+    text = capsys.readouterr().out
+    assert "walls at rows 50.00, 150.00 (given)" in text
+    assert "channel width 100.0 px found, 120.0 px given: -16.7 %" in text and "more than 10 %" in text
+    rows = read_rows(out)
+    assert len(rows) == 2
+    # v_c from the times: 6 px per ms, then 6 px per 2 ms.
+    assert rows[0]["v_c"] == pytest.approx(6e-6 * 1000, rel=0.02)
+    assert rows[1]["v_c"] == pytest.approx(6e-6 * 500, rel=0.02)
+    overlays = sorted(p.name for p in (tmp_path / "ov" / "frames").glob("*.png"))
+    assert len(overlays) == 11 and (tmp_path / "ov" / "channel.png").stat().st_size > 5_000
+    report = list(csv.DictReader(open(tmp_path / "m_frames.csv")))
+    assert report[10]["flag"] == "touches the image border" and float(report[5]["time [s]"]) == pytest.approx(0.055)
+    assert report[0]["kind"] == "ring" and report[0]["contour at"] == "mid-line of the dark ring"
+
+
+def test_several_capsules_in_view_are_each_traced_and_tracked(tube_db):
+    from capsmech.imaging.extraction import extract_stack
+
+    small = database_outline(tube_db, "NH", 0.85, 0.05) * 0.5
+    style = FrameStyle(tube_radius_px=50.0)
+    rng = np.random.default_rng(12)
+    frames = [render_frame([(small, 80 + 5 * k), (small, 230 + 6 * k)], style, rng) for k in range(6)]
+    _, results = extract_stack(stack_of(frames))
+    assert all(r.flag == "2 capsules" and len(r.traces) == 2 for r in results), [r.flag for r in results]
+    tracks = [sorted((t.centre[0], t.track) for t in r.traces) for r in results]
+    assert all([track for _, track in frame] == [0, 1] for frame in tracks), tracks

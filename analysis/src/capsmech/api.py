@@ -343,6 +343,9 @@ class Extraction:
     walls, stack, results, measurements
         The walls found, the frames and the per-frame and per-capsule objects (what the
         writers of ``capsmech.imaging.extraction_output`` take).
+    channel : capsmech.imaging.extraction.Channel
+        The stack's geometry: tilt removed, background used, walls and the check of the
+        channel width given against the one found (``channel.width_check``).
     """
 
     capsules: pd.DataFrame
@@ -353,6 +356,7 @@ class Extraction:
     stack: Any
     results: list[Any]
     measurements: list[Any]
+    channel: Any = None
 
 
 #: Columns of ``Extraction.capsules`` and their units (lengths as the measurement CSV has them).
@@ -372,7 +376,9 @@ def _quantity(value: float | str | None, name: str, units: dict[str, float], def
 def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str | None = None,
             frame_rate: float | str | None = None, *, flow_direction: str = "right", capsule_id: str | None = None,
             max_asymmetry: float = 0.05, max_line_width: float = 10.0, min_frames: int = 3,
-            progress: bool = False) -> Extraction:
+            progress: bool = False, background: str | Path | Any | None = None,
+            walls: str | tuple[float, float] | None = None, channel_width: float | str | None = None,
+            frame_times: str | Path | Any | None = None, tilt: float | None = None) -> Extraction:
     """Measure the capsules of a stack of frames of a tube: lengths, velocity, contours.
 
     Parameters
@@ -392,6 +398,19 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         its line is wider than ``max_line_width`` [px]; a capsule needs ``min_frames`` good ones.
     progress : bool
         A progress bar on stderr.
+    background : path or 2-D array, optional
+        The empty channel as recorded (same size and orientation as the frames); default: the
+        temporal median of the stack (its per-row median for stacks under 5 frames).
+    walls : "ROW1,ROW2" or (row1, row2), optional
+        The walls' rows (px, at the image's centre column), instead of detecting them.
+    channel_width : float or str, optional
+        The channel's width [um] (``"20um"``): checked against the walls found (the difference
+        is in ``Extraction.channel.width_check``), and used to place a wall outside the view.
+    frame_times : path or sequence of float, optional
+        Each frame's time [s] (a CSV with a ``time_s`` column, optionally ``page``): gaps
+        between frames are honoured (new passage, velocity from the times).
+    tilt : float, optional
+        The channel's tilt [deg] when known; default: estimated from the walls.
 
     Returns
     -------
@@ -403,15 +422,18 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
     ExtractionError
         Unreadable frames, no walls, or no calibration in the files or the arguments.
     """
+    import numpy as np
     from tqdm import tqdm
 
+    from capsmech.imaging.channel import parse_walls
     from capsmech.imaging.extraction import (
         ExtractionError,
         ExtractionSettings,
+        extract_stack,
         measure_capsules,
+        read_frame_times,
         read_frames,
     )
-    from capsmech.imaging.extraction import extract as extract_frames
     from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, RATE_UNITS_HZ, default_ids
 
     paths = [frames] if isinstance(frames, (str, Path)) else list(frames)
@@ -424,14 +446,33 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
     rate = rate or stack.frame_rate
     if pixel_um is None:
         raise ExtractionError("pixel_size: required (the files carry no pixel size)")
+    if frame_times is not None:
+        if isinstance(frame_times, (str, Path)):
+            stack.times_s = read_frame_times(frame_times, len(stack))
+        else:
+            stack.times_s = np.asarray(frame_times, dtype=float)
+            if stack.times_s.shape != (len(stack),) or np.any(np.diff(stack.times_s) <= 0):
+                raise ExtractionError(f"frame_times: need {len(stack)} increasing times, one per frame")
+        if rate is None and len(stack) > 1:
+            rate = 1.0 / float(np.median(np.diff(stack.times_s)))
     if rate is None:
         raise ExtractionError("frame_rate: required (the files carry no frame interval)")
+    bg = None
+    if background is not None:
+        if isinstance(background, (str, Path)):
+            bg = read_frames([background], flow_direction).frames[0]
+        else:
+            bg = np.asarray(background, dtype=np.float32)
+            bg = bg[:, ::-1] if flow_direction == "left" else bg
+    wall_rows = parse_walls(walls) if isinstance(walls, str) else walls
+    width_um = _quantity(channel_width, "channel_width", PIXEL_UNITS_UM, "um")
     bar = tqdm(total=len(stack), desc="frames", unit="frame", disable=not progress, leave=False)
 
     def advance(done: int, total: int) -> None:
         bar.update(done - bar.n)
 
-    walls, results = extract_frames(stack, settings, advance)
+    channel, results = extract_stack(stack, settings, advance, wall_rows, bg,
+                                     width_um / pixel_um if width_um else None, tilt, rate)
     bar.close()
     measurements = measure_capsules(results, rate, settings)
     ids = default_ids(capsule_id or Path(stack.labels[0].split("[")[0]).stem, len(measurements))
@@ -442,9 +483,10 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
                      "L_z": cap.L_z_px * pixel_um, "L_z_spread": cap.L_z_spread_px * pixel_um,
                      "L_p": cap.L_p_px * pixel_um, "L_p_spread": cap.L_p_spread_px * pixel_um,
                      "v_c": cap.v_c_px_s * pixel_um * 1e-3, "v_c_se": cap.v_c_se_px_s * pixel_um * 1e-3,
-                     "tube_radius": walls.radius_px * pixel_um, "flag": flag, "reason": cap.problem})
-    frame_rows = [{"index": r.index, "label": r.label, "passage": r.passage, "flag": r.flag, "objects": r.objects,
-                   "L_z_px": r.L_z_px, "L_p_px": r.L_p_px, "centroid_x_px": r.centroid_x,
-                   "asymmetry": r.asymmetry} for r in results]
+                     "tube_radius": channel.walls.radius_px * pixel_um, "flag": flag, "reason": cap.problem})
+    frame_rows = [{"index": r.index, "label": r.label, "time_s": r.time_s, "passage": r.passage, "flag": r.flag,
+                   "objects": r.objects, "kind": r.kind, "contour_at": r.contour_at, "extent_px": r.extent_px,
+                   "outer_extent_px": r.outer_extent_px, "L_z_px": r.L_z_px, "L_p_px": r.L_p_px,
+                   "centroid_x_px": r.centroid_x, "asymmetry": r.asymmetry} for r in results]
     return Extraction(_frame(rows, EXTRACTION_UNITS), pd.DataFrame(frame_rows), float(pixel_um), float(rate),
-                      walls, stack, results, measurements)
+                      channel.walls, stack, results, measurements, channel)

@@ -23,6 +23,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         RATE_UNITS_HZ,
         VISCOSITY_UNITS_PA_S,
         parse_quantity,
+        write_channel_overlay,
+        write_frame_overlay,
         write_frame_report,
         write_measurements,
         write_overlay,
@@ -34,12 +36,16 @@ def cmd_extract(args: argparse.Namespace) -> int:
     try:
         found = extract(args.frames, pixel_um, rate, flow_direction=args.flow_direction,
                         capsule_id=args.id, max_asymmetry=args.max_asymmetry, max_line_width=args.max_line_width,
-                        min_frames=args.min_frames, progress=sys.stderr.isatty())
+                        min_frames=args.min_frames, progress=sys.stderr.isatty(), background=args.background,
+                        walls=args.walls, channel_width=args.channel_width, frame_times=args.frame_times,
+                        tilt=args.tilt)
     except ExtractionError as err:
         # A calibration neither the files nor the options give: the API names its parameter,
         # the command line its option.
         raise ExtractionError(str(err).replace("pixel_size:", "--pixel-size:")
-                              .replace("frame_rate:", "--frame-rate:")) from None
+                              .replace("frame_rate:", "--frame-rate:")
+                              .replace("channel_width:", "--channel-width:")
+                              .replace("frame_times:", "--frame-times:")) from None
     walls, results, stack = found.walls, found.results, found.stack
     pixel_um, rate = found.pixel_size_um, found.frame_rate
     out = Path(args.out)
@@ -48,6 +54,22 @@ def cmd_extract(args: argparse.Namespace) -> int:
     print(f"{len(stack)} frames of {stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px; tube radius "
           f"{walls.radius_px:.2f} px = {walls.radius_px * pixel_um:.4g} um, axis at row {walls.axis_row:.2f}; "
           f"pixel {pixel_um:g} um, {rate:g} frames/s")
+    channel = found.channel
+    print(f"channel levelled by {channel.tilt_deg:+.3f} deg; walls at rows {walls.top_row:.2f}, {walls.bottom_row:.2f} "
+          f"({walls.source}), width {walls.width_px:.2f} px = {walls.width_px * pixel_um:.4g} um; "
+          f"background: {channel.background_source}")
+    if channel.width_check:
+        print(channel.width_check)
+    if args.overlay:
+        # The level/tilt/walls picture once, and every frame that shows an object, measured or not.
+        shown = channel.background if channel.background is not None else channel.levelled(stack.frames[0])
+        write_channel_overlay(Path(args.overlay) / "channel.png", shown, channel)
+        for r in results:
+            if r.objects:
+                write_frame_overlay(Path(args.overlay) / "frames" / f"frame_{r.index:05d}.png",
+                                    channel.levelled(stack.frames[r.index]), r, walls)
+        print(f"wrote {Path(args.overlay) / 'channel.png'} and {sum(1 for r in results if r.objects)} frame overlays "
+              f"in {Path(args.overlay) / 'frames'}")
     flags: dict[str, int] = {}
     for r in results:
         if r.flag:
@@ -75,7 +97,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
             frame = next(r for r in results if r.index == cap.representative)
             title = (f"{row['id']}, frame {frame.index}: L_z = {row['L_z']:.4g} um, L_p = {row['L_p']:.4g} um, "
                      f"tube radius {row['tube_radius']:.4g} um, v_c = {row['v_c']:.4g} mm/s")
-            path = write_overlay(Path(args.overlay) / f"{row['id']}.png", stack.frames[frame.index], frame, walls, title)
+            path = write_overlay(Path(args.overlay) / f"{row['id']}.png", channel.levelled(stack.frames[frame.index]),
+                                 frame, walls, title)
             print(f"wrote {path}")
     print(f"wrote {csv_path}")
     return 0
@@ -89,7 +112,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     ext.add_argument("--frame-rate", help="frames per second, e.g. 1000 (default: the TIFF's frame interval)")
     ext.add_argument("--mu", help="viscosity of the liquid, e.g. 1.0 (Pa s) or 50mPa s: written as the mu column (needed for G_s)")
     ext.add_argument("--out", required=True, metavar="CSV", help="measurement file to write (the format fit-tube reads)")
-    ext.add_argument("--overlay", metavar="DIR", help="write one PNG per capsule: its contour and the walls on a frame")
+    ext.add_argument("--overlay", metavar="DIR", help="write PNGs: one per capsule (its contour and the walls), one per "
+                     "frame with an object (frames/, the flag written on it) and the levelled channel (channel.png)")
+    ext.add_argument("--background", metavar="IMAGE",
+                     help="image of the empty channel (default: the temporal median of the frames)")
+    ext.add_argument("--walls", metavar="ROW1,ROW2",
+                     help="rows of the two walls (px, at the image's centre column) instead of detecting them")
+    ext.add_argument("--channel-width",
+                     help="channel width, e.g. 20um (bare numbers: um): checked against the walls found, and used "
+                          "to place a wall outside the view")
+    ext.add_argument("--frame-times", metavar="CSV",
+                     help="time of each frame (a time_s column, optionally page): gaps between frames are honoured")
+    ext.add_argument("--tilt", type=float, metavar="DEG",
+                     help="tilt of the channel in degrees (atan of rows per column; default: estimated from the walls)")
     ext.add_argument("--report", metavar="CSV", help="per-frame report (default: <out stem>_frames.csv)")
     ext.add_argument("--flow-direction", choices=("right", "left"), default="right",
                      help="direction of the flow in the images (left: the frames are mirrored first)")

@@ -13,6 +13,9 @@ Every file is written to a temporary name and renamed, so it is whole or absent.
 - Per-frame report (CSV): every frame with its passage, flag (empty = measured) and values.
 - Overlays (PNG, one per capsule): the representative frame with the contour, the walls, the
   axis and the points L_z and L_p are measured between.
+- Frame overlays (PNG, one per frame with an object, measured or not): the levelled frame, every
+  traced object (contour in red, a ring's outer edge in orange) and the frame's flag written on
+  it; and once per stack the channel picture: the levelled background, the walls, the tilt.
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.imaging.extraction import CapsuleMeasurement, FrameResult, Walls
+from capsmech.imaging.extraction import CapsuleMeasurement, Channel, FrameResult, Walls
 
 
 def _write_text(path: Path, text: str) -> Path:
@@ -110,20 +113,31 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     return _write_text(path, lines.getvalue()), contour_files
 
 
-REPORT_COLUMNS = ["frame", "source", "passage", "flag", "objects", "line_width [px]", "L_z [px]", "L_p [px]",
-                  "x_front [px]", "x_rear [px]", "x_rear_axis [px]", "centroid_x [px]", "centroid_y [px]",
-                  "asymmetry [1]"]
+REPORT_COLUMNS = ["frame", "source", "time [s]", "passage", "flag", "objects", "kind", "contour at",
+                  "line_width [px]", "extent [px]", "outer_extent [px]", "L_z [px]", "L_p [px]", "x_front [px]",
+                  "x_rear [px]", "x_rear_axis [px]", "centroid_x [px]", "centroid_y [px]", "asymmetry [1]",
+                  "traced objects"]
+
+
+def traces_text(frame: FrameResult) -> str:
+    """Every object traced in a frame: track, kind and columns spanned, e.g. ``#2 ring x 120.3-160.2``."""
+    return "; ".join(f"#{t.track} {t.kind} x {t.outer[:, 0].min():.1f}-{t.outer[:, 0].max():.1f}"
+                     for t in frame.traces)
 
 
 def write_frame_report(path: str | Path, results: Sequence[FrameResult]) -> Path:
-    """Write one line per frame: its passage (-1: none), flag (empty: measured) and values."""
+    """Write one line per frame: its time, passage (-1: none), flag (empty: measured), what was
+    traced (``kind``: ring or silhouette; ``contour at``: mid-line of the ring or outer edge of the
+    silhouette), the object's extent along the flow, the lengths, and every object traced with
+    its track across frames (several per frame when the flag says so)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(REPORT_COLUMNS)
     for r in results:
-        writer.writerow([r.index, r.label, r.passage, r.flag, r.objects, _g(r.line_width_px, 4), _g(r.L_z_px),
+        writer.writerow([r.index, r.label, _g(r.time_s, 9), r.passage, r.flag, r.objects, r.kind, r.contour_at,
+                         _g(r.line_width_px, 4), _g(r.extent_px), _g(r.outer_extent_px), _g(r.L_z_px),
                          _g(r.L_p_px), _g(r.x_front), _g(r.x_rear), _g(r.x_rear_axis), _g(r.centroid_x),
-                         _g(r.centroid_y), _g(r.asymmetry, 3)])
+                         _g(r.centroid_y), _g(r.asymmetry, 3), traces_text(r)])
     return _write_text(Path(path), out.getvalue())
 
 
@@ -157,6 +171,63 @@ def write_overlay(path: str | Path, image: np.ndarray, frame: FrameResult, walls
     fig.savefig(tmp, format="png")
     os.replace(tmp, path)
     return path
+
+
+def _figure(image: np.ndarray, title: str):
+    """A matplotlib Figure showing ``image`` (grey) with a title line above, and its axes."""
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend needed
+
+    rows, cols = image.shape
+    scale = max(1.0, 800 / cols)
+    lines = title.count("\n") + 1
+    fig = Figure(figsize=(cols * scale / 100, rows * scale / 100 + 0.2 + 0.2 * lines), dpi=100)
+    ax = fig.add_axes((0, 0, 1, rows * scale / (rows * scale + 20 + 20 * lines)))
+    ax.imshow(image, cmap="gray", interpolation="nearest")
+    ax.set_xlim(-0.5, cols - 0.5)
+    ax.set_ylim(rows - 0.5, -0.5)
+    ax.set_axis_off()
+    fig.text(0.01, 1 - 0.05 / fig.get_figheight(), title, fontsize=8, va="top")
+    return fig, ax
+
+
+def _save(fig, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, format="png")
+    os.replace(tmp, path)
+    return path
+
+
+def write_frame_overlay(path: str | Path, image: np.ndarray, frame: FrameResult, walls: Walls) -> Path:
+    """Draw a levelled frame with every traced object and the frame's flag (or 'measured') as a PNG."""
+    status = frame.flag or f"measured: L_z {frame.L_z_px:.2f} px, L_p {frame.L_p_px:.2f} px"
+    what = f"; {frame.kind}, contour = {frame.contour_at}" if frame.kind else ""
+    fig, ax = _figure(image, f"frame {frame.index} ({frame.label}): {status}{what}")
+    for row in (walls.top_row, walls.bottom_row):
+        ax.axhline(row, color="deepskyblue", lw=0.8)
+    ax.axhline(walls.axis_row, color="gold", lw=0.6, ls="--")
+    for trace in frame.traces:
+        if trace.kind == "ring":
+            outer = np.vstack([trace.outer, trace.outer[:1]])
+            ax.plot(outer[:, 0], outer[:, 1], "-", color="orange", lw=0.6)
+        closed = np.vstack([trace.contour, trace.contour[:1]])
+        ax.plot(closed[:, 0], closed[:, 1], "-", color="red", lw=0.9)
+        ax.text(float(trace.outer[:, 0].mean()), float(trace.outer[:, 1].min()) - 1, f"#{trace.track}",
+                color="red", fontsize=7, ha="center", va="bottom")
+    return _save(fig, path)
+
+
+def write_channel_overlay(path: str | Path, background: np.ndarray, channel: Channel) -> Path:
+    """Draw the levelled background (or first frame) with the walls, the axis, the tilt removed."""
+    title = (f"levelled by {channel.tilt_deg:+.3f} deg; walls at rows {channel.walls.top_row:.2f}, "
+             f"{channel.walls.bottom_row:.2f} ({channel.walls.source}), width {channel.walls.width_px:.1f} px; "
+             f"background: {channel.background_source}" + (f"\n{channel.width_check}" if channel.width_check else ""))
+    fig, ax = _figure(background, title)
+    for row in (channel.walls.top_row, channel.walls.bottom_row):
+        ax.axhline(row, color="deepskyblue", lw=0.8)
+    ax.axhline(channel.walls.axis_row, color="gold", lw=0.6, ls="--")
+    return _save(fig, path)
 
 
 # ---------------------------------------------------------------------------

@@ -1,0 +1,231 @@
+"""Reading frames: image files and stacks into one grey stack, with their calibration and times.
+
+What the files say is kept: the pixel size and frame interval of an ImageJ TIFF, and the time of
+each frame when a ``--frame-times`` CSV gives it (real recordings skip frames: a stack of events
+hundreds of camera frames apart is not a film at the nominal rate, and a velocity from the frame
+index would mean nothing).
+"""
+from __future__ import annotations
+
+import csv
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from capsmech.errors import CapsmechError
+
+
+class ExtractionError(CapsmechError, ValueError):
+    """Frames that cannot be read or measured; the message names the file and the problem."""
+
+
+@dataclass
+class FrameStack:
+    """Grey frames and what their files say about them.
+
+    Attributes
+    ----------
+    frames : list of 2-D arrays
+        One grey image per frame (original dtype for grey files, float32 for colour ones).
+    labels : list of str
+        ``file`` or ``file[page]`` for each frame, for messages and reports.
+    frame_rate : float or None
+        Frames per second from the files' metadata (ImageJ ``finterval`` or ``fps``).
+    pixel_size_um : float or None
+        Pixel size from the metadata (ImageJ TIFF resolution with a micron unit).
+    times_s : array or None
+        Time of each frame [s] when known (a frame-times file); None: index / frame rate.
+    """
+
+    frames: list[np.ndarray]
+    labels: list[str]
+    frame_rate: float | None = None
+    pixel_size_um: float | None = None
+    times_s: np.ndarray | None = None
+
+    def frame_times(self, frame_rate: float | None = None) -> np.ndarray:
+        """Time of each frame [s]: the stack's own times, else frame index / frame rate."""
+        if self.times_s is not None:
+            return np.asarray(self.times_s, dtype=float)
+        rate = frame_rate or self.frame_rate
+        if not rate:
+            raise ExtractionError("frame_rate: required (the files carry no frame interval)")
+        return np.arange(len(self.frames), dtype=float) / rate
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif"}
+
+
+def _natural_key(path: Path) -> list[object]:
+    """Sort key in which frame_2 comes before frame_10."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", str(path))]
+
+
+def expand_frame_paths(paths: Sequence[str | Path]) -> list[Path]:
+    """Files named on the command line: glob patterns expanded, directories listed, in order.
+
+    Raises
+    ------
+    ExtractionError
+        When a name matches nothing or a directory holds no image.
+    """
+    out: list[Path] = []
+    for name in paths:
+        path = Path(name)
+        if path.is_dir():
+            files = sorted((p for p in path.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES), key=_natural_key)
+            if not files:
+                raise ExtractionError(f"{path}: directory holds no image file ({', '.join(sorted(_IMAGE_SUFFIXES))})")
+            out += files
+        elif path.exists():
+            out.append(path)
+        elif any(ch in str(name) for ch in "*?["):
+            matches = sorted(Path().glob(str(name)) if not path.is_absolute() else
+                             Path(path.anchor).glob(str(path.relative_to(path.anchor))), key=_natural_key)
+            if not matches:
+                raise ExtractionError(f"{name}: no file matches this pattern")
+            out += matches
+        else:
+            raise ExtractionError(f"{path}: no such file")
+    return out
+
+
+def _to_grey(image: np.ndarray, label: str) -> np.ndarray:
+    """A 2-D grey image from grey, RGB or RGBA data."""
+    from skimage.color import rgb2gray, rgba2rgb
+
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[-1] == 4:
+        return rgb2gray(rgba2rgb(image)).astype(np.float32)
+    if image.ndim == 3 and image.shape[-1] == 3:
+        return rgb2gray(image).astype(np.float32)
+    raise ExtractionError(f"{label}: an image of shape {image.shape} is neither grey (rows, columns) nor RGB")
+
+
+def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | None]:
+    """Frames of a (multi-page) TIFF, and the frame rate and pixel size [um] of its metadata."""
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        series = tif.series[0]
+        data = series.asarray()
+        axes = series.axes
+        frame_rate = pixel_um = None
+        meta = tif.imagej_metadata or {}
+        if meta.get("finterval"):
+            frame_rate = 1.0 / float(meta["finterval"])
+        elif meta.get("fps"):
+            frame_rate = float(meta["fps"])
+        unit = str(meta.get("unit", "")).lower()
+        x_resolution = tif.pages.first.tags.get("XResolution")
+        if x_resolution is not None and unit in ("um", "micron", "µm", "\\u00b5m"):
+            num, den = x_resolution.value
+            if num > 0 and den > 0:
+                pixel_um = den / num
+    colour = "S" in axes
+    # Every axis other than the image's own (Y, X, and the colour samples S) counts frames.
+    frame_shape = data.shape[-3:] if colour else data.shape[-2:]
+    data = data.reshape((-1, *frame_shape))
+    return [_to_grey(frame, str(path)) for frame in data], frame_rate, pixel_um
+
+
+def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
+                progress: Callable[[str], None] | None = None) -> FrameStack:
+    """Read image files (multi-page TIFF, PNG, ... 8 or 16 bit, grey or colour) into one stack.
+
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        Files, directories or glob patterns (see :func:`expand_frame_paths`), in frame order.
+    flow_direction : {'right', 'left'}
+        'left' mirrors every frame so that the flow goes in +x.
+    progress : callable, optional
+        Called with a short progress text.
+
+    Raises
+    ------
+    ExtractionError
+        For unreadable files, images that are not 2-D grey or RGB, or frames of different sizes.
+    """
+    import imageio.v3 as iio
+
+    if flow_direction not in ("right", "left"):
+        raise ExtractionError(f"flow direction must be 'right' or 'left', got {flow_direction!r}")
+    stack = FrameStack([], [])
+    for path in expand_frame_paths(paths):
+        try:
+            if path.suffix.lower() in (".tif", ".tiff"):
+                frames, rate, pixel = _tiff_frames(path)
+                stack.frame_rate = stack.frame_rate or rate
+                stack.pixel_size_um = stack.pixel_size_um or pixel
+            else:
+                image = iio.imread(path)
+                if image.ndim == 3 and image.shape[-1] not in (3, 4):
+                    frames = list(image)   # an animated format: one image per page
+                else:
+                    frames = [image]
+                frames = [_to_grey(f, str(path)) for f in frames]
+        except ExtractionError:
+            raise
+        except Exception as err:  # noqa: BLE001 - any reader failure is the file's problem
+            raise ExtractionError(f"{path}: cannot read as an image: {err}") from None
+        for page, frame in enumerate(frames):
+            if stack.frames and frame.shape != stack.frames[0].shape:
+                raise ExtractionError(f"{path}: frame {page} is {frame.shape[1]}x{frame.shape[0]} px, "
+                                      f"the first frame ({stack.labels[0]}) is "
+                                      f"{stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px")
+            if frame.shape[0] < 16 or frame.shape[1] < 16:
+                raise ExtractionError(f"{path}: frame {page} is only {frame.shape[1]}x{frame.shape[0]} px")
+            stack.frames.append(frame[:, ::-1] if flow_direction == "left" else frame)
+            stack.labels.append(f"{path}[{page}]" if len(frames) > 1 else str(path))
+        if progress is not None:
+            progress(f"read {len(stack)} frames")
+    if not stack.frames:
+        raise ExtractionError("no frame to read")
+    return stack
+
+
+def read_frame_times(path: str | Path, count: int) -> np.ndarray:
+    """Times [s] of ``count`` frames from a CSV: a ``time_s`` (or ``time``, ``time [s]``) column.
+
+    One row per frame in page order, or a ``page`` column that says which frame each row is
+    (rows for the same page, e.g. several events on one camera frame, must agree; the first
+    is taken). The times must increase.
+
+    Raises
+    ------
+    ExtractionError
+        Naming the file, when a column is missing, a frame has no time or the times do not increase.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(line for line in handle if not line.startswith("#")))
+    except OSError as err:
+        raise ExtractionError(f"{path}: cannot read the frame times: {err}") from None
+    if not rows:
+        raise ExtractionError(f"{path}: no frame time in the file")
+    column = next((c for c in ("time_s", "time [s]", "time") if c in rows[0]), None)
+    if column is None:
+        raise ExtractionError(f"{path}: no time column (time_s, 'time [s]' or time); columns: {', '.join(rows[0])}")
+    times = np.full(count, np.nan)
+    try:
+        for k, row in enumerate(rows):
+            page = int(row["page"]) if "page" in row and row["page"] != "" else k
+            if 0 <= page < count and np.isnan(times[page]):
+                times[page] = float(row[column])
+    except ValueError as err:
+        raise ExtractionError(f"{path}: {err}") from None
+    missing = np.nonzero(np.isnan(times))[0]
+    if missing.size:
+        raise ExtractionError(f"{path}: no time for frame(s) {', '.join(map(str, missing[:5]))} of {count}")
+    if np.any(np.diff(times) <= 0):
+        raise ExtractionError(f"{path}: the frame times must increase")
+    return times

@@ -1,0 +1,126 @@
+"""Measuring one frame's capsule, and the frame's record: lengths, symmetry, focus.
+
+:class:`FrameResult` is what a frame shows (its flag, what was traced, the lengths);
+:class:`ExtractionSettings` the thresholds. The lengths follow the paper: L_z the contour's
+axial extent, L_p from its rear-most point to its rear crossing of the tube axis; the symmetry
+is the mean distance between the upper half and the mirrored lower half over L_z / 2.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from capsmech.imaging.objects import TracedObject
+
+
+@dataclass(frozen=True)
+class ExtractionSettings:
+    """Thresholds of the extraction (defaults suit 1-4 px membrane lines, tube radius > 20 px)."""
+
+    detection_sigmas: float = 6.0
+    min_area_px: int = 30
+    max_line_width_px: float = 10.0
+    focus_ratio: float = 1.6
+    max_asymmetry: float = 0.05
+    min_good_frames: int = 3
+
+
+#: The default thresholds (an immutable instance, shared as a default argument).
+DEFAULT_SETTINGS = ExtractionSettings()
+
+
+@dataclass
+class FrameResult:
+    """What one frame shows. ``flag`` is empty for a good (measured) frame, else the reason.
+
+    ``kind`` and ``contour_at`` say what was traced (``ring``: the mid-line of a dark ring;
+    ``silhouette``: the outer edge of a filled object); ``extent_px`` is the traced
+    contour's extent along the flow, ``outer_extent_px`` the outer edge's; ``traces`` holds
+    every object of the frame (several when the flag says so), for the overlays.
+    """
+
+    index: int
+    label: str
+    flag: str = ""
+    objects: int = 0
+    time_s: float = math.nan
+    kind: str = ""
+    contour_at: str = ""
+    line_width_px: float = math.nan
+    line_contrast: float = math.nan
+    object_x: float = math.nan
+    x_front: float = math.nan
+    x_rear: float = math.nan
+    x_rear_axis: float = math.nan
+    extent_px: float = math.nan
+    outer_extent_px: float = math.nan
+    L_z_px: float = math.nan
+    L_p_px: float = math.nan
+    centroid_x: float = math.nan
+    centroid_y: float = math.nan
+    asymmetry: float = math.nan
+    passage: int = -1
+    contour: np.ndarray | None = field(default=None, repr=False)
+    traces: list[TracedObject] = field(default_factory=list, repr=False)
+
+    @property
+    def good(self) -> bool:
+        return not self.flag
+
+
+def rear_axis_crossing(contour: np.ndarray, axis_row: float) -> float:
+    """x of the contour's rear-most crossing of the axis (linear interpolation); NaN if none."""
+    closed = np.vstack([contour, contour[:1]])
+    d = closed[:, 1] - axis_row
+    idx = np.nonzero(np.sign(d[:-1]) != np.sign(d[1:]))[0]
+    if idx.size == 0:
+        return math.nan
+    t = d[idx] / (d[idx] - d[idx + 1])
+    xs = closed[idx, 0] + t * (closed[idx + 1, 0] - closed[idx, 0])
+    return float(xs.min())
+
+
+def asymmetry(contour: np.ndarray, axis_row: float, half_length: float) -> float:
+    """Mean distance between the upper half and the mirrored lower half (larger way), / half_length."""
+    upper = contour[contour[:, 1] <= axis_row]
+    lower = contour[contour[:, 1] >= axis_row].copy()
+    if len(upper) < 4 or len(lower) < 4:
+        return math.inf
+    lower[:, 1] = 2 * axis_row - lower[:, 1]
+    d_ul = cKDTree(lower).query(upper)[0].mean()
+    d_lu = cKDTree(upper).query(lower)[0].mean()
+    return float(max(d_ul, d_lu) / half_length)
+
+
+def flag_out_of_focus(results: Sequence[FrameResult], settings: ExtractionSettings) -> None:
+    """Flag the frames whose line is much wider or fainter than the stack's traced rings'.
+
+    Defocus spreads the line's darkness: it widens and fades, and a strongly blurred ring
+    fills its interior (it then reads as a silhouette). The reference is the median over the
+    frames that gave a ring contour; it needs three of them. Stacks of silhouettes are not
+    tested (their edge has no width to compare).
+    """
+    reference = [r for r in results if r.contour is not None and r.kind == "ring"]
+    if len(reference) < 3:
+        return
+    width = float(np.median([r.line_width_px for r in reference]))
+    contrast = float(np.median([r.line_contrast for r in reference]))
+    for r in results:
+        if r.objects == 0 or r.flag.startswith("out of focus"):
+            continue
+        if r.kind == "silhouette":
+            r.flag = "out of focus (no transparent interior, the stack's other capsules are rings)"
+        elif r.line_width_px > settings.focus_ratio * width:
+            r.flag = f"out of focus (line {r.line_width_px:.1f} px wide, stack median {width:.1f} px)"
+        elif r.line_contrast < contrast / settings.focus_ratio:
+            r.flag = f"out of focus (line contrast {r.line_contrast:.3f}, stack median {contrast:.3f})"
+        if r.flag.startswith("out of focus"):
+            # A blurred outline's centroid is no position to track by: the object's pixels are.
+            r.contour = None
+            r.centroid_x = r.centroid_y = math.nan
+
+

@@ -1,0 +1,253 @@
+"""Objects in a flat-field contrast image: found, separated, and traced as a ring or a silhouette.
+
+Two kinds of object are traced, and each says which it is and where its contour lies:
+
+- a **ring**: a dark membrane line around a transparent interior (capsules, calibration
+  beads). Its contour is the line's **mid-line**: the iso-lines at half the line's peak
+  contrast are its two edges (``skimage.measure.find_contours``, sub-pixel), each outer point
+  paired with the nearest inner one (on the common normal of two parallel curves), their
+  midpoint the membrane - the middle of the dark line, as in the paper's manual extraction;
+- a **silhouette**: a filled, opaque object (cells, beads seen out of their ring focus). Its
+  contour is the **outer edge**: the iso-line of the contrast at the detection level, which is
+  where an object mask thresholded on the same contrast ends.
+
+An object is a ring when the half-peak iso-lines enclose a transparent interior of at least
+:data:`MIN_INTERIOR_FRACTION` of the outer edge's area, else a silhouette.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+#: Gaussian smoothing (px) of the contrast before objects are detected, and before edges are traced.
+DETECTION_SMOOTHING_PX = 1.0
+CONTOUR_SMOOTHING_PX = 0.6
+#: A ring's interior (inside the half-peak inner edge) covers at least this much of its outer edge's area.
+MIN_INTERIOR_FRACTION = 0.15
+#: A silhouette's edge: this fraction of its peak contrast, or the detection threshold if higher.
+SILHOUETTE_LEVEL = 0.2
+
+CONTOUR_AT = {"ring": "mid-line of the dark ring", "silhouette": "outer edge of the silhouette"}
+
+
+@dataclass
+class TracedObject:
+    """One object of a frame, traced.
+
+    Attributes
+    ----------
+    kind : {'ring', 'silhouette'}
+    contour : (n, 2) array
+        (x, y) of the closed contour, px: the ring's mid-line or the silhouette's outer edge.
+    outer : (n, 2) array
+        The object's outer edge (the same as ``contour`` for a silhouette).
+    line_width_px : float
+        Full width at half maximum of a ring's line; NaN for a silhouette.
+    line_contrast : float
+        Peak contrast (90th percentile over the object's pixels).
+    x_front, x_rear : float
+        Axial extremes of the contour (for a ring, the outer edge's extremes one half line
+        width in: see :func:`trace_object`).
+    columns : (int, int)
+        First and last image column of the object's pixels.
+    track : int
+        The object's track across frames (``tracking.track_objects``; -1: not tracked).
+    """
+
+    kind: str
+    contour: np.ndarray = field(repr=False)
+    outer: np.ndarray = field(repr=False)
+    line_width_px: float
+    line_contrast: float
+    x_front: float
+    x_rear: float
+    columns: tuple[int, int]
+    track: int = -1
+
+    @property
+    def contour_at(self) -> str:
+        """Where the contour lies, in words."""
+        return CONTOUR_AT[self.kind]
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        """Area centroid (x, y) of the contour."""
+        return polygon_centroid(self.contour)
+
+    @property
+    def extent_px(self) -> float:
+        """Extent along the flow of the contour (``x_front - x_rear``)."""
+        return self.x_front - self.x_rear
+
+    @property
+    def outer_extent_px(self) -> float:
+        """Extent along the flow of the outer edge (what a thresholded mask spans)."""
+        return float(self.outer[:, 0].max() - self.outer[:, 0].min())
+
+
+def closed_contours(field_: np.ndarray, level: float) -> list[np.ndarray]:
+    """Closed iso-lines of ``field_`` at ``level`` as (x, y) arrays, longest first."""
+    from skimage.measure import find_contours
+
+    contours = [c[:, ::-1] for c in find_contours(field_, level) if len(c) > 8 and np.allclose(c[0], c[-1])]
+    return sorted(contours, key=len, reverse=True)
+
+
+def resample(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Closed polyline (first point repeated at the end or not) resampled at ``spacing`` by arclength."""
+    if not np.allclose(points[0], points[-1]):
+        points = np.vstack([points, points[:1]])
+    seg = np.hypot(*np.diff(points, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(8, int(np.ceil(s[-1] / spacing)))
+    t = np.linspace(0, s[-1], n, endpoint=False)
+    return np.column_stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])])
+
+
+def polygon_area(points: np.ndarray) -> float:
+    """Unsigned area of a closed polygon (shoelace)."""
+    x, y = points[:, 0], points[:, 1]
+    return float(abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)) / 2)
+
+
+def polygon_centroid(points: np.ndarray) -> tuple[float, float]:
+    """Area centroid of a closed polygon (shoelace formula)."""
+    x, y = points[:, 0], points[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2
+    if abs(area) < 1e-9:
+        return float(x.mean()), float(y.mean())
+    return float(((x + xn) * cross).sum() / (6 * area)), float(((y + yn) * cross).sum() / (6 * area))
+
+
+def line_width(contrast: np.ndarray, peak: float) -> float:
+    """Full width at half maximum of a line: area above half its peak over its skeleton's length."""
+    from skimage.morphology import skeletonize
+
+    band = contrast > peak / 2
+    length = skeletonize(band).sum()
+    return float(band.sum() / length) if length else math.inf
+
+
+def find_objects(smooth: np.ndarray, inside: np.ndarray, detection_sigmas: float, min_area_px: int,
+                 wall_rows: tuple[float, ...] = (), wall_band_px: float = 6.0,
+                 ) -> tuple[np.ndarray, np.ndarray, list[int], float]:
+    """Dark objects of a smoothed contrast image, inside the channel.
+
+    Pixels above ``detection_sigmas`` noise deviations (median absolute deviation inside the
+    channel), fragments closer than 2 px joined (one faint line breaks up), specks smaller
+    than ``min_area_px`` dropped. So are thin streaks along a wall (all their pixels within
+    ``wall_band_px`` of a wall row, at most 4 px high): what is left of a wall line that moved
+    by a fraction of a pixel between the background and the frame, not an object.
+
+    Returns
+    -------
+    labels : int array
+        Component labels of the joined mask.
+    mask : bool array
+        The pixels above the threshold.
+    keep : list of int
+        Labels of the objects kept.
+    threshold : float
+        The detection threshold (contrast).
+    """
+    from skimage.measure import label as label_components
+
+    # Every other pixel of every other row: as good an estimate of the noise, a quarter of the cost.
+    values = smooth[::2, ::2][inside[::2, ::2]]
+    noise = 1.4826 * float(np.median(np.abs(values - np.median(values)))) if values.size else 0.0
+    threshold = max(detection_sigmas * noise, 0.01)
+    mask = (smooth > threshold) & inside
+    joined = ndimage.binary_dilation(mask, iterations=2)
+    labels, count = label_components(joined, return_num=True, connectivity=2)
+    sizes = np.bincount(labels[mask].ravel(), minlength=count + 1)
+    keep = []
+    for k, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None or sizes[k] < min_area_px:
+            continue
+        top, bottom = box[0].start, box[0].stop - 1
+        if bottom - top <= 4 and any(top >= w - wall_band_px and bottom <= w + wall_band_px for w in wall_rows):
+            continue
+        keep.append(k)
+    return labels, mask, keep, threshold
+
+
+def trace_object(contrast: np.ndarray, region: np.ndarray, mask: np.ndarray, threshold: float,
+                 smooth: np.ndarray | None = None) -> TracedObject | str:
+    """Trace one object (its joined ``region``; ``mask``: the pixels above the threshold).
+
+    The edges are traced on a lighter smoothing than the detection's: blur pulls the edge
+    back around a parachute's sharp rim (L_p -0.35 px at 1 px, -0.16 px at 0.6 px for a
+    28 px deep parachute), while too little lets the noise push the extremes out (+0.3 px
+    on L_z without smoothing).
+
+    ``smooth``, the contrast at the detection's smoothing, when the caller has it already.
+    The smoothings are computed on a window around the object, wide enough (6 px beyond the
+    crop) to give the whole frame's values there.
+
+    Returns
+    -------
+    TracedObject, or str
+        The reason when no closed contour is found.
+    """
+    rows, cols = contrast.shape
+    r_idx, c_idx = np.nonzero(region & mask)
+    pad, margin = 3, 6
+    r0, r1 = max(0, r_idx.min() - pad), min(rows, r_idx.max() + pad + 1)
+    c0, c1 = max(0, c_idx.min() - pad), min(cols, c_idx.max() + pad + 1)
+    w0, w1 = max(0, r0 - margin), min(rows, r1 + margin)
+    v0, v1 = max(0, c0 - margin), min(cols, c1 + margin)
+    window = (slice(r0 - w0, r1 - w0), slice(c0 - v0, c1 - v0))
+    inside = (region & mask)[r0:r1, c0:c1]
+    sub_region = region[r0:r1, c0:c1]
+    line = np.where(sub_region, ndimage.gaussian_filter(contrast[w0:w1, v0:v1], CONTOUR_SMOOTHING_PX)[window], 0.0)
+    peak = float(np.percentile(line[inside], 90))
+    # Zero border: every iso-line of the crop is closed.
+    crop = np.pad(line, 1)
+    offset = np.array([c0 - 1, r0 - 1])
+    columns = (int(c_idx.min()), int(c_idx.max()))
+    edges = closed_contours(crop, peak / 2)
+    if edges:
+        outer = edges[0]
+        from skimage.measure import points_in_poly
+
+        inner = next((e for e in edges[1:] if points_in_poly(e[::max(1, len(e) // 16)], outer).all()), None)
+        if inner is not None and _is_interior(inner, outer):
+            outer = resample(outer, 0.25)
+            inner_dense = resample(inner, 0.05)
+            _, nearest = cKDTree(inner_dense).query(outer)
+            contour = resample((outer + inner_dense[nearest]) / 2 + offset, 0.5)
+            # The axial extremes from the outer edge, one half line width in: at a parachute's
+            # rim the membrane folds back within a few line widths, the inner edge cannot
+            # enter the fold and the mid-line there falls short (by 3 px for a 28 px deep
+            # parachute); the outer edge stays parallel to the membrane.
+            half_width = float(np.median(np.hypot(*(outer - inner_dense[nearest]).T))) / 2
+            detected = (smooth[r0:r1, c0:c1] if smooth is not None else
+                        ndimage.gaussian_filter(contrast[w0:w1, v0:v1], DETECTION_SMOOTHING_PX)[window])
+            width = line_width(np.where(sub_region, detected, 0.0), float(np.percentile(detected[inside], 90)))
+            return TracedObject("ring", contour, outer + offset, width, peak,
+                                float(outer[:, 0].max()) + offset[0] - half_width,
+                                float(outer[:, 0].min()) + offset[0] + half_width, columns)
+    # A silhouette: its outer edge at the detection level (where a thresholded mask ends).
+    level = max(threshold, SILHOUETTE_LEVEL * peak)
+    filled = ndimage.binary_fill_holes(crop > level)
+    edges = closed_contours(np.where(filled, np.maximum(crop, level * 1.0001), crop), level)
+    if not edges:
+        return "no closed contour (object too faint or cut)"
+    outer = resample(edges[0], 0.5) + offset
+    return TracedObject("silhouette", outer, outer, math.nan, peak, float(outer[:, 0].max()),
+                        float(outer[:, 0].min()), columns)
+
+
+def _is_interior(inner: np.ndarray, outer: np.ndarray) -> bool:
+    """Whether ``inner`` (inside ``outer``) bounds a ring's transparent interior, not a speck of texture.
+
+    Only its size counts: a parachute's interior is a crescent, far off the outer centroid.
+    """
+    a_in, a_out = polygon_area(inner), polygon_area(outer)
+    return a_out > 0 and a_in >= MIN_INTERIOR_FRACTION * a_out
