@@ -1060,7 +1060,7 @@ contains
             factor = sqrt(factor)
             if (factor < min_factor) exit
          end if
-         if (self%n_rec >= size(self%history, 2) - 1) exit
+         if (self%n_rec >= self%record_limit - 1) exit
       end do
       self%ca = ca_target
       if (ca_good >= ca_target) then
@@ -1314,7 +1314,7 @@ contains
          lam_p = 0.5_dp * (self%positions(1, e) + self%positions(1, e + 1)) / self%ref%radius0(e)
          stretch = max(stretch, lam_s, lam_p, 1.0_dp / lam_s, 1.0_dp / lam_p)
       end do
-      self%n_rec = min(self%n_rec + 1, size(self%history, 2))
+      call self%next_record()
       self%history(:, self%n_rec) = [self%t, area, volume, l_z, l_p, self%v_c, maxval(self%positions(1, :)), &
                                      self%energy, stretch]
    end subroutine record

@@ -2,6 +2,8 @@
 !> This is the program's edge: errors from the modules become one line on stderr and exit 2.
 program capsim
    use, intrinsic :: iso_fortran_env, only: error_unit, output_unit
+   use, intrinsic :: iso_c_binding, only: c_int
+   use file_ops, only: delete_file
    use omp_lib, only: omp_set_num_threads, omp_get_max_threads
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
@@ -18,7 +20,16 @@ program capsim
    type(case_summary_t) :: summary
    type(h5_file_t) :: f
    character(len=:), allocatable :: errmsg, checkpoint_path
-   integer :: stat, steady_index, unit, ios
+   integer :: stat, steady_index, unit, ios, close_stat
+   character(len=:), allocatable :: close_errmsg
+
+   interface
+      !> POSIX _exit: ends the process without the exit handlers (see case_file_failed).
+      subroutine c_exit(status) bind(c, name='_exit')
+         import :: c_int
+         integer(c_int), value :: status
+      end subroutine c_exit
+   end interface
    integer(8) :: clock_start, clock_end, clock_rate
 
    call parse_command_line(opts, stat, errmsg)
@@ -52,6 +63,7 @@ program capsim
    end if
    checkpoint_path = trim(opts%out)//'.ckpt'
    call model%run(opts, checkpoint_path, summary, steady_index)
+   if (allocated(summary%fatal)) call die('capsim: error: '//summary%fatal, 1)
    call system_clock(clock_end)
    summary%wall_time_s = summary%wall_time_before_s + real(clock_end - clock_start, dp) / clock_rate
    summary%threads = omp_get_max_threads()
@@ -65,7 +77,7 @@ program capsim
    end if
    if (stat == 0) call model%write_geometry(f, stat, errmsg)
    if (stat == 0) call close_case_file(f, opts, stat, errmsg)
-   if (stat /= 0) call die('capsim: error: writing the case file: '//errmsg, 1)
+   if (stat /= 0) call case_file_failed('capsim: error: writing the case file: '//errmsg)
    ! The case file is complete: the checkpoint has served its purpose.
    open (newunit=unit, file=checkpoint_path, status='old', iostat=ios)
    if (ios == 0) close (unit, status='delete')
@@ -75,6 +87,19 @@ program capsim
    end if
 
 contains
+
+   !> The case file could not be written (a full disk): OUT.tmp is removed and the program
+   !> exits 1 with one line. HDF5's exit handler would flush the failed file again and crash
+   !> (exit 139), so the process ends by _exit, after flushing its own output.
+   subroutine case_file_failed(message)
+      character(len=*), intent(in) :: message
+      call f%close(close_stat, close_errmsg)
+      call delete_file(trim(opts%out)//'.tmp')
+      write (error_unit, '(a)') message
+      flush (error_unit)
+      flush (output_unit)
+      call c_exit(1_c_int)
+   end subroutine case_file_failed
 
    subroutine die(message, code)
       character(len=*), intent(in) :: message

@@ -569,7 +569,7 @@ contains
       ! The force array is scratch here: velocity() recomputes it before every use.
       call membrane_nodal_forces(self%ref, self%mesh, self%law, self%positions, self%force, energy)
       if (self%bending%kb > 0.0_dp) call self%bending%add_forces(self%mesh, self%positions, self%force, energy)
-      self%n_rec = min(self%n_rec + 1, size(self%history, 2))
+      call self%next_record()
       self%history(:, self%n_rec) = [self%t, m%area, m%volume, m%d12, m%l1, m%l2, m%l3, m%theta, energy, stretch]
    end subroutine record
 

@@ -8,6 +8,7 @@
 !> measures that must settle for a steady state.
 module capsule_model
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   use, intrinsic :: iso_fortran_env, only: error_unit
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
    use membrane_law, only: membrane_law_t
@@ -35,8 +36,12 @@ module capsule_model
       !> Names and units of the history columns, as written to the case file.
       character(len=16), allocatable :: history_names(:), history_units(:)
       integer :: step = 0
+      !> Rows 1:n_rec of `history` hold the records; its columns double when full
+      !> (next_record), so that memory follows the records taken, not t_max.
       real(dp), allocatable :: history(:, :)
       integer :: n_rec = 0
+      !> The most records the steady Newton continuation (axisymmetric tube) takes.
+      integer :: record_limit = huge(1)
       !> History columns read by the classification.
       integer :: col_t = 1, col_area = 2, col_volume = 3, col_length = 0, col_stretch = 0
       integer, allocatable :: col_shape(:)
@@ -66,6 +71,7 @@ module capsule_model
       procedure :: run => time_loop
       procedure :: time_loop
       procedure :: allocate_history
+      procedure :: next_record
    end type capsule_model_t
 
    abstract interface
@@ -113,16 +119,36 @@ contains
       call unflatten(state, self%positions)
    end subroutine set_state
 
+   !> An empty history of these columns. It starts small and grows (next_record); t_max and
+   !> record_every give only `record_limit`, the records the run would take at most (in
+   !> real arithmetic, capped: t_max may be 1e9).
    subroutine allocate_history(self, names, units, t_max, record_every)
       class(capsule_model_t), intent(inout) :: self
       character(len=*), intent(in) :: names(:), units(:)
       real(dp), intent(in) :: t_max, record_every
+      integer, parameter :: initial_records = 256
       self%history_names = names
       self%history_units = units
-      allocate (self%history(size(names), ceiling(t_max / max(record_every, self%dt)) + 16))
+      self%record_limit = int(min(t_max / max(record_every, self%dt) + 17.0_dp, 0.5_dp * real(huge(1), dp)))
+      if (allocated(self%history)) deallocate (self%history)
+      allocate (self%history(size(names), initial_records))
       self%history = 0
       self%n_rec = 0
    end subroutine allocate_history
+
+   !> Makes room for one more record and counts it: the caller then fills history(:, n_rec).
+   !> A full history doubles its columns.
+   subroutine next_record(self)
+      class(capsule_model_t), intent(inout) :: self
+      real(dp), allocatable :: grown(:, :)
+      if (self%n_rec >= size(self%history, 2)) then
+         allocate (grown(size(self%history, 1), max(16, 2 * size(self%history, 2))))
+         grown = 0
+         grown(:, 1:self%n_rec) = self%history(:, 1:self%n_rec)
+         call move_alloc(grown, self%history)
+      end if
+      self%n_rec = self%n_rec + 1
+   end subroutine next_record
 
    !> Advance until a final status; checkpoints to `checkpoint_path` every
    !> opts%checkpoint_every wall seconds and resumes from it if it matches the options.
@@ -135,7 +161,7 @@ contains
       integer(8) :: clock_start, clock_now, clock_rate, clock_ckpt, clock_print
       real(dp) :: t_next_record, v0
       real(dp), allocatable :: state(:)
-      character(len=:), allocatable :: signature, errmsg
+      character(len=:), allocatable :: signature, errmsg, note
       logical :: resumed, decided
       integer :: stat
 
@@ -144,7 +170,9 @@ contains
       signature = option_signature(opts)
       allocate (state(self%state_size()))
       call read_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, self%n_rec, &
-                           summary%wall_time_before_s, resumed)
+                           summary%wall_time_before_s, resumed, note)
+      if (len(note) > 0) write (error_unit, '(a)') 'capsim: warning: checkpoint "'//checkpoint_path// &
+         '" not used: '//note//'; starting afresh'
       if (resumed) then
          call self%set_state(state)
          if (.not. opts%quiet) write (*, '(a,f0.3)') 'capsim: resumed from checkpoint at t = ', self%t
@@ -187,7 +215,14 @@ contains
             call write_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, &
                                   self%n_rec, summary%wall_time_before_s + real(clock_now - clock_start, dp) / clock_rate, &
                                   stat, errmsg)
-            if (stat /= 0 .and. .not. opts%quiet) write (*, '(a)') 'capsim: warning: '//errmsg
+            if (stat /= 0) then
+               ! The previous checkpoint is left in place; going on would risk hours unsaved.
+               summary%status = 'failed'
+               summary%message = errmsg
+               summary%fatal = errmsg
+               decided = .true.
+               exit
+            end if
             clock_ckpt = clock_now
          end if
          if (.not. opts%quiet .and. real(clock_now - clock_print, dp) / clock_rate >= 2.0_dp) then

@@ -1,8 +1,11 @@
 !> Files of one run: the HDF5 case file (written whole to a temporary name, then renamed)
 !> and the binary checkpoint from which a killed run resumes.
 module case_output
+   use, intrinsic :: iso_fortran_env, only: int8, int64
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use capsim_kinds, only: dp, code_version, schema_version
-   use file_ops, only: replace_file
+   use file_ops, only: replace_file, path_kind, path_absent, path_regular, delete_file
+   use checksum, only: crc32_t
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t
    use membrane_law, only: membrane_law_t
@@ -22,7 +25,14 @@ module case_output
       integer :: threads = 1
       real(dp) :: dt = 0
       real(dp) :: volume_change = 0
+      !> Set when the run cannot go on for a reason outside the model (a checkpoint that cannot
+      !> be written): the program then exits 1 with this line and writes no case file.
+      character(len=:), allocatable :: fatal
    end type case_summary_t
+
+   !> First bytes of a checkpoint of this layout (write_checkpoint).
+   character(len=*), parameter :: checkpoint_magic = 'CAPSCKP2'
+   integer, parameter :: int_bytes = 4, real_bytes = 8, header_bytes = len(checkpoint_magic) + int_bytes
 
 
 contains
@@ -100,64 +110,192 @@ contains
       call replace_file(trim(opts%out)//'.tmp', trim(opts%out), stat, errmsg)
    end subroutine close_case_file
 
-   !> Binary checkpoint: signature, step, time, model state, the history so far and the wall
-   !> seconds spent on the case up to now.
+   !> Binary checkpoint (stream, native byte order), written whole to PATH.tmp and renamed:
+   !>   'CAPSCKP2' (8 bytes), CRC-32 (int32) of every byte after it, len(signature) (int32),
+   !>   signature, step (int32), t, size(x) (int32), x, rows of history (int32), n_rec (int32),
+   !>   history(:, 1:n_rec), wall_time_s (reals in 8 bytes; the wall time last).
+   !> The signature (option_signature) holds every option that changes the result, t_max and
+   !> the code version. Every write and the close are checked: on failure PATH.tmp is removed,
+   !> PATH (the previous checkpoint) is left as it was, and stat /= 0.
    subroutine write_checkpoint(path, signature, step, t, x, history, n_rec, wall_time_s, stat, errmsg)
       character(len=*), intent(in) :: path, signature
       integer, intent(in) :: step, n_rec
       real(dp), intent(in) :: t, x(:), history(:, :), wall_time_s
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      integer :: unit
+      type(crc32_t) :: crc
+      integer :: unit, k, ios
       character(len=256) :: iomsg
+      errmsg = ''
+      iomsg = ''
       open (newunit=unit, file=path//'.tmp', access='stream', form='unformatted', status='replace', &
             action='write', iostat=stat, iomsg=iomsg)
       if (stat /= 0) then
          errmsg = 'cannot write checkpoint "'//path//'.tmp": '//trim(iomsg)
          return
       end if
-      write (unit) len(signature), signature, step, t, size(x), x, n_rec, history(:, 1:n_rec), wall_time_s
-      close (unit)
+      call crc%add_int(len(signature))
+      call crc%add_text(signature)
+      call crc%add_int(step)
+      call crc%add_real(t)
+      call crc%add_int(size(x))
+      call crc%add_reals(x)
+      call crc%add_int(size(history, 1))
+      call crc%add_int(n_rec)
+      do k = 1, n_rec
+         call crc%add_reals(history(:, k))
+      end do
+      call crc%add_real(wall_time_s)
+      write (unit, iostat=stat, iomsg=iomsg) checkpoint_magic, crc%value(), len(signature), signature, step, t, &
+         size(x), x, size(history, 1), n_rec, history(:, 1:n_rec), wall_time_s
+      if (stat == 0) flush (unit, iostat=stat, iomsg=iomsg)
+      if (stat /= 0) then
+         close (unit, status='delete', iostat=ios)
+         errmsg = 'cannot write checkpoint "'//path//'.tmp": '//trim(iomsg)
+         return
+      end if
+      close (unit, iostat=stat, iomsg=iomsg)
+      if (stat /= 0) then
+         call delete_file(path//'.tmp')
+         errmsg = 'cannot close checkpoint "'//path//'.tmp": '//trim(iomsg)
+         return
+      end if
+      ! A full disk does not always reach iostat (gfortran reported success for a stream
+      ! write cut short by ENOSPC): the file is read back and must be whole before it
+      ! replaces the previous checkpoint.
+      if (.not. checkpoint_is_whole(path//'.tmp', checkpoint_size(len(signature), size(x), size(history, 1), n_rec))) then
+         call delete_file(path//'.tmp')
+         stat = 1
+         errmsg = 'cannot write checkpoint "'//path//'.tmp": the file read back is not whole (disk full?)'
+         return
+      end if
       call replace_file(path//'.tmp', path, stat, errmsg)
+      if (stat /= 0) call delete_file(path//'.tmp')
    end subroutine write_checkpoint
 
-   !> Reads a checkpoint if one exists for the same options; `found` is false otherwise.
-   !> `wall_time_s` is 0 for a checkpoint written before it recorded the wall time.
-   subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, wall_time_s, found)
+   !> Reads the checkpoint at `path` if it is whole (its CRC-32 matches), written for the same
+   !> `signature` and shaped like this run's state; `found` is false otherwise, and `note` says
+   !> why ('' when there is no checkpoint at all). `history` grows to hold the records read.
+   subroutine read_checkpoint(path, signature, step, t, x, history, n_rec, wall_time_s, found, note)
       character(len=*), intent(in) :: path, signature
       integer, intent(inout) :: step, n_rec
-      real(dp), intent(inout) :: t, x(:), history(:, :)
+      real(dp), intent(inout) :: t, x(:)
+      real(dp), allocatable, intent(inout) :: history(:, :)
       real(dp), intent(out) :: wall_time_s
       logical, intent(out) :: found
-      integer :: unit, ios, sig_len, n_nodes, n_rec_file
+      character(len=:), allocatable, intent(out) :: note
+      integer :: unit, ios, sig_len, n_state, n_rows, n_rec_file, step_file
+      integer(int64) :: file_size
       character(len=:), allocatable :: sig_file
+      real(dp) :: t_file, wall_file
+      real(dp), allocatable :: x_file(:), history_file(:, :)
+
       found = .false.
+      note = ''
       wall_time_s = 0
+      if (path_kind(path) == path_absent) return
+      if (path_kind(path) /= path_regular) then
+         note = 'not a regular file'
+         return
+      end if
       open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', &
             iostat=ios)
-      if (ios /= 0) return
-      read (unit, iostat=ios) sig_len
-      if (ios == 0 .and. sig_len == len(signature)) then
+      if (ios /= 0) then
+         note = 'cannot be opened'
+         return
+      end if
+      check: block
+         inquire (unit=unit, size=file_size)
+         call check_crc(unit, file_size, note)
+         if (len(note) > 0) exit check
+         ! Whole as written: what follows guards against a checkpoint of another shape.
+         note = 'written for other options or another kernel version (signature differs)'
+         read (unit, iostat=ios, pos=header_bytes + 1) sig_len
+         if (ios /= 0 .or. sig_len /= len(signature)) exit check
          allocate (character(len=sig_len) :: sig_file)
          read (unit, iostat=ios) sig_file
-         if (ios == 0 .and. sig_file == signature) then
-            read (unit, iostat=ios) step, t, n_nodes
-            if (ios == 0 .and. n_nodes == size(x)) then
-               read (unit, iostat=ios) x, n_rec_file
-               if (ios == 0 .and. n_rec_file <= size(history, 2)) then
-                  read (unit, iostat=ios) history(:, 1:n_rec_file)
-                  if (ios == 0) then
-                     n_rec = n_rec_file
-                     found = .true.
-                     read (unit, iostat=ios) wall_time_s
-                     if (ios /= 0) wall_time_s = 0
-                  end if
-               end if
-            end if
+         if (ios /= 0 .or. sig_file /= signature) exit check
+         note = 'of another model size'
+         read (unit, iostat=ios) step_file, t_file, n_state
+         if (ios /= 0 .or. n_state /= size(x)) exit check
+         allocate (x_file(n_state))
+         read (unit, iostat=ios) x_file, n_rows, n_rec_file
+         if (ios /= 0 .or. n_rows /= size(history, 1) .or. n_rec_file < 1) exit check
+         note = 'damaged (its size does not match its record count)'
+         if (checkpoint_size(sig_len, n_state, n_rows, n_rec_file) /= file_size) exit check
+         allocate (history_file(n_rows, n_rec_file))
+         read (unit, iostat=ios) history_file, wall_file
+         note = 'damaged (cannot be read whole)'
+         if (ios /= 0) exit check
+         note = 'damaged (non-finite or negative values)'
+         if (step_file < 0 .or. .not. (ieee_is_finite(t_file) .and. all(ieee_is_finite(x_file)) .and. &
+                                      all(ieee_is_finite(history_file)) .and. wall_file >= 0)) exit check
+         if (size(history, 2) < n_rec_file) then
+            deallocate (history)
+            allocate (history(n_rows, n_rec_file))
          end if
-      end if
-      close (unit)
+         history(:, 1:n_rec_file) = history_file
+         n_rec = n_rec_file
+         step = step_file
+         t = t_file
+         x = x_file
+         wall_time_s = wall_file
+         found = .true.
+         note = ''
+      end block check
+      close (unit, iostat=ios)
    end subroutine read_checkpoint
+
+   !> Bytes of a checkpoint (write_checkpoint's layout).
+   pure integer(int64) function checkpoint_size(sig_len, n_state, n_rows, n_rec)
+      integer, intent(in) :: sig_len, n_state, n_rows, n_rec
+      checkpoint_size = header_bytes + 5_int64 * int_bytes + sig_len + &
+                        real_bytes * (2_int64 + n_state + int(n_rows, int64) * n_rec)
+   end function checkpoint_size
+
+   !> From the start of the open checkpoint of `file_size` bytes: its magic and CRC-32 against
+   !> the bytes that follow. `note` is '' if they match, otherwise what is wrong; the file is
+   !> then positioned anywhere.
+   subroutine check_crc(unit, file_size, note)
+      integer, intent(in) :: unit
+      integer(int64), intent(in) :: file_size
+      character(len=:), allocatable, intent(out) :: note
+      character(len=len(checkpoint_magic)) :: magic
+      integer(int8), allocatable :: bytes(:)
+      integer :: ios, crc_file
+      type(crc32_t) :: crc
+      note = 'damaged (shorter than its header)'
+      if (file_size < header_bytes) return
+      read (unit, iostat=ios, pos=1) magic, crc_file
+      note = 'not a checkpoint of this kernel (an older format or another file)'
+      if (ios /= 0 .or. magic /= checkpoint_magic) return
+      allocate (bytes(file_size - header_bytes))
+      read (unit, iostat=ios) bytes
+      note = 'damaged (cannot be read whole)'
+      if (ios /= 0) return
+      call crc%add_bytes(bytes)
+      note = 'damaged (checksum mismatch: truncated or altered)'
+      if (crc%value() /= crc_file) return
+      note = ''
+   end subroutine check_crc
+
+   !> True if the checkpoint file at `path` has `expected_size` bytes and its CRC-32 matches.
+   logical function checkpoint_is_whole(path, expected_size) result(whole)
+      character(len=*), intent(in) :: path
+      integer(int64), intent(in) :: expected_size
+      integer :: unit, ios
+      integer(int64) :: file_size
+      character(len=:), allocatable :: note
+      whole = .false.
+      open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', iostat=ios)
+      if (ios /= 0) return
+      inquire (unit=unit, size=file_size)
+      if (file_size == expected_size) then
+         call check_crc(unit, file_size, note)
+         whole = len(note) == 0
+      end if
+      close (unit, iostat=ios)
+   end function checkpoint_is_whole
 
    !> /mesh of a 3D capsule: reference and current nodes (3, n) in `length_unit`, triangles
    !> 0-based (read as (n, 3) and (m, 3) in h5py). Does nothing if stat /= 0 on entry.

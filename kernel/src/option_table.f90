@@ -8,7 +8,7 @@
 module option_table
    implicit none
    private
-   public :: option_spec_t, option_specs, option_index
+   public :: option_spec_t, option_specs, option_index, option_applies, option_context, n_options
 
    type :: option_spec_t
       !> '--name', and a short alias ('-h') or ''.
@@ -24,6 +24,11 @@ module option_table
       !> Printed after the default value, or alone where the default is empty ('' = nothing).
       character(len=56) :: default_note = ''
       character(len=120) :: help = ''
+      !> Where the option applies: the flows and tube models ('shear', 'tube-axi', 'tube-3d',
+      !> blank-separated) and membrane laws ('NH', 'SK', 'GH'); '' = everywhere. Given
+      !> elsewhere, the option is refused (it would be ignored): see option_applies.
+      character(len=24) :: contexts = ''
+      character(len=8) :: laws = ''
    end type option_spec_t
 
    character(len=*), parameter :: time_unit = '1/gamma_dot (shear), l/V (tube)'
@@ -38,9 +43,11 @@ module option_table
                     unit='dimensionless: Ca_s = mu gamma_dot a / G_s (shear), mu V / G_s (tube)', &
                     help='capillary number of the membrane, in (0, 100]'), &
       option_spec_t(name='--nu-s', arg='VALUE', group='flow and law', unit='dimensionless', &
-                    help='surface Poisson ratio nu_s of the GH law, in (-1, 1)'), &
+                    help='surface Poisson ratio nu_s of the GH law, in (-1, 1)', &
+                    laws='GH'), &
       option_spec_t(name='--C', arg='VALUE', group='flow and law', unit='dimensionless: K_s = (1 + 2 C) G_s', &
-                    help='area-dilation parameter C of the SK law, > -0.5'), &
+                    help='area-dilation parameter C of the SK law, > -0.5', &
+                    laws='SK'), &
       option_spec_t(name='--lambda', arg='VALUE', group='flow and law', unit='dimensionless', &
                     help='viscosity ratio lambda = inner / outer viscosity, in (0, 1e6]'), &
       option_spec_t(name='--prestress', arg='ALPHA', group='flow and law', unit='dimensionless', &
@@ -48,30 +55,41 @@ module option_table
       option_spec_t(name='--kb', arg='VALUE', group='flow and law', unit='dimensionless: k_b = K_B / (G_s a^2)', &
                     help='bending stiffness (discrete Helfrich energy), in [0, 1]'), &
       option_spec_t(name='--level', arg='N', group='mesh', unit='count (level 4 = 2562 nodes)', &
-                    help='subdivision level of the icosphere mesh of the capsule (shear; tube --model 3d), 1 to 5'), &
+                    help='subdivision level of the icosphere mesh of the capsule (shear; tube --model 3d), 1 to 5', &
+                    contexts='shear tube-3d'), &
       option_spec_t(name='--n-meridian', arg='N', group='mesh', unit='count (elements)', &
-                    help='meridian elements from pole to pole (tube --model axi), 8 to 1024'), &
+                    help='meridian elements from pole to pole (tube --model axi), 8 to 1024', &
+                    contexts='tube-axi'), &
       option_spec_t(name='--a-over-l', arg='VALUE', group='tube', unit='dimensionless: a / l', required=.true., &
                     default_note='with --flow tube', &
-                    help='size ratio of the capsule radius a to the tube radius l, in (0, 1.3]'), &
+                    help='size ratio of the capsule radius a to the tube radius l, in (0, 1.3]', &
+                    contexts='tube-axi tube-3d'), &
       option_spec_t(name='--model', arg='axi|3d', group='tube', &
-                    help='tube model: axisymmetric (fast path) or 3D boundary elements'), &
+                    help='tube model: axisymmetric (fast path) or 3D boundary elements', &
+                    contexts='tube-axi tube-3d'), &
       option_spec_t(name='--tube-length', arg='LENGTH', group='tube', unit='l (tube radius)', &
-                    help='length of the modelled tube, 4 to 40'), &
+                    help='length of the modelled tube, 4 to 40', &
+                    contexts='tube-axi tube-3d'), &
       option_spec_t(name='--wall-h-far', arg='LENGTH', group='tube', unit='l (tube radius)', &
-                    help='wall element size away from the centre (--model 3d), 0.02 to 1'), &
+                    help='wall element size away from the centre (--model 3d), 0.02 to 1', &
+                    contexts='tube-3d'), &
       option_spec_t(name='--wall-h-centre', arg='LENGTH', group='tube', unit='l (tube radius)', &
-                    help='wall element size over |z| < 1 (--model 3d), 0.02 to --wall-h-far'), &
+                    help='wall element size over |z| < 1 (--model 3d), 0.02 to --wall-h-far', &
+                    contexts='tube-3d'), &
+      ! A machine setting (like --threads), accepted with every flow: only --model 3d caches a wall.
       option_spec_t(name='--wall-cache', arg='DIR|none', group='tube', &
                     default_note='$XDG_CACHE_HOME/capsmech or ~/.cache/capsmech', &
                     help='directory of the cached wall LU (--model 3d); none = no cache'), &
       option_spec_t(name='--self-quadrature', arg='vertex|full', group='tube', default_note='full', &
                     help='membrane self single layer (--model 3d): 7-point rule on every triangle (full) or '// &
-                         'one Stokeslet per node (vertex)'), &
+                         'one Stokeslet per node (vertex)', &
+                    contexts='tube-3d'), &
       option_spec_t(name='--offset', arg='LENGTH', group='tube', unit='l (tube radius)', &
-                    help='initial radial position of the capsule centroid along x (--model 3d), offset + a/l <= 0.9'), &
+                    help='initial radial position of the capsule centroid along x (--model 3d), offset + a/l <= 0.9', &
+                    contexts='tube-3d'), &
       option_spec_t(name='--offset-mode', arg='drift|held', group='tube', &
-                    help='drift: the capsule migrates from --offset; held: its centroid is put back to x = offset'), &
+                    help='drift: the capsule migrates from --offset; held: its centroid is put back to x = offset', &
+                    contexts='tube-3d'), &
       option_spec_t(name='--integrator', arg='auto|newton|implicit|rk2', group='time stepping and solver', &
                     help='auto: RK2 (shear, tube 3d), Newton for small Ca_s else implicit ROS2 (tube axi); '// &
                          'newton: tube axi only'), &
@@ -83,7 +101,8 @@ module option_table
       option_spec_t(name='--t-max', arg='TIME', group='time stepping and solver', unit=time_unit, &
                     help='simulated time at which the run stops if it has not ended before'), &
       option_spec_t(name='--newton-tol', arg='VELOCITY', group='time stepping and solver', unit='V (mean velocity)', &
-                    help='Newton (tube axi) converges when the largest membrane velocity in the capsule frame is below this'), &
+                    help='Newton (tube axi) converges when the largest membrane velocity in the capsule frame is below this', &
+                    contexts='tube-axi'), &
       option_spec_t(name='--volume-correction', arg='on|off', group='time stepping and solver', &
                     help='remove the spurious net flux of the discretisation through the membrane'), &
       option_spec_t(name='--steady-tol', arg='VALUE', group='end of run', &
@@ -109,6 +128,8 @@ module option_table
                     help='print this help and exit') &
       ]
 
+   integer, parameter :: n_options = size(option_specs)
+
 contains
 
    !> Index in option_specs of the option called `name` (its long or short name); 0 if none.
@@ -124,5 +145,29 @@ contains
          end if
       end do
    end function option_index
+
+   !> The context of a run for option_applies: 'shear', 'tube-axi' or 'tube-3d'.
+   pure function option_context(flow, model) result(context)
+      character(len=*), intent(in) :: flow, model
+      character(len=:), allocatable :: context
+      if (trim(flow) == 'tube') then
+         context = 'tube-'//trim(model)
+      else
+         context = trim(flow)
+      end if
+   end function option_context
+
+   !> True if `spec` applies in `context` (option_context) with membrane law `law`.
+   pure logical function option_applies(spec, context, law)
+      type(option_spec_t), intent(in) :: spec
+      character(len=*), intent(in) :: context, law
+      option_applies = (len_trim(spec%contexts) == 0 .or. has_word(spec%contexts, context)) .and. &
+                       (len_trim(spec%laws) == 0 .or. has_word(spec%laws, law))
+   end function option_applies
+
+   pure logical function has_word(list, word)
+      character(len=*), intent(in) :: list, word
+      has_word = index(' '//trim(list)//' ', ' '//trim(word)//' ') > 0
+   end function has_word
 
 end module option_table

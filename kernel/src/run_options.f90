@@ -4,15 +4,20 @@
 !> help) are option_table's; bind_option ties each to its component here, for the parser and
 !> for the defaults that write_help prints.
 module run_options
-   use capsim_kinds, only: dp
+   use capsim_kinds, only: dp, code_version
    use text_format, only: real_text, int_text
-   use option_table, only: option_spec_t, option_specs, option_index
+   use text_parse, only: parse_real, parse_int
+   use file_ops, only: path_kind, path_absent, path_regular, path_directory, folder_of, folder_writable
+   use option_table, only: option_spec_t, option_specs, option_index, option_applies, option_context, n_options
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, write_help
+   public :: run_options_t, parse_command_line, option_signature, write_help, path_len
 
+   !> Longest path (--out, --wall-cache, --namelist) the kernel holds; a longer one is refused.
    integer, parameter :: path_len = 1024
+   !> Longest command-line argument read (an option with its "=value").
+   integer, parameter :: arg_len = path_len + 64
 
    type :: run_options_t
       character(len=16) :: flow = ''
@@ -78,6 +83,9 @@ module run_options
       logical :: volume_correction = .true.
       logical :: quiet = .false.
       logical :: show_help = .false.
+      !> Which options of option_table (by index) were given, on the command line or in the
+      !> namelist: an option given where it does not apply is refused (validate).
+      logical :: given(n_options) = .false.
    end type run_options_t
 
 contains
@@ -88,10 +96,10 @@ contains
       type(run_options_t), intent(out) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      integer :: k, n, eq, i
-      character(len=path_len) :: arg, key, value
+      integer :: k, n, eq, i, arg_status
+      character(len=arg_len) :: arg, key, value
       character(len=:), allocatable :: shown
-      logical :: has_value
+      logical :: has_value, on_command_line(n_options)
 
       stat = 0
       errmsg = ''
@@ -106,20 +114,38 @@ contains
                   call fail('--namelist', 'needs a file name')
                   return
                end if
-               call get_command_argument(k + 1, value)
+               call get_command_argument(k + 1, value, status=arg_status)
+               if (arg_status /= 0) then
+                  call fail('--namelist', 'file name longer than '//int_text(path_len)//' characters')
+                  return
+               end if
             else
                value = arg(12:)
+            end if
+            if (len_trim(value) > path_len) then
+               call fail('--namelist', 'file name longer than '//int_text(path_len)//' characters')
+               return
             end if
             call read_namelist(trim(value), opts, stat, errmsg)
             if (stat /= 0) return
          end if
          k = k + 1
       end do
+      on_command_line = .false.
       k = 1
       do while (k <= n)
-         call get_command_argument(k, arg)
+         call get_command_argument(k, arg, status=arg_status)
          k = k + 1
          eq = index(arg, '=')
+         if (arg_status /= 0) then
+            ! Cut to arg_len: refused, as a path that long would be written elsewhere.
+            if (arg(1:2) == '--' .and. eq > 0) then
+               call fail(arg(:eq - 1), 'value longer than '//int_text(path_len)//' characters')
+            else
+               call fail(arg(:40)//'...', 'argument longer than '//int_text(path_len)//' characters')
+            end if
+            return
+         end if
          if (arg(1:2) == '--' .and. eq > 0) then
             key = arg(:eq - 1)
             value = arg(eq + 1:)
@@ -148,9 +174,20 @@ contains
                call fail(trim(key), 'needs a value')
                return
             end if
-            call get_command_argument(k, value)
+            call get_command_argument(k, value, status=arg_status)
+            if (arg_status /= 0) then
+               call fail(trim(key), 'value longer than '//int_text(path_len)//' characters')
+               return
+            end if
             k = k + 1
          end if
+         ! A flag given twice is a mistake in the calling script, not a preference for the last.
+         if (on_command_line(i)) then
+            call fail(trim(option_specs(i)%name), 'given more than once')
+            return
+         end if
+         on_command_line(i) = .true.
+         opts%given(i) = .true.
          call bind_option(opts, trim(option_specs(i)%name), .true., value, shown, stat, errmsg)
          if (stat /= 0) return
       end do
@@ -270,41 +307,41 @@ contains
          errmsg = name//': '//reason
       end subroutine fail
 
-      !> A word or a path; a longer value is cut to the component's length.
+      !> A word or a path; a value longer than the component is refused, not cut.
       subroutine word_field(s)
          character(len=*), intent(inout) :: s
          if (set) then
+            if (len_trim(text) > len(s)) then
+               call fail('longer than '//int_text(len(s))//' characters')
+               return
+            end if
             s = text
          else
             shown = trim(s)
          end if
       end subroutine word_field
 
+      !> The whole value must be one finite decimal number (text_parse).
       subroutine real_field(x)
          real(dp), intent(inout) :: x
-         integer :: ios
+         logical :: ok
          if (.not. set) then
             shown = short_real_text(x)
             return
          end if
-         read (text, *, iostat=ios) x
-         if (ios /= 0 .or. len_trim(text) == 0) then
-            call fail('not a number: "'//trim(text)//'"')
-         else if (.not. ieee_is_finite(x)) then
-            call fail('must be finite (got "'//trim(text)//'")')
-         end if
+         call parse_real(text, x, ok)
+         if (.not. ok) call fail('not a finite number: "'//trim(text)//'"')
       end subroutine real_field
 
       subroutine int_field(i)
          integer, intent(inout) :: i
-         integer :: ios
+         logical :: ok
          if (.not. set) then
             shown = int_text(i)
             return
          end if
-         read (text, *, iostat=ios) i
-         if (ios /= 0 .or. len_trim(text) == 0 .or. verify(trim(adjustl(text)), '+-0123456789') /= 0) &
-            call fail('not an integer: "'//trim(text)//'"')
+         call parse_int(text, i, ok)
+         if (.not. ok) call fail('not an integer: "'//trim(text)//'"')
       end subroutine int_field
 
       !> on|off (also 1|0, yes|no).
@@ -436,63 +473,114 @@ contains
 
    end function short_real_text
 
+   !> Group &capsim of the file `path`. A variable the group sets counts as its option given
+   !> (so that an inapplicable one is refused like its flag); reals must be finite.
    subroutine read_namelist(path, opts, stat, errmsg)
       character(len=*), intent(in) :: path
       type(run_options_t), intent(inout) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
+      !> Marks a variable the group did not set.
+      character(len=*), parameter :: unset_word = achar(0)//'unset'
+      real(dp), parameter :: unset_real = -huge(1.0_dp)
+      integer, parameter :: unset_int = -huge(1)
       character(len=16) :: flow, law, model
-      character(len=path_len) :: out
+      character(len=2 * path_len) :: out
       real(dp) :: nu_s, c, ca, dt, t_max, a_over_l, lambda, kb
       integer :: level, threads, unit, ios, n_meridian
       character(len=256) :: iomsg
       namelist /capsim/ flow, law, model, nu_s, c, ca, lambda, kb, a_over_l, level, n_meridian, dt, t_max, threads, out
 
-      stat = 0
+      stat = 2
       errmsg = ''
-      flow = opts%flow
-      law = opts%law
-      model = opts%model
-      a_over_l = opts%a_over_l
-      n_meridian = opts%n_meridian
-      nu_s = opts%nu_s
-      c = opts%c
-      ca = opts%ca
-      lambda = opts%lambda
-      kb = opts%kb
-      level = opts%level
-      dt = opts%dt
-      t_max = opts%t_max
-      threads = opts%threads
-      out = opts%out
+      ! A device or FIFO (/dev/zero) would be read for ever; a folder cannot be read.
+      if (path_kind(path) /= path_regular) then
+         if (path_kind(path) == path_absent) then
+            errmsg = '--namelist: no such file "'//path//'"'
+         else
+            errmsg = '--namelist: not a regular file "'//path//'"'
+         end if
+         return
+      end if
+      flow = unset_word
+      law = unset_word
+      model = unset_word
+      out = unset_word
+      a_over_l = unset_real
+      nu_s = unset_real
+      c = unset_real
+      ca = unset_real
+      lambda = unset_real
+      kb = unset_real
+      dt = unset_real
+      t_max = unset_real
+      n_meridian = unset_int
+      level = unset_int
+      threads = unset_int
       open (newunit=unit, file=path, status='old', action='read', iostat=ios, iomsg=iomsg)
       if (ios /= 0) then
-         stat = 2
          errmsg = '--namelist: cannot open "'//path//'": '//trim(iomsg)
          return
       end if
       read (unit, nml=capsim, iostat=ios, iomsg=iomsg)
       close (unit)
       if (ios /= 0) then
-         stat = 2
          errmsg = '--namelist: cannot read group &capsim in "'//path//'": '//trim(iomsg)
          return
       end if
-      opts%flow = flow
-      opts%law = law
-      opts%model = model
-      opts%a_over_l = a_over_l
-      opts%n_meridian = n_meridian
-      opts%nu_s = nu_s
-      opts%c = c
-      opts%ca = ca
-      opts%lambda = lambda
-      opts%kb = kb
-      opts%level = level
-      opts%dt = dt
-      opts%t_max = t_max
-      opts%threads = threads
-      opts%out = out
+      call take_word('--flow', flow, opts%flow)
+      call take_word('--law', law, opts%law)
+      call take_word('--model', model, opts%model)
+      call take_word('--out', out, opts%out)
+      call take_real('--a-over-l', 'a_over_l', a_over_l, opts%a_over_l)
+      call take_real('--nu-s', 'nu_s', nu_s, opts%nu_s)
+      call take_real('--C', 'c', c, opts%c)
+      call take_real('--ca', 'ca', ca, opts%ca)
+      call take_real('--lambda', 'lambda', lambda, opts%lambda)
+      call take_real('--kb', 'kb', kb, opts%kb)
+      call take_real('--dt', 'dt', dt, opts%dt)
+      call take_real('--t-max', 't_max', t_max, opts%t_max)
+      call take_int('--n-meridian', n_meridian, opts%n_meridian)
+      call take_int('--level', level, opts%level)
+      call take_int('--threads', threads, opts%threads)
+      if (len(errmsg) == 0) stat = 0
+
+   contains
+
+      subroutine take_word(option, value, field)
+         character(len=*), intent(in) :: option, value
+         character(len=*), intent(inout) :: field
+         if (len(errmsg) > 0 .or. value == unset_word) return
+         if (len_trim(value) > len(field)) then
+            errmsg = '--namelist: '//option//' in "'//path//'": longer than '//int_text(len(field))//' characters'
+            return
+         end if
+         field = value
+         opts%given(option_index(option)) = .true.
+      end subroutine take_word
+
+      subroutine take_real(option, name, value, field)
+         character(len=*), intent(in) :: option, name
+         real(dp), intent(in) :: value
+         real(dp), intent(inout) :: field
+         if (len(errmsg) > 0 .or. value == unset_real) return
+         if (.not. ieee_is_finite(value)) then
+            errmsg = '--namelist: '//name//' in "'//path//'" must be a finite number, got '//real_text(value)
+            return
+         end if
+         field = value
+         opts%given(option_index(option)) = .true.
+      end subroutine take_real
+
+      subroutine take_int(option, value, field)
+         character(len=*), intent(in) :: option
+         integer, intent(in) :: value
+         integer, intent(inout) :: field
+         if (len(errmsg) > 0 .or. value == unset_int) return
+         field = value
+         opts%given(option_index(option)) = .true.
+      end subroutine take_int
+
    end subroutine read_namelist
 
    subroutine validate(opts, stat, errmsg)
@@ -504,6 +592,29 @@ contains
 
       stat = 2
       errmsg = ''
+      ! The words that choose the model come first: which options apply depends on them.
+      select case (trim(opts%flow))
+      case ('shear', 'tube')
+      case ('')
+         errmsg = '--flow: missing (expected shear or tube)'
+      case default
+         errmsg = '--flow: unknown flow "'//trim(opts%flow)//'" (expected shear or tube)'
+      end select
+      if (len(errmsg) > 0) return
+      select case (trim(opts%law))
+      case ('NH', 'SK', 'GH')
+      case ('')
+         errmsg = '--law: missing (expected NH, SK or GH)'
+      case default
+         errmsg = '--law: unknown membrane law "'//trim(opts%law)//'" (expected NH, SK or GH)'
+      end select
+      if (len(errmsg) > 0) return
+      if (trim(opts%flow) == 'tube' .and. all(trim(opts%model) /= [character(len=3) :: 'axi', '3d'])) then
+         errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
+         return
+      end if
+      call refuse_inapplicable(opts, errmsg)
+      if (len(errmsg) > 0) return
       select case (trim(opts%flow))
       case ('shear')
          if (opts%offset /= 0.0_dp) then
@@ -574,21 +685,6 @@ contains
             end if
          end if
          if (len(errmsg) > 0) return
-      case ('')
-         errmsg = '--flow: missing (expected shear or tube)'
-         return
-      case default
-         errmsg = '--flow: unknown flow "'//trim(opts%flow)//'" (expected shear or tube)'
-         return
-      end select
-      select case (trim(opts%law))
-      case ('NH', 'SK', 'GH')
-      case ('')
-         errmsg = '--law: missing (expected NH, SK or GH)'
-         return
-      case default
-         errmsg = '--law: unknown membrane law "'//trim(opts%law)//'" (expected NH, SK or GH)'
-         return
       end select
       if (.not. (opts%nu_s > -1.0_dp .and. opts%nu_s < 1.0_dp)) then
          errmsg = '--nu-s: must lie in (-1, 1), got '//real_text(opts%nu_s)
@@ -637,14 +733,157 @@ contains
       end if
       if (len(errmsg) > 0) return
       ! Fail now, not after hours of computing, if the output cannot be written.
-      open (newunit=unit, file=trim(opts%out)//'.tmp', status='replace', action='write', iostat=ios, iomsg=iomsg)
-      if (ios /= 0) then
-         errmsg = '--out: cannot write "'//trim(opts%out)//'": '//trim(iomsg)
-         return
-      end if
-      close (unit, status='delete')
+      call check_output_path(trim(opts%out), errmsg)
+      if (len(errmsg) > 0) return
       stat = 0
    end subroutine validate
+
+   !> The case file OUT is written as OUT.tmp, then renamed; checkpoints go to OUT.ckpt (via
+   !> OUT.ckpt.tmp). OUT must be a new or a regular file (a directory cannot be replaced, and a
+   !> device or FIFO must not be) in a writable folder, and so must the files beside it. The
+   !> last check creates OUT.tmp and deletes it: nothing is left.
+   subroutine check_output_path(out, errmsg)
+      character(len=*), intent(in) :: out
+      character(len=:), allocatable, intent(inout) :: errmsg
+      character(len=*), parameter :: beside(3) = [character(len=9) :: '.tmp', '.ckpt', '.ckpt.tmp']
+      character(len=:), allocatable :: folder
+      character(len=256) :: iomsg
+      integer :: k, unit, ios
+
+      select case (path_kind(out))
+      case (path_directory)
+         errmsg = '--out: "'//out//'" is a directory (expected the path of the case file)'
+         return
+      case (path_absent, path_regular)
+      case default
+         errmsg = '--out: "'//out//'" is not a regular file (a device, FIFO or socket): it would be replaced'
+         return
+      end select
+      folder = folder_of(out)
+      if (path_kind(folder) /= path_directory) then
+         errmsg = '--out: folder "'//folder//'" of "'//out//'" does not exist'
+         return
+      else if (.not. folder_writable(folder)) then
+         errmsg = '--out: folder "'//folder//'" of "'//out//'" is not writable'
+         return
+      end if
+      do k = 1, size(beside)
+         if (all(path_kind(out//trim(beside(k))) /= [path_absent, path_regular])) then
+            errmsg = '--out: "'//out//trim(beside(k))//'" exists and is not a regular file'
+            return
+         end if
+      end do
+      open (newunit=unit, file=out//'.tmp', status='replace', action='write', iostat=ios, iomsg=iomsg)
+      if (ios /= 0) then
+         errmsg = '--out: cannot write "'//out//'": '//trim(iomsg)
+         return
+      end if
+      close (unit, status='delete', iostat=ios)
+   end subroutine check_output_path
+
+   !> An option given (on the command line or in the namelist) where it does not apply
+   !> (option_table: its contexts and laws) is refused: it would be silently ignored. The
+   !> message names the most specific such option first (the fewest contexts), then the others.
+   subroutine refuse_inapplicable(opts, errmsg)
+      type(run_options_t), intent(in) :: opts
+      character(len=:), allocatable, intent(inout) :: errmsg
+      character(len=:), allocatable :: context, others
+      integer :: i, first, width, best
+
+      context = option_context(opts%flow, opts%model)
+      first = 0
+      best = huge(1)
+      others = ''
+      do i = 1, n_options
+         if (.not. opts%given(i)) cycle
+         if (option_applies(option_specs(i), context, opts%law)) cycle
+         width = context_count(option_specs(i))
+         if (width < best) then
+            if (first > 0) others = others//', '//trim(option_specs(first)%name)
+            first = i
+            best = width
+         else
+            others = others//', '//trim(option_specs(i)%name)
+         end if
+      end do
+      if (first == 0) return
+      associate (spec => option_specs(first))
+         if (len_trim(spec%contexts) > 0 .and. .not. option_applies(spec, context, spec%laws)) then
+            errmsg = trim(spec%name)//': does not apply to '//context_text(context)//' (only to '// &
+                     contexts_text(spec%contexts)//')'
+         else
+            errmsg = trim(spec%name)//': does not apply to --law '//trim(opts%law)//' (only to --law '// &
+                     words_joined(spec%laws, ' or --law ')//')'
+         end if
+      end associate
+      if (len(others) > 0) errmsg = errmsg//'; nor do '//others(3:)
+
+   contains
+
+      integer function context_count(spec)
+         type(option_spec_t), intent(in) :: spec
+         context_count = merge(3, count_words(spec%contexts), len_trim(spec%contexts) == 0)
+      end function context_count
+
+   end subroutine refuse_inapplicable
+
+   !> '--flow shear', '--flow tube --model axi' for an option_context.
+   function context_text(context) result(text)
+      character(len=*), intent(in) :: context
+      character(len=:), allocatable :: text
+      if (context(1:min(5, len(context))) == 'tube-') then
+         text = '--flow tube --model '//context(6:)
+      else
+         text = '--flow '//context
+      end if
+   end function context_text
+
+   !> The contexts of an option as flags: '--flow shear or --flow tube --model 3d'.
+   function contexts_text(list) result(text)
+      character(len=*), intent(in) :: list
+      character(len=:), allocatable :: text
+      character(len=:), allocatable :: rest
+      integer :: blank
+      text = ''
+      rest = trim(adjustl(list))
+      do while (len(rest) > 0)
+         blank = index(rest, ' ')
+         if (blank == 0) blank = len(rest) + 1
+         if (len(text) > 0) text = text//' or '
+         text = text//context_text(rest(:blank - 1))
+         rest = trim(adjustl(rest(min(blank, len(rest) + 1):)))
+      end do
+      if (text == '--flow tube --model axi or --flow tube --model 3d') text = '--flow tube'
+   end function contexts_text
+
+   pure integer function count_words(list)
+      character(len=*), intent(in) :: list
+      integer :: k
+      count_words = 0
+      do k = 1, len_trim(list)
+         if (list(k:k) /= ' ' .and. (k == 1)) count_words = count_words + 1
+         if (k > 1) then
+            if (list(k:k) /= ' ' .and. list(k - 1:k - 1) == ' ') count_words = count_words + 1
+         end if
+      end do
+   end function count_words
+
+   !> The blank-separated words of `list` joined by `sep`.
+   pure function words_joined(list, sep) result(text)
+      character(len=*), intent(in) :: list, sep
+      character(len=:), allocatable :: text
+      integer :: k
+      text = ''
+      do k = 1, len_trim(list)
+         if (list(k:k) == ' ') then
+            if (k > 1) then
+               if (list(k - 1:k - 1) /= ' ') text = text//sep
+            end if
+         else
+            text = text//list(k:k)
+         end if
+      end do
+   end function words_joined
 
    !> Everything that determines the result: a checkpoint is resumed only if this matches.
    function option_signature(opts) result(sig)
@@ -656,6 +895,10 @@ contains
          opts%a_over_l, opts%dt, opts%dt_factor, opts%steady_tol, opts%shape_tol, opts%max_length, &
          opts%record_every, opts%newton_tol, opts%tube_length, opts%wall_h_far, opts%wall_h_centre
       sig = trim(buf)
+      ! The time limit decides where the history ends, and another kernel version may step
+      ! differently: a checkpoint of either is not resumed.
+      write (buf, '(a,es23.16)') ' t_max ', opts%t_max
+      sig = sig//trim(buf)//' code_version '//code_version
       ! Effects are appended only when present, so that the signatures (and checkpoints) of
       ! the base model are those of kernel versions without the options.
       call append_effect(sig, 'prestress', opts%prestress, 0.0_dp)

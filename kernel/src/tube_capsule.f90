@@ -682,7 +682,7 @@ contains
          call principal_stretches(self%ref, self%mesh, self%positions, t, l1, l2)
          stretch = max(stretch, l1, 1.0_dp / max(l2, 1.0e-12_dp))
       end do
-      self%n_rec = min(self%n_rec + 1, size(self%history, 2))
+      call self%next_record()
       self%history(:, self%n_rec) = [self%t, area, volume, l_z, l_p, self%v_c, &
                                      sqrt(maxval(self%positions(1, :)**2 + self%positions(2, :)**2)), self%energy, stretch, &
                                      norm2(centroid(1:2))]

@@ -67,7 +67,7 @@ def run_lambdas(capsim, root: Path, n_meridian: int) -> dict:
     result = {}
     for lam in LAMBDAS:
         out = root / f"lambda{lam}_n{n_meridian}.h5"
-        subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--nu-s", "0.5", "--a-over-l", "0.8",
+        subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--a-over-l", "0.8",
                         "--ca", "0.05", "--n-meridian", str(n_meridian), "--lambda", lam, "--threads", "1",
                         "--quiet", "--out", str(out)], check=True, timeout=1200)
         result[lam] = read_case(out)
