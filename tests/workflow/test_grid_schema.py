@@ -37,6 +37,10 @@ BAD_GRIDS = [
     ("effect out of range", malformed(("tube", "laws"), ["NH+prestress0.9"]), "tube.laws[0]: law key 'NH+prestress0.9': prestress must lie in [0, 0.5]"),
     ("offset without the 3D model", malformed(("tube", "laws"), ["NH+offset0.2"]), "tube.laws[0]: law key 'NH+offset0.2': offset needs tube.settings.model: 3d"),
     ("offset in shear", malformed(("shear", "laws"), ["NH+offset0.2"]), "shear.laws[0]: law key 'NH+offset0.2': the kernel has offset only in tube flow"),
+    ("3D mesh level with the axisymmetric model", malformed(("tube", "settings"), {"level": 3}),
+     "tube.settings.level: applies to tube.settings.model: 3d only (this grid's model is axi)"),
+    ("meridian elements with the 3D model", malformed(("tube", "settings"), {"model": "3d", "n_meridian": 64}),
+     "tube.settings.n_meridian: applies to tube.settings.model: axi only (this grid's model is 3d)"),
     ("unknown shear integrator", malformed(("shear", "settings"), {"integrator": "newton"}), "shear.settings.integrator: 'newton' is not one of"),
     ("implicit threshold not positive", malformed(("shear", "settings"), {"implicit_below_Ca_s": 0}), "shear.settings.implicit_below_Ca_s: 0 is less than or equal to the minimum of 0"),
 ]

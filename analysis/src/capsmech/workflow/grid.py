@@ -207,6 +207,10 @@ def _schema_errors(grid: Mapping[str, Any]) -> list[str]:
     return [f"{_key_path(e.absolute_path)}: {e.message}" for e in errors]
 
 
+#: Tube settings that apply to one tube model only (the kernel's option table says the same).
+TUBE_MODEL_SETTINGS = {"n_meridian": ("axi",), "level": ("3d",), "wall_h_far": ("3d",), "wall_h_centre": ("3d",)}
+
+
 def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
     """Check a grid against the schema and the kernel's parameter ranges.
 
@@ -243,6 +247,15 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                         if model not in EFFECT_TUBE_MODELS[name]:
                             problems.append(f"{flow}.laws[{i}]: law key {key!r}: {name} needs "
                                             f"tube.settings.model: {' or '.join(EFFECT_TUBE_MODELS[name])}")
+            if flow == "tube":
+                # capsim refuses an option that does not apply to the tube model (exit 2): refuse
+                # the grid that would ask for it, before any case runs.
+                settings = grid[flow].get("settings", {})
+                model = settings.get("model", "axi")
+                for name in sorted(set(settings) & set(TUBE_MODEL_SETTINGS)):
+                    if model not in TUBE_MODEL_SETTINGS[name]:
+                        problems.append(f"tube.settings.{name}: applies to tube.settings.model: "
+                                        f"{' or '.join(TUBE_MODEL_SETTINGS[name])} only (this grid's model is {model})")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
