@@ -379,3 +379,30 @@ def test_several_capsules_in_view_are_each_traced_and_tracked(tube_db):
     assert all(r.flag == "2 capsules" and len(r.traces) == 2 for r in results), [r.flag for r in results]
     tracks = [sorted((t.centre[0], t.track) for t in r.traces) for r in results]
     assert all([track for _, track in frame] == [0, 1] for frame in tracks), tracks
+
+
+@pytest.mark.parametrize("glass", [((15.0, 50.0), (150.0, 185.0)), ((-20.0, 50.0), (150.0, 220.0))],
+                         ids=["bands in view", "bands cut by the image edges"])
+def test_glass_shown_as_a_thick_band_has_its_inner_edge_as_the_wall(tube_db, glass):
+    """A capillary's glass seen as a dark band 35 px thick (45 % darker, soft edges), in view or
+    reaching past the image's edges, and no wall line: the walls are the bands' inner edges."""
+    from scipy.special import erf
+
+    from capsmech.imaging.extraction import extract_stack
+
+    outline = database_outline(tube_db, "NH", 0.85, 0.05)
+    style = FrameStyle(tube_radius_px=50.0, axis_row=100.0, wall_darkness=0.0)
+    frames = render_stack(outline, 12, 110.0, 9.0, style, seed=6).astype(float)
+    y = np.arange(frames.shape[1], dtype=float)[:, None]
+
+    def band(first: float, last: float) -> np.ndarray:
+        s = 1.5 * math.sqrt(2.0)
+        return 0.5 * (erf((y - first) / s) - erf((y - last) / s))
+
+    frames = np.clip(frames * (1 - 0.45 * (band(*glass[0]) + band(*glass[1]))), 0, 255).astype(np.uint8)
+    channel, results = extract_stack(stack_of(frames))
+    assert channel.walls.top_row == pytest.approx(50.0, abs=0.3) and channel.walls.bottom_row == pytest.approx(150.0, abs=0.3)
+    L_z, L_p = (length * 50.0 for length in drawn_lengths(outline))
+    good = [r for r in results if r.good]
+    assert len(good) >= 10, [r.flag for r in results]
+    assert abs(np.mean([r.L_z_px for r in good]) - L_z) < 0.5 and abs(np.mean([r.L_p_px for r in good]) - L_p) < 0.5

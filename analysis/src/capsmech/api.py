@@ -374,7 +374,7 @@ def _quantity(value: float | str | None, name: str, units: dict[str, float], def
 
 
 def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str | None = None,
-            frame_rate: float | str | None = None, *, flow_direction: str = "right", capsule_id: str | None = None,
+            frame_rate: float | str | None = None, *, flow_direction: str = "auto", capsule_id: str | None = None,
             max_asymmetry: float = 0.05, max_line_width: float = 10.0, min_frames: int = 3,
             progress: bool = False, background: str | Path | Any | None = None,
             walls: str | tuple[float, float] | None = None, channel_width: float | str | None = None,
@@ -384,13 +384,20 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
     Parameters
     ----------
     frames : path, glob pattern or sequence of them
-        A multi-page TIFF, image files or folders, in frame order.
+        A multi-page TIFF, image files or folders in frame order, an ``.rtdc`` recording or a
+        video (AVI, MP4, MKV, ...).
     pixel_size : float or str, optional
-        One pixel [um], or a quantity with its unit (``"0.5um"``); default the TIFF's metadata.
+        One pixel [um], or a quantity with its unit (``"0.5um"``); default the file's metadata
+        (TIFF resolution, ``.rtdc`` ``imaging:pixel size``).
     frame_rate : float or str, optional
-        Frames per second (``1000``, ``"1kHz"``); default the TIFF's frame interval.
-    flow_direction : {"right", "left"}
-        The flow's direction in the images (left: the frames are mirrored first).
+        Frames per second (``1000``, ``"1kHz"``); default the file's (TIFF frame interval,
+        ``.rtdc`` ``imaging:frame rate``, the video's rate). Frame numbers the file gives (an
+        ``.rtdc``'s camera frames, a video's presentation times) are kept: gaps stay gaps.
+    flow_direction : {"auto", "right", "left"}
+        The flow's direction in the images: "auto" (default) finds it from the objects' motion
+        between consecutive frames (frames moving in -x are mirrored; +x assumed when no object
+        is followed, said in ``Extraction.channel.flow_check``); "left" mirrors the frames first;
+        a given direction is checked against the motion.
     capsule_id : str, optional
         Id of the capsule (several: ``ID-1``, ``ID-2``, ...); default the first file's name.
     max_asymmetry, max_line_width, min_frames

@@ -3,12 +3,41 @@ contours, a per-frame report and overlays."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from capsmech.api import extract
 from capsmech.cli.common import format_table, records
 from capsmech.imaging.extraction import ExtractionError
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse thresholds that mean nothing and outputs that cannot be written, before any work.
+
+    Raises
+    ------
+    ExtractionError
+        Naming the option (and the path) at fault.
+    """
+    if args.min_frames < 1:
+        raise ExtractionError(f"--min-frames: need at least 1 good frame per capsule, got {args.min_frames}")
+    for option, value in (("--max-asymmetry", args.max_asymmetry), ("--max-line-width", args.max_line_width)):
+        if not (math.isfinite(value) and value > 0):
+            raise ExtractionError(f"{option}: need a positive finite number, got {value:g}")
+    out = Path(args.out)
+    report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
+    contours = out.with_name(out.stem + "_contours")
+    for option, path in (("--out", out), ("--report", report)):
+        if path.is_dir():
+            raise ExtractionError(f"{option} {path}: is a directory (give a file name, e.g. {path / 'measurements.csv'})")
+        if path.exists() and not path.is_file():
+            raise ExtractionError(f"{option} {path}: not a regular file")
+    if contours.exists() and not contours.is_dir():
+        raise ExtractionError(f"--out {out}: the contours' folder {contours} exists and is not a folder")
+    if args.overlay and Path(args.overlay).exists() and not Path(args.overlay).is_dir():
+        raise ExtractionError(f"--overlay {args.overlay}: exists and is not a folder")
 
 
 def cmd_extract(args: argparse.Namespace) -> int:
@@ -30,6 +59,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
         write_overlay,
     )
 
+    check_options(args)
     mu = parse_quantity(args.mu, "--mu", VISCOSITY_UNITS_PA_S, "Pa s") if args.mu else None
     pixel_um = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um") if args.pixel_size else None
     rate = parse_quantity(args.frame_rate, "--frame-rate", RATE_UNITS_HZ, "Hz") if args.frame_rate else None
@@ -47,6 +77,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
                               .replace("channel_width:", "--channel-width:")
                               .replace("frame_times:", "--frame-times:")) from None
     walls, results, stack = found.walls, found.results, found.stack
+    for note in stack.notes:
+        print(f"capsmech: warning: {note}", file=sys.stderr)
     pixel_um, rate = found.pixel_size_um, found.frame_rate
     out = Path(args.out)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
@@ -60,6 +92,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
           f"background: {channel.background_source}")
     if channel.width_check:
         print(channel.width_check)
+    print(channel.flow_check)
     if args.overlay:
         # The level/tilt/walls picture once, and every frame that shows an object, measured or not.
         shown = channel.background if channel.background is not None else channel.levelled(stack.frames[0])
@@ -76,8 +109,11 @@ def cmd_extract(args: argparse.Namespace) -> int:
             reason = r.flag.split(" (")[0]
             flags[reason] = flags.get(reason, 0) + 1
     good = sum(r.good for r in results)
+    # Objects of frames with several are measured on their own, for their tracks.
+    shared = sum(1 for r in results if len(r.traces) > 1 for t in r.traces if not t.flag)
     print(f"{good} frames measured" + (", flagged: " + ", ".join(f"{n} {k}" for k, n in sorted(flags.items()))
-                                       if flags else "") + f" (per frame: {report})")
+                                       if flags else "")
+          + (f"; {shared} objects measured in frames with several" if shared else "") + f" (per frame: {report})")
     capsules = found.capsules
     for row, cap in zip(records(capsules), found.measurements):
         if row["flag"]:
@@ -89,12 +125,15 @@ def cmd_extract(args: argparse.Namespace) -> int:
         return 1
     kept = [cap for cap in found.measurements if cap.ok]
     csv_path, _ = write_measurements(out, kept, results, walls, pixel_um, list(measured["id"]), mu,
-                                     source=" ".join(str(f) for f in args.frames), flow_direction=args.flow_direction)
+                                     source=" ".join(str(f) for f in args.frames), flow_direction=channel.flow_direction)
     print(format_table(records(measured), ["id", "good_frames", "L_z", "L_z_spread", "L_p", "L_p_spread", "v_c",
                                            "v_c_se"], capsules.attrs["units"]))
     if args.overlay:
         for row, cap in zip(records(measured), kept):
             frame = next(r for r in results if r.index == cap.representative)
+            if cap.trace is not None:      # the capsule's own object, also in a frame with several
+                t = cap.trace
+                frame = replace(frame, contour=t.contour, x_front=t.x_front, x_rear=t.x_rear, x_rear_axis=t.x_rear_axis)
             title = (f"{row['id']}, frame {frame.index}: L_z = {row['L_z']:.4g} um, L_p = {row['L_p']:.4g} um, "
                      f"tube radius {row['tube_radius']:.4g} um, v_c = {row['v_c']:.4g} mm/s")
             path = write_overlay(Path(args.overlay) / f"{row['id']}.png", channel.levelled(stack.frames[frame.index]),
@@ -107,9 +146,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``extract``."""
     ext = sub.add_parser("extract", help="frames of capsules in the tube -> measurement CSV (fit-tube), contours, overlays")
-    ext.add_argument("frames", nargs="+", metavar="FRAMES", help="multi-page TIFF, image files, directories or glob patterns, in frame order")
-    ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the TIFF's metadata)")
-    ext.add_argument("--frame-rate", help="frames per second, e.g. 1000 (default: the TIFF's frame interval)")
+    ext.add_argument("frames", nargs="+", metavar="FRAMES",
+                     help="multi-page TIFF, image files, directories or glob patterns in frame order, an .rtdc "
+                          "recording or a video (AVI, MP4, MKV, MOV, ...)")
+    ext.add_argument("--pixel-size", help="size of one pixel, e.g. 0.5um (bare numbers: um; default: the file's "
+                     "metadata: TIFF resolution, .rtdc imaging:pixel size)")
+    ext.add_argument("--frame-rate", help="frames per second, e.g. 1000 (default: the file's: TIFF frame interval, "
+                     ".rtdc imaging:frame rate, the video's rate; frame numbers and gaps from the file are kept)")
     ext.add_argument("--mu", help="viscosity of the liquid, e.g. 1.0 (Pa s) or 50mPa s: written as the mu column (needed for G_s)")
     ext.add_argument("--out", required=True, metavar="CSV", help="measurement file to write (the format fit-tube reads)")
     ext.add_argument("--overlay", metavar="DIR", help="write PNGs: one per capsule (its contour and the walls), one per "
@@ -126,8 +169,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ext.add_argument("--tilt", type=float, metavar="DEG",
                      help="tilt of the channel in degrees (atan of rows per column; default: estimated from the walls)")
     ext.add_argument("--report", metavar="CSV", help="per-frame report (default: <out stem>_frames.csv)")
-    ext.add_argument("--flow-direction", choices=("right", "left"), default="right",
-                     help="direction of the flow in the images (left: the frames are mirrored first)")
+    ext.add_argument("--flow-direction", choices=("auto", "right", "left"), default="auto",
+                     help="direction of the flow in the images (default auto: from the objects' motion between "
+                          "consecutive frames; left: the frames are mirrored first; a given one is checked)")
     ext.add_argument("--id", help="capsule id (several capsules: ID-1, ID-2, ...; default: the first file's name)")
     ext.add_argument("--max-asymmetry", type=float, default=0.05,
                      help="flag frames whose two halves differ by more than this fraction of L_z/2 (default 0.05)")

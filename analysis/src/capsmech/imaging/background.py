@@ -75,11 +75,21 @@ def stack_background(frames: Sequence[np.ndarray]) -> np.ndarray | None:
                                     structure=np.ones((1, 3, 3), bool), iterations=OBJECT_MARGIN_PX)
     masked = np.where(masks, np.nan, stack)
     covered = masks.all(axis=0)
-    with np.errstate(all="ignore"):
-        background = np.nanmedian(np.where(covered[None], 0.0, masked), axis=0)
+    background = _nanmedian_first_axis(np.where(covered[None], 0.0, masked))
     if covered.any():
         background = np.where(covered, _covered_background(stack, masks, covered, plain, rows), background)
     return background.astype(np.float32)
+
+
+def _nanmedian_first_axis(stack: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(stack, axis=0)`` for a stack with at least one number per pixel, by one
+    sort (NaNs sort last) and the middle of each pixel's numbers: numpy's nanmedian goes through
+    masked arrays and is 5-10 times slower."""
+    ordered = np.sort(stack, axis=0)
+    count = np.sum(~np.isnan(stack), axis=0)
+    low = np.take_along_axis(ordered, ((count - 1) // 2)[None], axis=0)[0]
+    high = np.take_along_axis(ordered, (count // 2)[None], axis=0)[0]
+    return 0.5 * (low + high)
 
 
 def flat_field(image: np.ndarray, background: np.ndarray) -> np.ndarray:

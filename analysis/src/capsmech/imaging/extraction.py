@@ -31,14 +31,17 @@ Per frame (:func:`analyse_contrast`)
        Symmetry: the mean distance between the upper half and the mirrored lower half (both
        ways, the larger), over L_z / 2; above ``max_asymmetry`` the frame is ``asymmetric``.
 Per stack, after the frames (``tracking``)
-    Every traced object gets a track (``track_objects``: optimal assignment between
-    consecutive frames), and the frames with one object are grouped into passages.
+    Every traced object is measured on its own (``measurement.measure_trace``) and gets a
+    track (``track_objects``: optimal assignment between consecutive frames; two frames of
+    one passage with one object each are always linked). The flow's direction is the sign of
+    the objects' median step between consecutive frames (``flow_steps``, no direction
+    assumed); with ``flow_direction='auto'`` frames moving in -x are mirrored and analysed again.
 Per capsule (:func:`measure_capsules`)
-    Frames are grouped into passages (a capsule crossing the field: a new one starts after a
-    frame with no capsule, after a gap in the frame times, or when the object jumps back
-    against the flow). Lengths are the median over the passage's good frames, with their
-    standard deviation as spread; v_c is the slope of the least-squares line through the
-    contour's area centroid against the frames' times, with its standard error.
+    Each track is a capsule, also when several are in view at once. Its lengths are the
+    medians over its good objects, with their standard deviation as spread; v_c is the slope
+    of the least-squares line through the contour's area centroid against the frames' times,
+    with its standard error. A track ends at a frame without it, at a gap in the frame times,
+    or when the object jumps back against the flow.
 """
 from __future__ import annotations
 
@@ -57,9 +60,8 @@ from capsmech.imaging.measurement import (
     DEFAULT_SETTINGS,
     ExtractionSettings,
     FrameResult,
-    asymmetry,
     flag_out_of_focus,
-    rear_axis_crossing,
+    measure_trace,
 )
 from capsmech.imaging.objects import (
     DETECTION_SMOOTHING_PX,
@@ -72,6 +74,7 @@ from capsmech.imaging.tracking import (
     CapsuleMeasurement,
     assign_passages,
     fit_velocity,
+    flow_steps,
     gap_limit,
     measure_capsules,
     track_objects,
@@ -100,6 +103,11 @@ class Channel:
         ``given``, ``temporal median`` or ``per-row median of each frame``.
     width_check : str
         The detected width against the user's ``channel_width``, in words ('' if none given).
+    flow_direction : {'right', 'left'}
+        The flow's direction in the frames as read ('left': they were mirrored to +x).
+    flow_check : str
+        How the direction was found: from the objects' motion, given and confirmed, given and
+        contradicted by the motion, or assumed (no object followed from frame to frame).
     """
 
     walls: Walls
@@ -107,6 +115,8 @@ class Channel:
     background: np.ndarray | None
     background_source: str
     width_check: str = ""
+    flow_direction: str = "right"
+    flow_check: str = ""
 
     def levelled(self, image: np.ndarray) -> np.ndarray:
         """A frame rotated level."""
@@ -238,6 +248,8 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
         else:
             traces.append(traced)
     result.traces = traces
+    for t in traces:
+        measure_trace(t, walls.axis_row, cols, settings)
     objects = np.isin(labels, keep) & mask
     result.object_x = float(np.nonzero(objects)[1].mean())
     rings = [t for t in traces if t.kind == "ring"]
@@ -266,11 +278,11 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
     result.contour = trace.contour
     result.x_front, result.x_rear = trace.x_front, trace.x_rear
     result.extent_px, result.outer_extent_px = trace.extent_px, trace.outer_extent_px
-    result.x_rear_axis = rear_axis_crossing(trace.contour, walls.axis_row)
-    result.L_z_px = result.x_front - result.x_rear
+    result.x_rear_axis = trace.x_rear_axis
+    result.L_z_px = trace.L_z_px
     result.L_p_px = max(0.0, result.x_rear_axis - result.x_rear)
     result.centroid_x, result.centroid_y = polygon_centroid(trace.contour)
-    result.asymmetry = asymmetry(trace.contour, walls.axis_row, result.L_z_px / 2)
+    result.asymmetry = trace.asymmetry
     if not math.isfinite(result.x_rear_axis):
         result.flag = "contour does not cross the tube axis (capsule off the axis)"
     elif result.asymmetry > settings.max_asymmetry:
@@ -302,14 +314,12 @@ def extract(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETTINGS,
     return channel.walls, results
 
 
-def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETTINGS,
-                  progress: Callable[[int, int], None] | None = None,
-                  walls: Walls | tuple[float, float] | None = None, background: np.ndarray | None = None,
-                  channel_width_px: float | None = None, tilt_deg: float | None = None,
-                  frame_rate: float | None = None) -> tuple[Channel, list[FrameResult]]:
-    """The stack's :class:`Channel` and every frame's analysis, with times and passages."""
+def _analyse(stack: FrameStack, settings: ExtractionSettings, progress: Callable[[int, int], None] | None,
+             walls: Walls | tuple[float, float] | None, background: np.ndarray | None,
+             channel_width_px: float | None, tilt_deg: float | None,
+             rate: float | None) -> tuple[Channel, list[FrameResult]]:
+    """Every frame's analysis against the stack's channel, with times, focus and tracks."""
     channel = prepare(stack, background, walls, channel_width_px, tilt_deg)
-    rate = frame_rate or stack.frame_rate
     times = stack.frame_times(rate) if (stack.times_s is not None or rate) else None
     results = []
     for k, image in enumerate(stack.frames):
@@ -320,9 +330,77 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
         if progress is not None:
             progress(k + 1, len(stack))
     flag_out_of_focus(results, settings)
+    for r in results:
+        # A frame's flag is its only object's (focus is judged per frame, against the stack).
+        if r.objects == 1 and len(r.traces) == 1 and r.flag and not r.traces[0].flag:
+            r.traces[0].flag = r.flag
     assign_passages(results, jump_px=0.25 * channel.walls.radius_px, frame_rate=rate)
     track_objects(results, max_step_px=channel.walls.width_px, max_cross_px=0.25 * channel.walls.radius_px,
                   max_step_s=gap_limit(results, frame_rate=rate))
+    return channel, results
+
+
+#: The median step [px] between frames that tells the flow's direction; at least this many steps.
+MIN_FLOW_STEP_PX = 0.5
+MIN_FLOW_STEPS = 2
+
+
+def _motion(results: list[FrameResult], channel: Channel, rate: float | None) -> float:
+    """The objects' median step along x between consecutive frames (NaN when too few are seen)."""
+    steps = flow_steps(results, channel.walls.width_px, 0.25 * channel.walls.radius_px,
+                       gap_limit(results, frame_rate=rate))
+    return float(np.median(steps)) if steps.size >= MIN_FLOW_STEPS else math.nan
+
+
+def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETTINGS,
+                  progress: Callable[[int, int], None] | None = None,
+                  walls: Walls | tuple[float, float] | None = None, background: np.ndarray | None = None,
+                  channel_width_px: float | None = None, tilt_deg: float | None = None,
+                  frame_rate: float | None = None, flow_direction: str | None = None) -> tuple[Channel, list[FrameResult]]:
+    """The stack's :class:`Channel` and every frame's analysis, with times, passages and tracks.
+
+    The file's own background (``stack.background``) and nominal channel width
+    (``stack.channel_width_um``) are used when none is given. The flow's direction comes from
+    the motion: the objects' median step between consecutive frames (:func:`tracking.flow_steps`).
+    With ``flow_direction`` (default ``stack.flow_direction``) 'auto', frames whose objects move
+    in -x are mirrored (``stack.frames`` too) and analysed again; 'right' or 'left' (the frames
+    already mirrored by :func:`read_frames`) is checked against the motion, and a disagreement
+    said in ``Channel.flow_check``.
+    """
+    direction = flow_direction or stack.flow_direction
+    rate = frame_rate or stack.frame_rate
+    if background is None and stack.background is not None:
+        background = stack.background
+    if channel_width_px is None and stack.channel_width_um and stack.pixel_size_um:
+        channel_width_px = stack.channel_width_um / stack.pixel_size_um
+    channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt_deg, rate)
+    if background is not None and background is stack.background and stack.background_source:
+        channel.background_source = stack.background_source
+    step = _motion(results, channel, rate)
+    given = "left" if direction == "left" else "right"
+    if not math.isfinite(step) or abs(step) < MIN_FLOW_STEP_PX:
+        channel.flow_direction = given
+        channel.flow_check = (f"flow direction {given}: " + ("given" if direction != "auto" else "assumed")
+                              + " (no object followed over consecutive frames)")
+    elif direction == "auto" and step < 0:
+        stack.frames = [np.ascontiguousarray(f[:, ::-1]) for f in stack.frames]
+        if background is not None:
+            background = np.ascontiguousarray(np.asarray(background)[:, ::-1])
+        if isinstance(walls, Walls):
+            walls = (walls.top_row, walls.bottom_row)
+        tilt = -tilt_deg if tilt_deg is not None else None
+        channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt, rate)
+        stack.flow_direction = channel.flow_direction = "left"
+        channel.flow_check = (f"flow direction left: from the motion (objects move {-step:.2f} px a frame in -x; "
+                              f"the frames were mirrored)")
+    elif direction == "auto":
+        channel.flow_direction = "right"
+        channel.flow_check = f"flow direction right: from the motion (objects move {step:.2f} px a frame in +x)"
+    else:
+        channel.flow_direction = given
+        channel.flow_check = (f"flow direction {given}: given, " + (
+            "confirmed by the motion" if step > 0 else
+            f"but the objects move the other way ({abs(step):.2f} px a frame): check --flow-direction"))
     return channel, results
 
 

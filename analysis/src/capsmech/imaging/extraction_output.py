@@ -100,7 +100,7 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
         contour_path = contour_dir / f"{cap_id}.txt"
-        contour = by_index[cap.representative].contour
+        contour = cap.trace.contour if cap.trace is not None else by_index[cap.representative].contour
         assert contour is not None  # the representative frame is a measured one
         _write_text(contour_path, contour_text(contour))
         contour_files.append(contour_path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +37,23 @@ class FrameStack:
     pixel_size_um : float or None
         Pixel size from the metadata (ImageJ TIFF resolution with a micron unit).
     times_s : array or None
-        Time of each frame [s] when known (a frame-times file); None: index / frame rate.
+        Time of each frame [s] when known (a frame-times file, an .rtdc's ``events/time``);
+        None: frame number / frame rate.
+    frame_numbers : array or None
+        Each frame's number in frame intervals when the file says it (a video's presentation
+        times, an .rtdc's camera frame index): gaps are kept, and a frame rate given by the
+        user still scales them. None: 0, 1, 2, ...
+    background : 2-D array or None
+        The empty channel as the file gives it (an .rtdc's ``events/image_bg``), as read.
+    background_source : str
+        Where ``background`` comes from, in words.
+    channel_width_um : float or None
+        The channel's nominal width from the metadata (an .rtdc's ``setup:channel width``).
+    notes : list of str
+        What the readers had to do that the user should know (frames dropped, ...).
+    flow_direction : {'right', 'left', 'auto'}
+        As asked of :func:`read_frames` ('left': the frames are mirrored; 'auto': found from the
+        motion by ``extraction.extract_stack``, which mirrors them when they move in -x).
     """
 
     frames: list[np.ndarray]
@@ -45,21 +61,30 @@ class FrameStack:
     frame_rate: float | None = None
     pixel_size_um: float | None = None
     times_s: np.ndarray | None = None
+    frame_numbers: np.ndarray | None = None
+    background: np.ndarray | None = None
+    background_source: str = ""
+    channel_width_um: float | None = None
+    notes: list[str] = field(default_factory=list)
+    flow_direction: str = "right"
 
     def frame_times(self, frame_rate: float | None = None) -> np.ndarray:
-        """Time of each frame [s]: the stack's own times, else frame index / frame rate."""
+        """Time of each frame [s]: the stack's own times, else frame number / frame rate."""
         if self.times_s is not None:
             return np.asarray(self.times_s, dtype=float)
         rate = frame_rate or self.frame_rate
         if not rate:
             raise ExtractionError("frame_rate: required (the files carry no frame interval)")
-        return np.arange(len(self.frames), dtype=float) / rate
+        numbers = self.frame_numbers if self.frame_numbers is not None else np.arange(len(self.frames))
+        return np.asarray(numbers, dtype=float) / rate
 
     def __len__(self) -> int:
         return len(self.frames)
 
 
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".gif"}
+#: Recordings read by their own readers (``rtdc``, ``video``); a folder lists images only.
+_RTDC_SUFFIXES = {".rtdc"}
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -109,16 +134,42 @@ def _to_grey(image: np.ndarray, label: str) -> np.ndarray:
     raise ExtractionError(f"{label}: an image of shape {image.shape} is neither grey (rows, columns) nor RGB")
 
 
+class _TiffComplaints:
+    """Collect what tifffile logs while it reads (it logs a damaged file instead of raising)."""
+
+    def __init__(self) -> None:
+        import logging
+
+        self.messages: list[str] = []
+        self.handler = logging.Handler(logging.WARNING)
+        self.handler.emit = lambda record: self.messages.append(record.getMessage())  # type: ignore[method-assign]
+        self.logger = logging.getLogger("tifffile")
+
+    def __enter__(self) -> _TiffComplaints:
+        self.propagate, self.logger.propagate = self.logger.propagate, False
+        self.logger.addHandler(self.handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.logger.removeHandler(self.handler)
+        self.logger.propagate = self.propagate
+
+
 def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | None]:
-    """Frames of a (multi-page) TIFF, and the frame rate and pixel size [um] of its metadata."""
+    """Frames of a (multi-page) TIFF, and the frame rate and pixel size [um] of its metadata.
+
+    A damaged file (cut short: pages missing, or fewer than its ImageJ metadata announce) is
+    refused rather than read as the pages that are left.
+    """
     import tifffile
 
-    with tifffile.TiffFile(path) as tif:
+    with _TiffComplaints() as complaints, tifffile.TiffFile(path) as tif:
         series = tif.series[0]
         data = series.asarray()
         axes = series.axes
         frame_rate = pixel_um = None
         meta = tif.imagej_metadata or {}
+        announced = int(meta.get("images", 0) or 0)
         if meta.get("finterval"):
             frame_rate = 1.0 / float(meta["finterval"])
         elif meta.get("fps"):
@@ -129,53 +180,94 @@ def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | No
             num, den = x_resolution.value
             if num > 0 and den > 0:
                 pixel_um = den / num
+    damage = [m for m in complaints.messages if any(w in m.lower() for w in ("invalid", "corrupt", "truncat"))]
+    if damage:
+        raise ExtractionError(f"{path}: unreadable TIFF (damaged or cut short: {damage[0].split('> ')[-1]})")
     colour = "S" in axes
     # Every axis other than the image's own (Y, X, and the colour samples S) counts frames.
     frame_shape = data.shape[-3:] if colour else data.shape[-2:]
     data = data.reshape((-1, *frame_shape))
+    if announced > data.shape[0]:
+        raise ExtractionError(f"{path}: unreadable TIFF (its metadata announce {announced} images, "
+                              f"{data.shape[0]} are in the file: cut short?)")
     return [_to_grey(frame, str(path)) for frame in data], frame_rate, pixel_um
+
+
+def _read_file(path: Path, stack: FrameStack) -> tuple[list[np.ndarray], np.ndarray | None, np.ndarray | None]:
+    """One file's frames, its frame numbers and times when it has them; its metadata into ``stack``."""
+    import imageio.v3 as iio
+
+    suffix = path.suffix.lower()
+    if suffix in _RTDC_SUFFIXES:
+        from capsmech.imaging.rtdc import read_rtdc
+
+        rec = read_rtdc(path)
+        stack.frame_rate = stack.frame_rate or rec.frame_rate
+        stack.pixel_size_um = stack.pixel_size_um or rec.pixel_size_um
+        stack.channel_width_um = stack.channel_width_um or rec.channel_width_um
+        if rec.background is not None and stack.background is None:
+            stack.background, stack.background_source = rec.background, f"{path.name}: events/image_bg (median)"
+        return list(rec.frames), rec.frame_numbers, rec.times_s
+    from capsmech.imaging.video import VIDEO_SUFFIXES, read_video
+
+    if suffix in VIDEO_SUFFIXES:
+        video = read_video(path)
+        stack.frame_rate = stack.frame_rate or video.frame_rate
+        if video.dropped:
+            stack.notes.append(f"{path}: {video.dropped} damaged frame(s) left out (file cut short?)")
+        return video.frames, video.frame_numbers, None
+    if suffix in (".tif", ".tiff"):
+        frames, rate, pixel = _tiff_frames(path)
+        stack.frame_rate = stack.frame_rate or rate
+        stack.pixel_size_um = stack.pixel_size_um or pixel
+        return frames, None, None
+    image = iio.imread(path)
+    if image.ndim == 3 and image.shape[-1] not in (3, 4):
+        return [_to_grey(f, str(path)) for f in image], None, None   # an animated format: one image per page
+    return [_to_grey(image, str(path))], None, None
 
 
 def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
                 progress: Callable[[str], None] | None = None) -> FrameStack:
-    """Read image files (multi-page TIFF, PNG, ... 8 or 16 bit, grey or colour) into one stack.
+    """Read recordings into one grey stack: image files (multi-page TIFF, PNG, ... 8 or 16 bit,
+    grey or colour), ``.rtdc`` files (:mod:`capsmech.imaging.rtdc`) and videos
+    (:mod:`capsmech.imaging.video`).
 
     Parameters
     ----------
     paths : sequence of str or Path
         Files, directories or glob patterns (see :func:`expand_frame_paths`), in frame order.
-    flow_direction : {'right', 'left'}
-        'left' mirrors every frame so that the flow goes in +x.
+    flow_direction : {'right', 'left', 'auto'}
+        'left' mirrors every frame so that the flow goes in +x; 'auto' reads them as they are
+        (the direction is found from the motion later: ``extraction.extract_stack``).
     progress : callable, optional
         Called with a short progress text.
+
+    Returns
+    -------
+    FrameStack
+        With the files' calibration; frame times and numbers from the files where every frame
+        has them (an .rtdc's ``events/time`` / ``frame``, a video's presentation times).
 
     Raises
     ------
     ExtractionError
         For unreadable files, images that are not 2-D grey or RGB, or frames of different sizes.
     """
-    import imageio.v3 as iio
-
-    if flow_direction not in ("right", "left"):
-        raise ExtractionError(f"flow direction must be 'right' or 'left', got {flow_direction!r}")
-    stack = FrameStack([], [])
+    if flow_direction not in ("right", "left", "auto"):
+        raise ExtractionError(f"flow direction must be 'right', 'left' or 'auto', got {flow_direction!r}")
+    stack = FrameStack([], [], flow_direction=flow_direction)
+    numbers: list[np.ndarray | None] = []
+    times: list[np.ndarray | None] = []
     for path in expand_frame_paths(paths):
         try:
-            if path.suffix.lower() in (".tif", ".tiff"):
-                frames, rate, pixel = _tiff_frames(path)
-                stack.frame_rate = stack.frame_rate or rate
-                stack.pixel_size_um = stack.pixel_size_um or pixel
-            else:
-                image = iio.imread(path)
-                if image.ndim == 3 and image.shape[-1] not in (3, 4):
-                    frames = list(image)   # an animated format: one image per page
-                else:
-                    frames = [image]
-                frames = [_to_grey(f, str(path)) for f in frames]
+            frames, file_numbers, file_times = _read_file(path, stack)
         except ExtractionError:
             raise
         except Exception as err:  # noqa: BLE001 - any reader failure is the file's problem
             raise ExtractionError(f"{path}: cannot read as an image: {err}") from None
+        numbers.append(file_numbers)
+        times.append(file_times)
         for page, frame in enumerate(frames):
             if stack.frames and frame.shape != stack.frames[0].shape:
                 raise ExtractionError(f"{path}: frame {page} is {frame.shape[1]}x{frame.shape[0]} px, "
@@ -189,6 +281,11 @@ def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
             progress(f"read {len(stack)} frames")
     if not stack.frames:
         raise ExtractionError("no frame to read")
+    # A file's own numbering and times hold for the stack when it is the only file.
+    if len(numbers) == 1:
+        stack.frame_numbers, stack.times_s = numbers[0], times[0]
+    if stack.background is not None and flow_direction == "left":
+        stack.background = stack.background[:, ::-1]
     return stack
 
 

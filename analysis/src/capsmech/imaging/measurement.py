@@ -96,6 +96,26 @@ def asymmetry(contour: np.ndarray, axis_row: float, half_length: float) -> float
     return float(max(d_ul, d_lu) / half_length)
 
 
+def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: ExtractionSettings) -> None:
+    """Measure one traced object on its own (its lengths, symmetry and flag, set on ``trace``).
+
+    Its flag: cut by the image's left or right edge, a line wider than
+    ``settings.max_line_width_px``, no crossing of the tube axis, or asymmetric.
+    """
+    trace.L_z_px = trace.x_front - trace.x_rear
+    trace.x_rear_axis = rear_axis_crossing(trace.contour, axis_row)
+    trace.L_p_px = max(0.0, trace.x_rear_axis - trace.x_rear) if math.isfinite(trace.x_rear_axis) else math.nan
+    trace.asymmetry = asymmetry(trace.contour, axis_row, trace.L_z_px / 2)
+    if trace.columns[0] <= 1 or trace.columns[1] >= columns - 2:
+        trace.flag = "touches the image border"
+    elif trace.kind == "ring" and trace.line_width_px > settings.max_line_width_px:
+        trace.flag = f"out of focus (line {trace.line_width_px:.1f} px wide > {settings.max_line_width_px:g})"
+    elif not math.isfinite(trace.x_rear_axis):
+        trace.flag = "contour does not cross the tube axis (capsule off the axis)"
+    elif trace.asymmetry > settings.max_asymmetry:
+        trace.flag = f"asymmetric ({trace.asymmetry:.3f} > {settings.max_asymmetry} of L_z/2)"
+
+
 def flag_out_of_focus(results: Sequence[FrameResult], settings: ExtractionSettings) -> None:
     """Flag the frames whose line is much wider or fainter than the stack's traced rings'.
 
@@ -110,6 +130,16 @@ def flag_out_of_focus(results: Sequence[FrameResult], settings: ExtractionSettin
     width = float(np.median([r.line_width_px for r in reference]))
     contrast = float(np.median([r.line_contrast for r in reference]))
     for r in results:
+        # The objects of a frame with several, each on its own.
+        for t in r.traces if len(r.traces) > 1 else []:
+            if t.flag:
+                continue
+            if t.kind == "silhouette":
+                t.flag = "out of focus (no transparent interior, the stack's other capsules are rings)"
+            elif t.line_width_px > settings.focus_ratio * width:
+                t.flag = f"out of focus (line {t.line_width_px:.1f} px wide, stack median {width:.1f} px)"
+            elif t.line_contrast < contrast / settings.focus_ratio:
+                t.flag = f"out of focus (line contrast {t.line_contrast:.3f}, stack median {contrast:.3f})"
         if r.objects == 0 or r.flag.startswith("out of focus"):
             continue
         if r.kind == "silhouette":

@@ -56,6 +56,11 @@ class TracedObject:
         First and last image column of the object's pixels.
     track : int
         The object's track across frames (``tracking.track_objects``; -1: not tracked).
+    x_rear_axis, L_z_px, L_p_px, asymmetry : float
+        The object's own measurement (``measurement.measure_trace``; NaN until measured).
+    flag : str
+        Why this object cannot be measured ('' when it can), whatever the other objects of
+        its frame show: each object of a frame with several is measured on its own.
     """
 
     kind: str
@@ -67,6 +72,11 @@ class TracedObject:
     x_rear: float
     columns: tuple[int, int]
     track: int = -1
+    x_rear_axis: float = math.nan
+    L_z_px: float = math.nan
+    L_p_px: float = math.nan
+    asymmetry: float = math.nan
+    flag: str = ""
 
     @property
     def contour_at(self) -> str:

@@ -204,6 +204,35 @@ def render_stack(outline: np.ndarray, n_frames: int, x_start: float, px_per_fram
     return np.stack([render_frame([(outline, x_start + k * px_per_frame)], style, rng) for k in range(n_frames)])
 
 
+def render_on_background(background: np.ndarray, capsules: Sequence[tuple[np.ndarray, float]], style: FrameStyle,
+                         rng: np.random.Generator | None = None, noise: float = 0.0) -> np.ndarray:
+    """Capsules drawn over a recorded background (an empty channel's image): its walls, dirt
+    and illumination are the real ones, the capsules' transmission multiplies into it.
+
+    Parameters
+    ----------
+    background : 2-D array
+        The recorded empty channel, grey levels of an 8-bit camera.
+    capsules : sequence of (outline, x)
+        As in :func:`render_frame`; ``style.axis_row`` and ``style.tube_radius_px`` should be
+        the recorded channel's.
+    style : FrameStyle
+        The membrane's look (its walls, background level, noise and size are not used).
+    rng : numpy Generator, optional
+        Source of the camera noise of ``noise`` grey levels (standard deviation).
+
+    Returns
+    -------
+    ndarray of uint8, the background's shape
+    """
+    plain = replace(style, shape=background.shape, wall_darkness=0.0, noise=0.0, background=1.0, bit_depth=16)
+    transmission = render_frame(capsules, plain) / 65535.0
+    image = np.asarray(background, dtype=float) * transmission
+    if noise:
+        image = image + noise * (np.random.default_rng() if rng is None else rng).standard_normal(image.shape)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
 def blurred(style: FrameStyle, blur_px: float) -> FrameStyle:
     """The same style out of focus (``blur_px`` Gaussian blur)."""
     return replace(style, blur_px=blur_px)
