@@ -100,6 +100,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake -s workflow/Snakefile --configfile config/$(G
              --profile workflow/profiles/$(PROFILE)
 
 database: setup
+	@$(PY) -m capsmech.cli dev check-grid config/$(GRID).yaml
 	$(PY) -m capsmech.cli dev unlock-stale .
 	$(SNAKEMAKE)
 

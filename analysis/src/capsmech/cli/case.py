@@ -14,7 +14,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from capsmech.cli.common import EXIT_ERROR, bracketed_unit, fmt
+from capsmech.cli.common import EXIT_ERROR, FIGURE_SUFFIXES, bracketed_unit, check_output, fmt
 from capsmech.io.case import CaseFileError, CaseResult, read_case
 from capsmech.workflow.paths import capsim_executable
 
@@ -81,6 +81,8 @@ def cmd_show(case_path: str | Path, plot: str | Path | None = None) -> int:
     """Print a case summary, and optionally write its plot (PNG); 0 on success."""
     from capsmech.plotting import plot_case, save_figure
 
+    if plot is not None:
+        check_output(plot, "--plot", FIGURE_SUFFIXES, create_parent=True)
     case = read_case(case_path)
     print(format_summary(case))
     if plot is not None:

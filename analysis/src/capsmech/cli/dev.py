@@ -1,12 +1,15 @@
 """``capsmech dev ...``: the developers' and the workflow's commands (not a user's job):
 ``run-case`` (one grid case, as the workflow's case rule runs it), ``kernel-version`` (check
 and record the version the built kernel writes), ``unlock-stale`` (remove the lock a killed
-workflow left)."""
+workflow left), ``check-grid`` (``make database`` names a grid that exists and is valid before
+Snakemake starts)."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from capsmech.cli.common import check_output
+from capsmech.workflow.grid import GridError
 from capsmech.workflow.paths import capsim_executable
 from capsmech.workflow.runner import CaseRunError
 
@@ -16,6 +19,7 @@ def cmd_run_case(args: argparse.Namespace) -> int:
     from capsmech.workflow.runner import run_case
 
     kernel_args = [a for a in args.kernel_args if a != "--"]
+    check_output(args.out, "--out", (".h5",), create_parent=True)
     run_case(args.capsim or capsim_executable(), kernel_args, args.out,
              code_version=args.code_version, threads=args.threads)
     return 0
@@ -47,6 +51,19 @@ def cmd_unlock_stale(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check_grid(args: argparse.Namespace) -> int:
+    """Check the grid ``make database GRID=...`` names: it exists and is valid (one line if not)."""
+    from capsmech.workflow.grid import load_grid
+
+    path = Path(args.grid)
+    if not path.is_file():
+        known = sorted(p.stem for p in path.parent.glob("*.yaml")) if path.parent.is_dir() else []
+        raise GridError(f"{path}: no such grid file" + (f"; grids in {path.parent}: {', '.join(known)}" if known else ""))
+    grid = load_grid(path)
+    print(f"grid {grid['name']!r} ({path}) is valid")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``dev`` group (hidden from the main help's job list: it says 'developer commands')."""
     dev = sub.add_parser("dev", help="developer and workflow commands (run-case, kernel-version, unlock-stale)")
@@ -66,3 +83,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     unlock = actions.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
     unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
     unlock.set_defaults(func=cmd_unlock_stale)
+    check = actions.add_parser("check-grid", help="check that a grid file exists and is valid (make database)")
+    check.add_argument("grid", metavar="GRID.yaml", help="the grid file")
+    check.set_defaults(func=cmd_check_grid)

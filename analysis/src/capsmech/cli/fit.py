@@ -10,7 +10,14 @@ import sys
 import warnings
 
 from capsmech.api import as_database, check_laws, fit_shear, fit_tube
-from capsmech.cli.common import add_database_option, add_law_option, format_table, records
+from capsmech.cli.common import (
+    TABLE_SUFFIXES,
+    add_database_option,
+    add_law_option,
+    check_output,
+    format_table,
+    records,
+)
 from capsmech.errors import OutsideDatabaseWarning
 from capsmech.inversion.fitting import write_results
 from capsmech.io.measurements import read_measurements
@@ -23,6 +30,8 @@ SHOWN = {"tube": ["id", "law", "a_over_l", "Ca_s", "G_s", "G_s_spread", "flag"],
 def cmd_fit(args: argparse.Namespace) -> int:
     """``fit-tube`` / ``fit-shear``: fit, print the table, write the results."""
     flow = "tube" if args.command == "fit-tube" else "shear"
+    for out in args.out or []:
+        check_output(out, "--out", TABLE_SUFFIXES)
     database = as_database(args.database, flow, args.command)
     laws = check_laws(database, args.law, "--law")
     capsules = read_measurements(args.measurements, flow)

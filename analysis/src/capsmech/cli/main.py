@@ -4,11 +4,14 @@ diagnose: diagnose, diagnose-shear, make-batch; compare: compare-methods; databa
 database, figures), and the developers' commands under ``capsmech dev``.
 
 Every error a user can cause prints ``capsmech: error: <message>`` (naming the file, line,
-field or name at fault) on stderr and exits with status 2; never a traceback.
+field or name at fault) on stderr and exits with status 2; never a traceback. An exception
+that is not an input error (a bug) prints one ``capsmech: internal error: ...`` line and exits
+1 (``CAPSMECH_TRACEBACK=1`` re-raises it).
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -89,6 +92,19 @@ def _run(argv: Sequence[str] | None) -> int:
     except KeyboardInterrupt:
         print("capsmech: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader of stdout went away (`capsmech ... | head`): stop quietly, as other tools do;
+        # stdout is pointed at /dev/null so that the interpreter's last flush does not fail too.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except Exception as exc:
+        # The last resort only: every input error has its own CapsmechError (tests fail on
+        # this line as on a traceback). CAPSMECH_TRACEBACK=1 shows where it happened.
+        if os.environ.get("CAPSMECH_TRACEBACK"):
+            raise
+        print(f"capsmech: internal error: {type(exc).__name__}: {exc} (a bug: please report the command; "
+              "CAPSMECH_TRACEBACK=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

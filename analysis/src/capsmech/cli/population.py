@@ -7,9 +7,10 @@ from pathlib import Path
 from typing import Any
 
 from capsmech.api import plot_population, population, population_table, read_results
-from capsmech.cli.common import format_table, records
+from capsmech.cli.common import FIGURE_SUFFIXES, TABLE_SUFFIXES, check_output, format_table, records
 from capsmech.inversion.fitting import write_results
 from capsmech.inversion.population import FAIL_SCORE, write_verdict_json
+from capsmech.io.results import read_results_csv
 from capsmech.plotting import save_figure
 
 #: Columns printed and their units (--out writes every column of the table, separately).
@@ -33,6 +34,8 @@ def _printed(table: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def _rows(paths: list[str]) -> list[dict[str, Any]]:
     """The result rows of every file; where several files use the same capsule id, each id is
     qualified by its file's name (``file:id``) so that capsules of different batches stay apart."""
+    for path in paths:
+        read_results_csv(path)        # fit-tube's results, or a ResultsFileError naming file, line and field
     per_file = [(Path(path), records(read_results(path))) for path in paths]
     ids = [{(str(row["id"]), str(row["law"])) for row in rows} for _, rows in per_file]
     clash = len(per_file) > 1 and sum(len(i) for i in ids) > len(set().union(*ids))
@@ -43,6 +46,12 @@ def _rows(paths: list[str]) -> list[dict[str, Any]]:
 
 def cmd_population(args: argparse.Namespace) -> int:
     """The law the batch supports, with the evidence per law (see capsmech.inversion.population)."""
+    for out in args.out or []:
+        check_output(out, "--out", TABLE_SUFFIXES)
+    if args.plot:
+        check_output(args.plot, "--plot", FIGURE_SUFFIXES, create_parent=True)
+    if args.json:
+        check_output(args.json, "--json", (".json",))
     results = _rows(args.results)
     verdict = population(results)
     table = population_table(verdict)

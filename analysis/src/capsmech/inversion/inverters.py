@@ -229,6 +229,8 @@ class TubeInverter:
         if not (np.isfinite(L_z) and np.isfinite(L_p)) or L_z <= 0 or L_p < 0 or L_p >= L_z:
             return TubeFit(flag=f"invalid lengths L_z = {L_z}, L_p = {L_p} (need L_z > 0 and 0 <= L_p < L_z)")
         q_star = np.array([L_z, L_z - L_p])
+        if not self._within_reach(q_star[None, :])[0]:
+            return TubeFit(flag=_beyond_reach(L_z, L_p))
         coefficients, centre, _ = self._local_forward_map(q_star)
         x = np.zeros(2)
         for _ in range(50):
@@ -301,6 +303,12 @@ class TubeInverter:
         for i in np.flatnonzero(~valid):
             out.flag[i] = (f"invalid lengths L_z = {float(L_z[i])}, L_p = {float(L_p[i])} "
                            "(need L_z > 0 and 0 <= L_p < L_z)")
+        # Lengths so large that their distance to the database overflows have no neighbours.
+        with np.errstate(invalid="ignore"):
+            reach = self._within_reach(np.column_stack([L_z, L_z - L_p]))
+        for i in np.flatnonzero(valid & ~reach):
+            out.flag[i] = _beyond_reach(float(L_z[i]), float(L_p[i]))
+        valid &= reach
         rows = np.flatnonzero(valid)
         if rows.size == 0:
             return out
@@ -379,6 +387,10 @@ class TubeInverter:
             out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
             out.flag[i] = one.flag
         return out
+
+    def _within_reach(self, q_star: np.ndarray) -> np.ndarray:
+        """Rows of q* (n, 2) whose scaled distance to the database is a finite number."""
+        return np.all(np.abs(q_star / self._q_scale) < _REACH, axis=1)
 
     def _refine_many(self, q_star: np.ndarray, scaled: np.ndarray, todo: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -504,6 +516,13 @@ _BATCH = 16384
 #: fit_many: shift of the start (relative) and largest end gap (relative) that show a
 #: refinement still moving after its 30 steps to end robustly, where round-off cannot move it.
 _ROBUSTNESS_SHIFT = 1e-8
+#: Largest scaled length fitted: the squared distances of larger ones to the database overflow.
+_REACH = 1e150
+
+
+def _beyond_reach(L_z: float, L_p: float) -> str:
+    return (f"outside the database: L_z = {L_z:.3g}, L_p = {L_p:.3g} lie far beyond the lengths of any "
+            "database point")
 _ROBUSTNESS_GAP = 1e-9
 #: Exponents (of x, y) of the columns of ``_quadratic_basis``.
 _EXPONENTS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))

@@ -90,7 +90,6 @@ Numbers that cannot be computed are null (never NaN). ``status`` is one of 'verd
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -556,11 +555,11 @@ def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:
 
 
 def read_results(path: str | Path) -> list[dict[str, Any]]:
-    """Read a fit-tube results CSV (header cells 'name [unit]')."""
-    with open(path, newline="", encoding="utf-8") as stream:
-        reader = csv.reader(stream)
-        header = [cell.split(" [")[0] for cell in next(reader)]
-        return [dict(zip(header, row)) for row in reader]
+    """Read a results CSV (header cells 'name [unit]'), checked by
+    ``capsmech.io.results.read_results_csv`` (a ``ResultsFileError`` names file, line and field)."""
+    from capsmech.io.results import read_results_csv
+
+    return list(read_results_csv(path, required=()))
 
 
 def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift]) -> Figure:

@@ -193,8 +193,12 @@ def database_path(name_or_path: str | Path) -> Path:
 
 def _accuracy(path: Path) -> str:
     """The ``accuracy`` root attribute of a file ('' when it has none)."""
-    with h5py.File(path, "r") as f:
-        return decode_str(f.attrs["accuracy"]) if "accuracy" in f.attrs else ""
+    try:
+        with h5py.File(path, "r") as f:
+            return decode_str(f.attrs["accuracy"]) if "accuracy" in f.attrs else ""
+    except (OSError, TypeError) as exc:
+        raise DatabaseError(f"{path}: cannot read the shipped database (truncated or damaged: {exc}); "
+                            "reinstall capsmech") from None
 
 
 def shipped_databases() -> list[ShippedDatabase]:

@@ -31,6 +31,7 @@ from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
 from capsmech.errors import CapsmechError
+from capsmech.io.text import read_text, split_lines
 
 #: The paper's limit on the profile misfit H/a (section 4.2).
 MAX_H_OVER_A = 0.06
@@ -43,8 +44,15 @@ ASYMMETRY_PIXELS = 1.0
 #: Points each curve is resampled to before distances are measured, so that the distance
 #: measures the curves and not their sampling.
 RESAMPLE_POINTS = 1000
-#: Fewest points a contour file must hold.
+#: Fewest (distinct) points a contour file must hold.
 MIN_CONTOUR_POINTS = 8
+#: Largest contour file read [bytes] (some 400,000 points; ImageJ writes a few thousand).
+MAX_CONTOUR_BYTES = 8 * 2**20
+#: Range of a contour's coordinates and extents, in its units: beyond it the area and volume
+#: measures under- or overflow.
+CONTOUR_SCALE = (1e-60, 1e60)
+#: Smallest area a contour encloses, as a fraction of its bounding box (an ellipse: pi/4).
+MIN_FILL = 0.05
 
 _SEPARATOR = re.compile(r"[\s,;]+")
 
@@ -58,6 +66,7 @@ def read_contour(path: str | Path) -> np.ndarray:
 
     Columns may be separated by tabs, spaces, commas or semicolons; one header line (such as
     ``X\\tY``) and ``#`` comment lines are skipped; a third column (ImageJ's value) is ignored.
+    The text may be UTF-8, Windows-1252 or Latin-1 (``capsmech.io.text``).
 
     Returns
     -------
@@ -67,16 +76,15 @@ def read_contour(path: str | Path) -> np.ndarray:
     Raises
     ------
     ContourError
-        Unreadable file, non-numeric or non-finite values, fewer than 8 points.
+        Unreadable, binary or over ``MAX_CONTOUR_BYTES``; non-numeric or non-finite values;
+        fewer than 8 distinct points, or a degenerate curve (``contour_problem``). The message
+        names the file, and the line where there is one.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ContourError(f"{path}: cannot read: {err.strerror}") from None
+    text = read_text(path, MAX_CONTOUR_BYTES, "contour file", ContourError)
     points: list[tuple[float, float]] = []
     header_seen = False
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(split_lines(text), start=1):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
@@ -87,15 +95,61 @@ def read_contour(path: str | Path) -> np.ndarray:
             if not points and not header_seen:
                 header_seen = True
                 continue
-            raise ContourError(f"{path}:{number}: {stripped!r} is not two numbers x y") from None
+            raise ContourError(f"{path}:{number}: {stripped[:80]!r} is not two numbers x y") from None
         if len(values) < 2:
-            raise ContourError(f"{path}:{number}: {stripped!r} has one column, expected x y")
+            raise ContourError(f"{path}:{number}: {stripped[:80]!r} has one column, expected x y")
         if not all(math.isfinite(v) for v in values):
-            raise ContourError(f"{path}:{number}: {stripped!r} is not finite")
+            raise ContourError(f"{path}:{number}: {stripped[:80]!r} is not finite")
         points.append((values[0], values[1]))
+    contour = np.array(points, dtype=float).reshape(-1, 2)
+    problem = contour_problem(contour)
+    if problem is not None:
+        raise ContourError(f"{path}: {problem}")
+    return contour
+
+
+def contour_problem(contour: np.ndarray) -> str | None:
+    """Why a contour cannot be measured, or None when it can.
+
+    A contour must have at least ``MIN_CONTOUR_POINTS`` distinct finite points, coordinates
+    and an extent within ``CONTOUR_SCALE`` (so that its area and volume are representable
+    numbers), and enclose an area of at least ``MIN_FILL`` of its bounding box (not a point,
+    a line or a curve folded onto itself). What passes gives finite measures in
+    ``contour_asymmetry`` and ``profile_misfit``.
+
+    Parameters
+    ----------
+    contour : np.ndarray
+        (n, 2) points, in any length unit.
+
+    Returns
+    -------
+    str or None
+        The problem in words (no file name: the caller adds it), or None.
+    """
+    points = np.asarray(contour, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 2:
+        return f"contour of shape {points.shape}, expected (n, 2) points x y"
+    if not np.all(np.isfinite(points)):
+        return "a contour point is not finite"
     if len(points) < MIN_CONTOUR_POINTS:
-        raise ContourError(f"{path}: {len(points)} contour points, at least {MIN_CONTOUR_POINTS} needed")
-    return np.array(points, dtype=float)
+        return f"{len(points)} contour points, at least {MIN_CONTOUR_POINTS} needed"
+    distinct = len(np.unique(points, axis=0))
+    if distinct < MIN_CONTOUR_POINTS:
+        return f"{distinct} distinct contour points, at least {MIN_CONTOUR_POINTS} needed"
+    low, high = CONTOUR_SCALE
+    extent = np.ptp(points, axis=0)
+    largest = float(np.abs(points).max())
+    if largest > high or float(extent.min()) < low:
+        return (f"coordinates up to {largest:.3g} with extents {extent[0]:.3g} x {extent[1]:.3g}: outside "
+                f"{low:g} to {high:g}, the range a contour may span in its units")
+    centred = (points - points.mean(axis=0)) / extent
+    x, y = centred[:, 0], centred[:, 1]
+    fill = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)))
+    if fill < MIN_FILL:
+        return (f"the contour encloses {fill:.2g} of its bounding box (at least {MIN_FILL:g}): its points lie "
+                "on a line or the curve folds onto itself")
+    return None
 
 
 def resample_curve(points: np.ndarray, n: int = RESAMPLE_POINTS, closed: bool = False) -> np.ndarray:
@@ -159,6 +213,9 @@ def contour_asymmetry(contour: np.ndarray, pixel_size: float = math.nan) -> tupl
     axis_y, mirror_distance = symmetry_axis(contour)
     radius = volume_radius(contour, axis_y)
     limit = MAX_ASYMMETRY
+    if not (math.isfinite(radius) and radius > 0):
+        # No volume about the best axis (the halves cancel): nothing like an axisymmetric capsule.
+        return math.inf, limit, axis_y
     if math.isfinite(pixel_size):
         limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * pixel_size / radius)
     return mirror_distance / radius, limit, axis_y

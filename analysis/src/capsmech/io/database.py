@@ -23,6 +23,10 @@ arclength. Every dataset has a ``units`` attribute ('1' for dimensionless, '' fo
 
 Rows that did not reach a steady state keep their parameters, status and message, and
 carry NaN in every result column and profile: they are recorded, never dropped.
+
+Every dataset is written with HDF5's Fletcher-32 checksum filter (chunked): a flipped bit in
+a stored value makes the read fail, and :func:`load_database` reports the file as damaged
+instead of returning a wrong number. Files written before the filter are read as they are.
 """
 
 from __future__ import annotations
@@ -220,6 +224,16 @@ class ShearDatabase(Database):
     """Shear-flow database: columns Ca_s, D12, L1/L2/L3_over_a, theta per law."""
 
 
+def _read(dataset: h5py.Dataset, where: str, text: bool = False) -> np.ndarray:
+    """A dataset's values; a DatabaseError naming the file and dataset when they cannot be read
+    (its Fletcher-32 checksum fails: a damaged file)."""
+    try:
+        return np.asarray(dataset.asstr()[()] if text else dataset[()])
+    except (OSError, ValueError, TypeError) as exc:
+        raise DatabaseError(f"{where}: dataset '{dataset.name}' cannot be read (damaged file: a checksum fails, "
+                            f"{exc}); restore the file, or reassemble it with the workflow") from None
+
+
 def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable:
     """Read and check one law group: every dataset present, with its units and shape."""
     units = expected_units(flow)
@@ -233,14 +247,14 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
         if found_units[name] != unit:
             raise DatabaseError(f"{where}: '{group[name].name}' has units {found_units[name]!r}, "
                                 f"expected {unit!r}")
-    status = np.array(group["status"].asstr()[()], dtype=str)
+    status = np.array(_read(group["status"], where, text=True), dtype=str)
     rows = len(status)
     columns: dict[str, np.ndarray] = {}
     profiles: dict[str, np.ndarray] = {}
     for name in units:
         if name in TEXT_COLUMNS:
             continue
-        data = np.asarray(group[name][()], dtype=float)
+        data = np.asarray(_read(group[name], where), dtype=float)
         shape = (rows, points) if name.startswith("profile_") else (rows,)
         if data.shape != shape:
             raise DatabaseError(f"{where}: '{group[name].name}' has shape {data.shape}, expected {shape}")
@@ -251,7 +265,7 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
         raise DatabaseError(f"{where}: '{group.name}/status' holds unknown statuses {unknown}")
     return LawTable(
         key=group.name.lstrip("/"), columns=columns, status=status,
-        message=np.array(group["message"].asstr()[()], dtype=str), profiles=profiles,
+        message=np.array(_read(group["message"], where, text=True), dtype=str), profiles=profiles,
         units=found_units, attrs={k: v for k, v in group.attrs.items()},
     )
 
@@ -277,12 +291,26 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
         If ``path`` is neither a shipped database's name nor an existing file (a
         :class:`capsmech.io.catalog.DatabaseNotFoundError`, also a FileNotFoundError; the
         message lists the shipped names); if it is not a capsmech database of a known
-        version, or a column is missing, has other units or another length (the message
-        names the file and dataset).
+        version, or a column is missing, has other units or another length, or the file is
+        truncated or damaged (a dataset's Fletcher-32 checksum fails); the message names the
+        file (and the dataset where it is known).
     """
 
     path = database_path(path)
     where = require_hdf5_file(path, "database", DatabaseError)
+    try:
+        return _load_open_database(path, where)
+    except DatabaseError:
+        raise
+    except (OSError, KeyError, ValueError, RuntimeError, TypeError) as exc:
+        # h5py's errors on a truncated file, a damaged structure or a dataset whose Fletcher-32
+        # checksum does not match what it holds.
+        raise DatabaseError(f"{where}: cannot read the database (truncated or damaged file: {exc}); "
+                            "restore it, or reassemble it with the workflow") from None
+
+
+def _load_open_database(path: Path, where: str) -> TubeDatabase | ShearDatabase:
+    """``load_database`` on a file known to exist and to carry HDF5's signature."""
     with h5py.File(path, "r") as f:
         provenance = {k: decode_str(v) if isinstance(v, (bytes, str, np.bytes_)) else v
                       for k, v in f.attrs.items()}

@@ -41,7 +41,7 @@ um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Micro may be written ``u``, the
 Files a spreadsheet wrote
 -------------------------
 What a spreadsheet's "Save as CSV" adds is accepted: a UTF-8 byte-order mark (or, failing
-UTF-8, Windows-1252 text: Excel's plain "CSV"), CRLF line endings, a ``;`` (or tab) separator
+UTF-8, Windows-1252 text: Excel's plain "CSV", or else Latin-1), CRLF line endings, a ``;`` (or tab) separator
 instead of ``,`` (the one the header line uses most), columns in any order, rows padded with
 empty cells, and columns that are not part of the format (e.g. ``note``): those are ignored
 with one ``capsmech.errors.InputWarning`` naming them. Decimal commas (``0,5``) are accepted
@@ -52,11 +52,29 @@ The flow (tube or shear) is the one the caller names, or else the one whose requ
 the header has; a header that has those of both, or of neither, is an error that names the
 columns each flow lacks.
 
+Comments and ids that start with ``#``
+--------------------------------------
+A line whose first character (after blanks) is ``#`` is a comment, also after the header: a
+row commented out is left out of the batch. A capsule whose id starts with ``#`` is written
+with its id quoted (``"#c01",182.4,...``); a comment line after the header that has the
+fields of a capsule row (an id, and a number in each required column) is still a comment,
+but is named in an ``InputWarning``, so that a capsule is never dropped silently.
+
+Limits
+------
+A file may hold at most ``MAX_CAPSULES`` (100,000) capsule rows and ``MAX_FILE_BYTES``
+(32 MiB); a larger one is refused at once, naming the file (and the first row past the
+limit), and is never read whole into memory. Fitting 100,000 capsules takes minutes per law
+(about 2.5 ms per capsule and law on one core), with a progress bar on a terminal; split a
+larger batch into files. A contour file may hold at most
+``capsmech.io.contours.MAX_CONTOUR_BYTES``.
+
 Errors
 ------
 Any problem (unknown unit, missing column, empty or non-numeric value, NaN, negative or zero
-length, duplicate id) raises ``MeasurementError`` naming the file, the line and the field. A
-file is read whole or not at all: a batch is never half-processed.
+length, duplicate id, a binary file, a file over the limits, an unreadable or degenerate
+contour) raises ``MeasurementError`` naming the file, the line and the field. A file is read
+whole or not at all: a batch is never half-processed.
 """
 from __future__ import annotations
 
@@ -64,14 +82,15 @@ import csv
 import math
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from capsmech.errors import CapsmechError, InputWarning
-from capsmech.io.contours import ContourError, read_contour
+from capsmech.io.contours import ContourError, contour_problem, read_contour
+from capsmech.io.text import read_text, split_lines
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
 VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
@@ -93,6 +112,10 @@ Column = tuple[str, str, float | None]
 FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
 #: Separators tried on the header line; decimal commas only go with ";".
 SEPARATORS = (",", ";", "\t")
+#: Most capsule rows a measurement file may hold (a batch; split a larger one).
+MAX_CAPSULES = 100_000
+#: Largest measurement file read [bytes] (100,000 rows of ~300 characters).
+MAX_FILE_BYTES = 32 * 2**20
 
 
 class MeasurementError(CapsmechError, ValueError):
@@ -194,30 +217,85 @@ def _parse_header(path: Path, line: int, row: list[str], flow: str) -> tuple[lis
     return parsed, ignored
 
 
-def _text(path: Path) -> str:
-    """The file's text: UTF-8 (a byte-order mark dropped), else Windows-1252 (Excel's plain CSV)."""
-    try:
-        data = path.read_bytes()
-    except OSError as err:
-        raise MeasurementError(f"{path}: cannot read: {err.strerror}") from None
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as utf8_err:
-        try:
-            return data.decode("cp1252")
-        except UnicodeDecodeError:
-            line = data[:utf8_err.start].count(b"\n") + 1
-            raise MeasurementError(f"{path}:{line}: not UTF-8 (nor Windows-1252) text; save it as "
-                                   "'CSV UTF-8'") from None
+def _is_comment(line: str) -> bool:
+    """A comment line: its first character after blanks is ``#`` (a quoted ``"#id"`` is not)."""
+    return line.lstrip().startswith("#")
 
 
 def _separator(lines: list[str]) -> str:
     """The separator the header line (the first that is not blank or a comment) uses most."""
     for text in lines:
-        content = text.strip().lstrip('"')
-        if content.strip(",;\t \"") and not content.startswith("#"):
+        if text.strip(",;\t \"") and not _is_comment(text):
             return max(SEPARATORS, key=text.count)       # ties (none at all) go to ","
     return ","
+
+
+def _rows(lines: list[str], separator: str) -> Iterator[tuple[int, list[str]]]:
+    """The non-blank lines as (line number, cells); comment lines come after the header, as
+    (-line number, cells without the '#'), so that a row commented out can be recognised."""
+    header_seen = False
+    for number, text in enumerate(lines, start=1):
+        if not text.strip(" \t" + separator):
+            continue
+        if _is_comment(text):
+            if header_seen:
+                yield -number, next(csv.reader([text.lstrip()[1:]], delimiter=separator), [])
+            continue
+        row = next(csv.reader([text], delimiter=separator), [])
+        if any(cell.strip() for cell in row):
+            header_seen = True
+            yield number, row
+
+
+def _parse_row(path: Path, line: int, row: list[str], parsed: list[Column | None], columns: Mapping[str, tuple[str, bool]],
+               separator: str) -> tuple[str, dict[str, tuple[float, str, float | None]], tuple[str, str, float | None] | None]:
+    """One capsule row: (id, column -> (value, unit, SI scale), the contour cell or None)."""
+    if len(row) > len(parsed) and not any(c.strip() for c in row[len(parsed):]):
+        row = row[:len(parsed)]
+    if len(row) != len(parsed):
+        raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
+    raw: dict[str, tuple[float, str, float | None]] = {}
+    capsule_id = ""
+    contour_cell: tuple[str, str, float | None] | None = None
+    for column, cell in zip(parsed, row):
+        if column is None:
+            continue
+        name, unit, scale = column
+        cell = cell.strip()
+        if name == "id":
+            if not cell:
+                raise MeasurementError(f"{path}:{line}: field 'id' is empty")
+            capsule_id = cell
+            continue
+        if name == "contour":
+            if cell:
+                contour_cell = (cell, unit, scale)
+            continue
+        if not cell:
+            if columns[name][1]:
+                raise MeasurementError(f"{path}:{line}: field {name!r} is empty")
+            continue
+        try:
+            # "0,5" is a decimal comma only where "," cannot be the separator.
+            value = float(cell.replace(",", ".") if separator == ";" else cell)
+        except ValueError:
+            raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
+        if not math.isfinite(value):
+            raise MeasurementError(f"{path}:{line}: field {name!r} is {cell} (not finite)")
+        if value < 0 or (value == 0 and name != "L_p"):
+            raise MeasurementError(f"{path}:{line}: field {name!r} must be positive, got {cell}")
+        raw[name] = (value, unit, scale)
+    return capsule_id, raw, contour_cell
+
+
+def _row_like_id(path: Path, line: int, row: list[str], parsed: list[Column | None],
+                 columns: Mapping[str, tuple[str, bool]], separator: str) -> str | None:
+    """``'<line> (#<id>)'`` when a comment line after the header reads as a capsule row, else None."""
+    try:
+        capsule_id, _, _ = _parse_row(path, line, row, parsed, columns, separator)
+    except MeasurementError:
+        return None
+    return f"{line} (#{capsule_id})"
 
 
 def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule]:
@@ -251,13 +329,13 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
     path = Path(path)
     if flow is not None and flow not in FLOWS:
         raise ValueError(f"flow must be 'tube', 'shear' or None, got {flow!r}")
-    lines = _text(path).splitlines()
+    lines = split_lines(read_text(path, MAX_FILE_BYTES, "measurement file", MeasurementError))
     separator = _separator(lines)
-    rows = [(i + 1, row) for i, row in enumerate(csv.reader(lines, delimiter=separator))
-            if row and not row[0].lstrip().startswith("#") and any(c.strip() for c in row)]
-    if not rows:
+    rows = _rows(lines, separator)
+    first = next(rows, None)
+    if first is None:
         raise MeasurementError(f"{path}: no header line")
-    header_line, header = rows[0]
+    header_line, header = first
     while header and not header[-1].strip():            # spreadsheets pad rows with empty cells
         header = header[:-1]
     if flow is None:
@@ -266,42 +344,17 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
     parsed, ignored = _parse_header(path, header_line, header, flow)
     capsules: list[Capsule] = []
     ids: dict[str, int] = {}
-    for line, row in rows[1:]:
-        if len(row) > len(parsed) and not any(c.strip() for c in row[len(parsed):]):
-            row = row[:len(parsed)]
-        if len(row) != len(parsed):
-            raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
-        raw: dict[str, tuple[float, str, float | None]] = {}
-        capsule_id = ""
-        contour_cell: tuple[str, str, float | None] | None = None
-        for column, cell in zip(parsed, row):
-            if column is None:
-                continue
-            name, unit, scale = column
-            cell = cell.strip()
-            if name == "id":
-                if not cell:
-                    raise MeasurementError(f"{path}:{line}: field 'id' is empty")
-                capsule_id = cell
-                continue
-            if name == "contour":
-                if cell:
-                    contour_cell = (cell, unit, scale)
-                continue
-            if not cell:
-                if columns[name][1]:
-                    raise MeasurementError(f"{path}:{line}: field {name!r} is empty")
-                continue
-            try:
-                # "0,5" is a decimal comma only where "," cannot be the separator.
-                value = float(cell.replace(",", ".") if separator == ";" else cell)
-            except ValueError:
-                raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
-            if not math.isfinite(value):
-                raise MeasurementError(f"{path}:{line}: field {name!r} is {cell} (not finite)")
-            if value < 0 or (value == 0 and name != "L_p"):
-                raise MeasurementError(f"{path}:{line}: field {name!r} must be positive, got {cell}")
-            raw[name] = (value, unit, scale)
+    commented: list[str] = []
+    for line, row in rows:
+        if line < 0:
+            # A comment after the header: named when it has the fields of a capsule row.
+            if (capsule_like := _row_like_id(path, -line, row, parsed, columns, separator)) is not None:
+                commented.append(capsule_like)
+            continue
+        if len(capsules) == MAX_CAPSULES:
+            raise MeasurementError(f"{path}:{line}: more than {MAX_CAPSULES} capsule rows, the most one file may "
+                                   "hold (split the batch into several files)")
+        capsule_id, raw, contour_cell = _parse_row(path, line, row, parsed, columns, separator)
         if capsule_id in ids:
             raise MeasurementError(f"{path}:{line}: id {capsule_id!r} already used on line {ids[capsule_id]}")
         ids[capsule_id] = line
@@ -319,6 +372,9 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
             else:
                 assert scale is not None  # px is the only unit without an SI scale
                 values[name] = value * scale
+            if not math.isfinite(values[name]) or (values[name] == 0 and value != 0):
+                raise MeasurementError(f"{path}:{line}: field {name!r}: {value:g} {unit} is out of range once "
+                                       f"converted to SI ({values[name]:g})")
         contour = None
         if contour_cell is not None:
             contour = _read_row_contour(path, line, contour_cell, pixel)
@@ -333,10 +389,13 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
         if flow == "shear" and capsule["theta"] >= math.pi / 2:
             raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
                                    "inclination to the flow direction)")
+    # Warned only once the file is read: a file that is refused warns of nothing.
     if ignored:
-        # Warned only once the file is read: a file that is refused warns of nothing.
         warnings.warn(f"{path}:{header_line}: ignored column(s) not in the {flow} format: "
                       f"{', '.join(repr(c) for c in ignored)}", InputWarning, stacklevel=2)
+    if commented:
+        warnings.warn(f"{path}: comment line(s) {', '.join(commented)} have the fields of a capsule row and are "
+                      "left out; if an id starts with '#', quote it (\"#c01\",...)", InputWarning, stacklevel=2)
     return capsules
 
 
@@ -352,4 +411,8 @@ def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None]
         contour = read_contour(contour_path)
     except ContourError as err:
         raise MeasurementError(f"{path}:{line}: field 'contour': {err}") from None
-    return contour * scale
+    contour = contour * scale
+    problem = contour_problem(contour)
+    if problem is not None:
+        raise MeasurementError(f"{path}:{line}: field 'contour': {contour_path} in metres: {problem}")
+    return contour

@@ -134,11 +134,20 @@ def _case_row(case: Case, path: Path, points: int) -> dict[str, Any]:
 
 
 def _write_dataset(group: h5py.Group, name: str, data: Any, units: str) -> None:
-    """Write one dataset with its ``units`` attribute (text as variable-length UTF-8)."""
+    """Write one dataset with its ``units`` attribute and HDF5's Fletcher-32 checksum.
+
+    Text is fixed-length UTF-8 (as long as its longest entry): HDF5 cannot checksum
+    variable-length data, and a reader decodes both alike.
+    """
     if name in TEXT_COLUMNS:
-        ds = group.create_dataset(name, data=np.array(data, dtype=object), dtype=h5py.string_dtype())
+        encoded = [str(text).encode() for text in data]
+        values = np.array(encoded, dtype=f"S{max([1, *map(len, encoded)])}")
+        dtype = h5py.string_dtype("utf-8", values.dtype.itemsize)
+        ds = group.create_dataset(name, shape=values.shape, dtype=dtype, fletcher32=True)
+        # The bytes are UTF-8 already: written as the file's type (numpy's are ASCII to h5py).
+        ds.id.write(h5py.h5s.ALL, h5py.h5s.ALL, values, mtype=ds.id.get_type())
     else:
-        ds = group.create_dataset(name, data=np.asarray(data, dtype=float))
+        ds = group.create_dataset(name, data=np.asarray(data, dtype=float), fletcher32=True)
     ds.attrs["units"] = units
 
 

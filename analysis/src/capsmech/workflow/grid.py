@@ -270,10 +270,18 @@ def load_grid(path: str | Path) -> dict[str, Any]:
     Raises
     ------
     GridError
-        If the file does not hold a mapping, or the grid is invalid (key named).
+        If the file cannot be read or is not YAML (line named), does not hold a mapping, or
+        the grid is invalid (key named).
     """
     path = Path(path)
-    grid = yaml.safe_load(path.read_text())
+    try:
+        grid = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as err:
+        raise GridError(f"{path}: cannot read the grid file: {getattr(err, 'strerror', None) or err}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise GridError(f"{where}: not YAML: {getattr(err, 'problem', None) or err}") from None
     if not isinstance(grid, dict):
         raise GridError(f"{path}: a grid file must hold a mapping, got {type(grid).__name__}")
     validate_grid(grid, str(path))

@@ -32,7 +32,7 @@ from pathlib import Path
 import h5py
 
 from capsmech.errors import CapsmechError
-from capsmech.io.case import CaseResult, decode_str, read_case
+from capsmech.io.case import CaseFileError, CaseResult, decode_str, read_case, require_hdf5_file
 
 #: Root attribute value that marks a failure record written by :func:`run_case`.
 FAILURE_RECORD = "capsim_failure"
@@ -98,9 +98,19 @@ def write_failure_record(out: Path, *, exit_code: int, stderr: str, code_version
 
 
 def is_failure_record(path: str | Path) -> bool:
-    """Return True when ``path`` is a failure record rather than a kernel case file."""
-    with h5py.File(path, "r") as f:
-        return "record" in f.attrs and decode_str(f.attrs["record"]) == FAILURE_RECORD
+    """Return True when ``path`` is a failure record rather than a kernel case file.
+
+    Raises
+    ------
+    CaseFileError
+        If the file is not HDF5, or is truncated or damaged (the message names it).
+    """
+    where = require_hdf5_file(Path(path), "case file", CaseFileError)
+    try:
+        with h5py.File(path, "r") as f:
+            return "record" in f.attrs and decode_str(f.attrs["record"]) == FAILURE_RECORD
+    except (OSError, TypeError) as exc:
+        raise CaseFileError(f"{where}: cannot read HDF5 case file (truncated or damaged?): {exc}") from None
 
 
 def read_outcome(path: str | Path) -> tuple[str, str, str, CaseResult | None]:
