@@ -6,9 +6,10 @@ module axisymmetric_integrators
    use lapack_interfaces, only: dgetrf, dgetrs
    use axisymmetric_operator, only: axisymmetric_operator_t, velocity_jacobian, largest_growth_rate, pack_dofs, &
                                     unpack_dofs, restore_volume_and_centre, jacobian_fd_step
+   use state_vector, only: state_cursor_t
    implicit none
    private
-   public :: implicit_state_t, rk2_step, implicit_step, implicit_dt
+   public :: implicit_state_t, rk2_step, implicit_step, exchange_implicit_state, implicit_dt
 
    !> Linearly implicit steps: largest step (l/V) and largest age of a Jacobian (steps).
    real(dp), parameter :: implicit_dt = 0.1_dp
@@ -24,6 +25,8 @@ module axisymmetric_integrators
    type :: implicit_state_t
       real(dp), allocatable :: jacobian(:, :), step_matrix(:, :), step_rhs(:)
       real(dp), allocatable :: rz_here(:, :), u_here(:, :)
+      !> Positions at which the Jacobian in use was made: a resumed run makes it again there.
+      real(dp), allocatable :: rz_jacobian(:, :)
       integer, allocatable :: step_pivot(:)
       integer :: jacobian_age = huge(1)
       !> Step cap after halvings (see implicit_step), dt_max when none.
@@ -44,8 +47,9 @@ contains
       integer :: m
       m = 2 * n_nodes - 2
       allocate (self%jacobian(m, m), self%step_matrix(m, m), self%step_rhs(m), self%step_pivot(m))
-      allocate (self%rz_here(2, n_nodes), self%u_here(2, n_nodes))
+      allocate (self%rz_here(2, n_nodes), self%u_here(2, n_nodes), self%rz_jacobian(2, n_nodes))
       self%rz_here = huge(1.0_dp)
+      self%rz_jacobian = 0
       self%dt_limit = dt
    end subroutine implicit_state_init
 
@@ -124,7 +128,8 @@ contains
    subroutine refresh_jacobian(self, st)
       class(axisymmetric_operator_t), intent(inout) :: self
       type(implicit_state_t), intent(inout) :: st
-      call velocity_jacobian(self, self%positions, jacobian_fd_step * self%a, st%jacobian)
+      st%rz_jacobian = self%positions
+      call velocity_jacobian(self, st%rz_jacobian, jacobian_fd_step * self%a, st%jacobian)
       st%n_jacobians = st%n_jacobians + 1
       self%dt = min(st%dt_limit, growth_step_limit / max(largest_growth_rate(self, st%jacobian), tiny(1.0_dp)))
       call factorise_step_matrix(self, st)
@@ -142,5 +147,31 @@ contains
       end do
       call dgetrf(m, m, st%step_matrix, m, st%step_pivot, info)
    end subroutine factorise_step_matrix
+
+   !> The implicit steps' part of the checkpoint state (see capsule_model's exchange_state):
+   !> the step and its cap, the Jacobian's age and where it was made, the counts. The Jacobian
+   !> (a function of its positions alone) and the LU of I - dt J, which always belongs to the
+   !> current dt after a step, are made again when restoring; the velocity at the positions
+   !> (u_here) is recomputed by the next step, as rz_here no longer matches.
+   subroutine exchange_implicit_state(self, st, state, cursor)
+      class(axisymmetric_operator_t), intent(inout) :: self
+      type(implicit_state_t), intent(inout) :: st
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t), intent(inout) :: cursor
+      call cursor%real_value(state, self%dt)
+      call cursor%real_value(state, st%dt_limit)
+      call cursor%int_value(state, st%jacobian_age)
+      call cursor%int_value(state, st%n_jacobians)
+      call cursor%int_value(state, st%n_rejected)
+      call cursor%reals(state, st%rz_jacobian, size(st%rz_jacobian))
+      if (.not. cursor%restoring()) return
+      st%rz_here = huge(1.0_dp)
+      ! No Jacobian before the first step (its age is then huge); an expired one is renewed
+      ! by the next step before any use.
+      if (st%jacobian_age < jacobian_max_age) then
+         call velocity_jacobian(self, st%rz_jacobian, jacobian_fd_step * self%a, st%jacobian)
+         call factorise_step_matrix(self, st)
+      end if
+   end subroutine exchange_implicit_state
 
 end module axisymmetric_integrators

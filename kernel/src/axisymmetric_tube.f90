@@ -12,7 +12,8 @@ module axisymmetric_tube
    use tube_history, only: h_volume, h_lz, h_lp, h_vc, h_stretch, tube_history_names, tube_history_units, tube_progress_text
    use case_output, only: case_summary_t
    use axisymmetric_operator, only: axisymmetric_operator_t
-   use axisymmetric_integrators, only: implicit_state_t, rk2_step, implicit_step, implicit_dt
+   use axisymmetric_integrators, only: implicit_state_t, rk2_step, implicit_step, exchange_implicit_state, implicit_dt
+   use state_vector, only: state_cursor_t
    use axisymmetric_steady, only: newton_state_t, newton_run, polish_steady_shape
    implicit none
    private
@@ -39,6 +40,7 @@ module axisymmetric_tube
       procedure :: init
       procedure :: advance
       procedure :: record
+      procedure :: exchange_state
       procedure :: run
       procedure :: progress_text
       procedure :: write_geometry
@@ -143,6 +145,17 @@ contains
          if (steady_index > 0) call polish_steady_shape(self, self%newton, opts, summary, steady_index)
       end if
    end subroutine run
+
+   !> Checkpoint state: the positions (an RK2 step depends on nothing else) and, for implicit
+   !> steps, their state (exchange_implicit_state). Newton continuation writes no checkpoint:
+   !> a killed run starts it afresh and, being deterministic, ends as the uninterrupted one.
+   subroutine exchange_state(self, state, cursor)
+      class(axisymmetric_tube_t), intent(inout) :: self
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t), intent(inout) :: cursor
+      call cursor%reals(state, self%positions, size(self%positions))
+      if (self%solver == solver_implicit) call exchange_implicit_state(self, self%implicit, state, cursor)
+   end subroutine exchange_state
 
    !> Append diagnostics: L_z (front to rear), L_p (rear pole to the rear-most point: the
    !> parachute depth, 0 for a convex rear), v_c/V, film-side radius r_max.
