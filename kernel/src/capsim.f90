@@ -58,7 +58,7 @@ program capsim
    end select
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
    if (.not. opts%quiet) then
-      write (*, '(a,i0,a,es9.2,a,i0,a)') 'capsim: ', model%state_size(), ' degrees of freedom, dt = ', model%dt, &
+      write (*, '(a,i0,a,es9.2,a,i0,a)') 'capsim: ', size(model%positions), ' degrees of freedom, dt = ', model%dt, &
          ', ', omp_get_max_threads(), ' threads'
    end if
    checkpoint_path = trim(opts%out)//'.ckpt'

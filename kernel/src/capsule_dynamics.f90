@@ -25,6 +25,7 @@ module capsule_dynamics
    use run_options, only: run_options_t
    use case_output, only: write_surface_mesh, case_summary_t
    use capsule_model, only: capsule_model_t
+   use state_vector, only: state_cursor_t
    use text_format, only: int_text, real_text
    use shear_implicit, only: load_stencil_t, single_layer_matrix, stencil_product, add_shear_gradient, &
                              step_matrix_lu, step_solve
@@ -88,6 +89,8 @@ module capsule_dynamics
       real(dp), allocatable :: sl_matrix(:, :), jacobian(:, :), lu(:, :)
       integer, allocatable :: pivot(:)
       real(dp), allocatable :: k1(:, :), k2(:, :), x_fd(:, :), f_fd(:, :)
+      !> Positions at which the Jacobian in use was made: a resumed run makes it again there.
+      real(dp), allocatable :: x_jacobian(:, :)
       !> Largest and smallest step; the Jacobian's age in accepted steps; whether the LU must
       !> be redone (new dt or J), J renewed, and the next step's estimate kept (err_fresh).
       real(dp) :: dt_max = 0, dt_min = 0
@@ -105,9 +108,7 @@ module capsule_dynamics
       procedure :: velocity
       procedure :: advance
       procedure :: run
-      procedure :: state_size
-      procedure :: get_state
-      procedure :: set_state
+      procedure :: exchange_state
       procedure :: record
       procedure :: progress_text
       procedure :: write_geometry
@@ -335,7 +336,8 @@ contains
          call self%stencil%init(self%mesh, 1)
       end if
       allocate (self%sl_matrix(3 * n, 3 * n), self%jacobian(3 * n, 3 * n), self%lu(3 * n, 3 * n), self%pivot(3 * n))
-      allocate (self%k1(3, n), self%k2(3, n), self%x_fd(3, n), self%f_fd(3, n))
+      allocate (self%k1(3, n), self%k2(3, n), self%x_fd(3, n), self%f_fd(3, n), self%x_jacobian(3, n))
+      self%x_jacobian = 0
       self%dt_max = implicit_dt_max
       self%dt = min(self%dt, self%dt_max)
       self%dt_min = 1.0e-3_dp * self%dt
@@ -423,19 +425,37 @@ contains
       end if
    end subroutine implicit_step
 
-   !> J = 2/(1+lambda) (grad v_inf + (1/Ca) M K) at the current positions (see shear_implicit):
-   !> M assembled, K = df/dx by forward differences, one load evaluation per colour and direction.
+   !> A new Jacobian at the current positions (assemble_jacobian), and the step for it.
    subroutine refresh_jacobian(self)
+      class(capsule_t), intent(inout) :: self
+      self%x_jacobian = self%positions
+      call assemble_jacobian(self)
+      ! The step for the new Jacobian: the error of the first step on the last one, scaled to
+      ! fresh_target (error ~ dt**2), within a factor of 2.
+      if (self%err_fresh > 0.0_dp) self%dt = min(self%dt_max, self%dt_fresh * &
+                                               min(2.0_dp, max(0.5_dp, sqrt(fresh_target / self%err_fresh))))
+      self%want_refresh = .false.
+      self%measure_next = .true.
+      self%n_jacobians = self%n_jacobians + 1
+      self%jacobian_age = 0
+      self%lu_stale = .true.
+   end subroutine refresh_jacobian
+
+   !> J = 2/(1+lambda) (grad v_inf + (1/Ca) M K) at x_jacobian (see shear_implicit): M
+   !> assembled, K = df/dx by forward differences, one load evaluation per colour and direction.
+   !> A function of x_jacobian alone (every loop's iterations are independent), so that a
+   !> resumed run makes the same J, bit for bit, whatever the thread count.
+   subroutine assemble_jacobian(self)
       class(capsule_t), intent(inout) :: self
       integer :: c, d, j, p, m
       ! f at x, and the areas the matrix needs (load_density leaves them in self%tri_area etc.).
-      call load_density(self, self%positions, self%density)
-      call single_layer_matrix(self%single_layer, self%mesh, self%positions, self%tri_area, self%node_area, &
+      call load_density(self, self%x_jacobian, self%density)
+      call single_layer_matrix(self%single_layer, self%mesh, self%x_jacobian, self%tri_area, self%node_area, &
                                self%sl_matrix)
       associate (st => self%stencil)
          do c = 1, st%n_colours
             do d = 1, 3
-               self%x_fd = self%positions
+               self%x_fd = self%x_jacobian
                do j = 1, self%mesh%n_nodes
                   if (st%colour(j) == c) self%x_fd(d, j) = self%x_fd(d, j) + jacobian_fd_step
                end do
@@ -452,16 +472,7 @@ contains
          call stencil_product(self%sl_matrix, st, 2.0_dp / ((1.0_dp + self%lambda) * self%ca), self%jacobian)
       end associate
       call add_shear_gradient(self%jacobian, 2.0_dp / (1.0_dp + self%lambda))
-      ! The step for the new Jacobian: the error of the first step on the last one, scaled to
-      ! fresh_target (error ~ dt**2), within a factor of 2.
-      if (self%err_fresh > 0.0_dp) self%dt = min(self%dt_max, self%dt_fresh * &
-                                               min(2.0_dp, max(0.5_dp, sqrt(fresh_target / self%err_fresh))))
-      self%want_refresh = .false.
-      self%measure_next = .true.
-      self%n_jacobians = self%n_jacobians + 1
-      self%jacobian_age = 0
-      self%lu_stale = .true.
-   end subroutine refresh_jacobian
+   end subroutine assemble_jacobian
 
    subroutine factorise(self)
       class(capsule_t), intent(inout) :: self
@@ -524,35 +535,47 @@ contains
       end if
    end subroutine run
 
-   !> Checkpoint state: the positions, and for implicit steps the current dt (a resumed run
-   !> continues with the step it had; its Jacobian is recomputed).
-   pure integer function state_size(self)
-      class(capsule_t), intent(in) :: self
-      state_size = size(self%positions)
-      if (self%implicit) state_size = state_size + 1
-   end function state_size
-
-   subroutine get_state(self, state)
-      class(capsule_t), intent(in) :: self
-      real(dp), intent(out) :: state(:)
-      integer :: m
-      m = size(self%positions)
-      state(1:m) = reshape(self%positions, [m])
-      if (self%implicit) state(m + 1) = self%dt
-   end subroutine get_state
-
-   subroutine set_state(self, state)
+   !> Checkpoint state (capsule_model's exchange_state): the positions; at lambda /= 1 the
+   !> interface solutions from which the next GMRES guesses are extrapolated; with implicit
+   !> steps the step size and all that its control reads (the Jacobian's age and where it was
+   !> made, the refresh and measure flags, the fresh error and its step, the LU's step) and
+   !> the counts of the run's message. The Jacobian and its LU (3n squared each) are not
+   !> stored: a resumed run makes them again where and with the step they were made.
+   subroutine exchange_state(self, state, cursor)
       class(capsule_t), intent(inout) :: self
-      real(dp), intent(in) :: state(:)
-      integer :: m
-      m = size(self%positions)
-      self%positions = reshape(state(1:m), shape(self%positions))
-      if (self%implicit) then
-         self%dt = state(m + 1)
-         self%jacobian_age = huge(1)
-         self%lu_stale = .true.
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t), intent(inout) :: cursor
+      integer :: info
+      call cursor%reals(state, self%positions, size(self%positions))
+      if (self%lambda /= 1.0_dp) then
+         call cursor%int_value(state, self%n_stage(1))
+         call cursor%int_value(state, self%n_stage(2))
+         call cursor%reals(state, self%v_stage, size(self%v_stage))
       end if
-   end subroutine set_state
+      if (.not. self%implicit) return
+      call cursor%real_value(state, self%dt)
+      call cursor%real_value(state, self%err_fresh)
+      call cursor%real_value(state, self%dt_fresh)
+      call cursor%real_value(state, self%dt_lu)
+      call cursor%int_value(state, self%jacobian_age)
+      call cursor%flag(state, self%lu_stale)
+      call cursor%flag(state, self%want_refresh)
+      call cursor%flag(state, self%measure_next)
+      call cursor%int_value(state, self%n_velocity)
+      call cursor%int_value(state, self%n_jacobians)
+      call cursor%int_value(state, self%n_factorisations)
+      call cursor%int_value(state, self%n_rejected)
+      call cursor%reals(state, self%x_jacobian, size(self%x_jacobian))
+      ! No Jacobian before the first step (its age is then huge).
+      if (cursor%restoring() .and. self%jacobian_age < jacobian_max_age) then
+         call assemble_jacobian(self)
+         if (.not. self%lu_stale) then
+            call step_matrix_lu(self%jacobian, ros2_gamma * self%dt_lu, self%lu, self%pivot, info)
+            if (info /= 0) self%fault = 'resumed implicit step: I - gamma dt J is singular (LAPACK dgetrf info '// &
+                                        int_text(info)//')'
+         end if
+      end if
+   end subroutine exchange_state
 
    !> Append the current diagnostics to the history.
    subroutine record(self)

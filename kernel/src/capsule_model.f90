@@ -14,6 +14,7 @@ module capsule_model
    use membrane_law, only: membrane_law_t
    use run_options, only: run_options_t, option_signature
    use case_output, only: case_summary_t, write_checkpoint, read_checkpoint
+   use state_vector, only: state_cursor_t, state_counting, state_storing, state_restoring
    implicit none
    private
    public :: capsule_model_t, t_min_steady, max_element_stretch, num
@@ -64,6 +65,7 @@ module capsule_model
       procedure :: state_size
       procedure :: get_state
       procedure :: set_state
+      procedure :: exchange_state
       procedure(progress_iface), deferred :: progress_text
       procedure(geometry_iface), deferred :: write_geometry
       !> `run` is what the program calls; models with their own solver override it and may
@@ -101,23 +103,44 @@ contains
       self%positions = self%start_positions
    end subroutine reset
 
-   pure integer function state_size(self)
-      class(capsule_model_t), intent(in) :: self
-      state_size = size(self%positions)
+   !> Entries of the checkpoint state (exchange_state).
+   integer function state_size(self)
+      class(capsule_model_t), intent(inout) :: self
+      type(state_cursor_t) :: cursor
+      real(dp) :: none(0)
+      cursor%mode = state_counting
+      call self%exchange_state(none, cursor)
+      state_size = cursor%at
    end function state_size
 
-   !> Positions as one vector (checkpoints).
+   !> The checkpoint state (exchange_state) into `state`.
    subroutine get_state(self, state)
-      class(capsule_model_t), intent(in) :: self
-      real(dp), intent(out) :: state(:)
-      call flatten(self%positions, state)
+      class(capsule_model_t), intent(inout) :: self
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t) :: cursor
+      cursor%mode = state_storing
+      call self%exchange_state(state, cursor)
    end subroutine get_state
 
+   !> The checkpoint state back from `state` (a resumed run).
    subroutine set_state(self, state)
       class(capsule_model_t), intent(inout) :: self
-      real(dp), intent(in) :: state(:)
-      call unflatten(state, self%positions)
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t) :: cursor
+      cursor%mode = state_restoring
+      call self%exchange_state(state, cursor)
    end subroutine set_state
+
+   !> The parts of the checkpoint state, in order, through `cursor`: everything the next step
+   !> depends on, so that a resumed run goes on bit for bit as the uninterrupted one. Here the
+   !> positions; models whose steps carry more (step size control, Jacobians, initial guesses
+   !> of iterative solves) extend it, and rebuild what they do not store when restoring.
+   subroutine exchange_state(self, state, cursor)
+      class(capsule_model_t), intent(inout) :: self
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t), intent(inout) :: cursor
+      call cursor%reals(state, self%positions, size(self%positions))
+   end subroutine exchange_state
 
    !> An empty history of these columns. It starts small and grows (next_record); t_max and
    !> record_every give only `record_limit`, the records the run would take at most (in
@@ -356,27 +379,6 @@ contains
       end do
       window_start = min(window_start, self%n_rec)
    end function window_start
-
-   !> Columns of a (m, n) array into one vector (checkpoint state), without a temporary.
-   pure subroutine flatten(a, v)
-      real(dp), intent(in) :: a(:, :)
-      real(dp), intent(out) :: v(:)
-      integer :: k, m
-      m = size(a, 1)
-      do k = 1, size(a, 2)
-         v((k - 1) * m + 1:k * m) = a(:, k)
-      end do
-   end subroutine flatten
-
-   pure subroutine unflatten(v, a)
-      real(dp), intent(in) :: v(:)
-      real(dp), intent(out) :: a(:, :)
-      integer :: k, m
-      m = size(a, 1)
-      do k = 1, size(a, 2)
-         a(:, k) = v((k - 1) * m + 1:k * m)
-      end do
-   end subroutine unflatten
 
    !> A number as short text for messages.
    pure function num(x) result(s)

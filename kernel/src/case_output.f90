@@ -31,7 +31,7 @@ module case_output
    end type case_summary_t
 
    !> First bytes of a checkpoint of this layout (write_checkpoint).
-   character(len=*), parameter :: checkpoint_magic = 'CAPSCKP2'
+   character(len=*), parameter :: checkpoint_magic = 'CAPSCKP3'
    integer, parameter :: int_bytes = 4, real_bytes = 8, header_bytes = len(checkpoint_magic) + int_bytes
 
 
@@ -111,9 +111,14 @@ contains
    end subroutine close_case_file
 
    !> Binary checkpoint (stream, native byte order), written whole to PATH.tmp and renamed:
-   !>   'CAPSCKP2' (8 bytes), CRC-32 (int32) of every byte after it, len(signature) (int32),
+   !>   'CAPSCKP3' (8 bytes), CRC-32 (int32) of every byte after it, len(signature) (int32),
    !>   signature, step (int32), t, size(x) (int32), x, rows of history (int32), n_rec (int32),
    !>   history(:, 1:n_rec), wall_time_s (reals in 8 bytes; the wall time last).
+   !> x is the model's state (capsule_model_t%get_state): the positions, then whatever else the
+   !> next step depends on (step size, Jacobian age and where it was made, error history,
+   !> counters, initial guesses of iterative solves), so that a resumed run continues bit for
+   !> bit as the uninterrupted one. Format 3 (this): that state; format 2 held positions and,
+   !> for implicit shear steps, dt only, and resumed those runs on another path.
    !> The signature (option_signature) holds every option that changes the result, t_max and
    !> the code version. Every write and the close are checked: on failure PATH.tmp is removed,
    !> PATH (the previous checkpoint) is left as it was, and stat /= 0.

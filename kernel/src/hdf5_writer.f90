@@ -13,13 +13,15 @@ module hdf5_writer
    use capsim_kinds, only: dp
    use hdf5, only: hid_t, hsize_t, size_t, &
                    h5open_f, h5eset_auto_f, h5kind_to_type, h5_real_kind, h5_integer_kind, &
-                   h5f_acc_trunc_f, h5fcreate_f, h5fclose_f, &
+                   h5f_acc_trunc_f, h5fcreate_f, h5fclose_f, h5p_file_access_f, h5pset_libver_bounds_f, &
+                   h5f_libver_v18_f, h5d_compact_f, h5pset_layout_f, &
                    h5gcreate_f, h5gclose_f, &
                    h5oopen_f, h5oclose_f, &
                    h5s_scalar_f, h5screate_f, h5screate_simple_f, h5sclose_f, &
                    h5t_fortran_s1, h5t_str_nullpad_f, h5tcopy_f, h5tset_size_f, h5tset_strpad_f, &
                    h5tclose_f, &
-                   h5p_dataset_create_f, h5pcreate_f, h5pset_chunk_f, h5pset_deflate_f, h5pclose_f, &
+                   h5p_dataset_create_f, h5pcreate_f, h5pset_chunk_f, h5pset_deflate_f, h5pset_fletcher32_f, &
+                   h5pclose_f, &
                    h5aexists_f, h5adelete_f, h5acreate_f, h5awrite_f, h5aclose_f, &
                    h5dcreate_f, h5dwrite_f, h5dclose_f
    implicit none
@@ -27,8 +29,13 @@ module hdf5_writer
 
    public :: h5_file_t
 
-   !> Datasets with more elements than this are chunked and gzip-compressed; below it the
-   !> chunk index and filter overhead outweigh any saving.
+   !> Checksums, so that a flipped bit fails the read (h5py raises OSError) instead of changing
+   !> a fitted quantity silently: every array dataset carries HDF5's Fletcher-32 checksum per
+   !> chunk (it needs a chunked layout); a scalar dataset (rank 0: it cannot be chunked) is
+   !> stored compact, inside its object header, and object headers (with the attributes) carry
+   !> a checksum of their own in the file format of HDF5 1.8 on (create sets it as the oldest).
+   !> Datasets with more elements than this are also gzip-compressed; below it the filter's
+   !> overhead outweighs any saving.
    integer, parameter :: compress_min_elements = 64
    integer, parameter :: gzip_level = 4
    !> Target chunk size in elements (1 MiB of real(dp)): large enough for good compression
@@ -70,7 +77,8 @@ contains
       character(len=*), intent(in) :: path
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      integer :: hdferr
+      integer :: hdferr, ignored
+      integer(hid_t) :: fapl_id
 
       if (self%is_open()) then
          ! Silently closing would hide a caller bug that leaves a half-written file behind.
@@ -80,7 +88,15 @@ contains
       end if
       call ensure_library(stat, errmsg)
       if (stat /= 0) return
-      call h5fcreate_f(path, h5f_acc_trunc_f, self%file_id, hdferr)
+      ! The 1.8 format: object headers with checksums (see the module's checksums note).
+      call h5pcreate_f(h5p_file_access_f, fapl_id, hdferr)
+      if (hdferr < 0) then
+         call fail(stat, errmsg, "cannot create file '" // path // "' (h5pcreate_f failed)")
+         return
+      end if
+      call h5pset_libver_bounds_f(fapl_id, h5f_libver_v18_f, h5f_libver_v18_f, hdferr)
+      if (hdferr >= 0) call h5fcreate_f(path, h5f_acc_trunc_f, self%file_id, hdferr, access_prp=fapl_id)
+      call h5pclose_f(fapl_id, ignored)
       if (hdferr < 0) then
          self%file_id = no_id
          call fail(stat, errmsg, "cannot create file '" // path // "'")
@@ -450,13 +466,26 @@ contains
          step = 'h5pcreate_f'
          call h5pcreate_f(h5p_dataset_create_f, dcpl_id, hdferr)
          if (hdferr < 0) exit steps
-         if (rank > 0 .and. product(dims) > compress_min_elements) then
+         if (rank == 0) then
+            step = 'h5pset_layout_f'
+            call h5pset_layout_f(dcpl_id, h5d_compact_f, hdferr)
+            if (hdferr < 0) exit steps
+         end if
+         ! A chunk needs at least one element in each dimension: an empty dataset stays contiguous.
+         if (rank > 0 .and. product(dims) > 0) then
             chunk = chunk_shape(dims)
             step = 'h5pset_chunk_f'
             call h5pset_chunk_f(dcpl_id, rank, chunk, hdferr)
             if (hdferr < 0) exit steps
-            step = 'h5pset_deflate_f'
-            call h5pset_deflate_f(dcpl_id, gzip_level, hdferr)
+            if (product(dims) > compress_min_elements) then
+               step = 'h5pset_deflate_f'
+               call h5pset_deflate_f(dcpl_id, gzip_level, hdferr)
+               if (hdferr < 0) exit steps
+            end if
+            ! Last in the pipeline: the checksum covers the bytes as stored (compressed), so
+            ! that a read checks them before anything else.
+            step = 'h5pset_fletcher32_f'
+            call h5pset_fletcher32_f(dcpl_id, hdferr)
             if (hdferr < 0) exit steps
          end if
 

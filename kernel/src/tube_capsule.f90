@@ -58,6 +58,7 @@ module tube_capsule
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
                            tube3d_history_names, tube3d_history_units, tube_progress_text
    use capsule_model, only: capsule_model_t
+   use state_vector, only: state_cursor_t
    use stokes_double_layer, only: double_layer_t
    use interface_equation, only: interface_equation_t, operator_term_t
    implicit none
@@ -146,6 +147,7 @@ module tube_capsule
       procedure :: interface_velocity
       procedure :: advance => rk2_step
       procedure :: record
+      procedure :: exchange_state
       procedure :: progress_text
       procedure :: write_geometry
    end type tube_capsule_t
@@ -584,6 +586,18 @@ contains
       real(dp), intent(in) :: grad(:, :)
       u = u - (sum(u * grad) / sum(grad * grad)) * grad
    end subroutine remove_volume_flux
+
+   !> Checkpoint state: the positions and, at lambda /= 1, the last interface solution (the
+   !> next GMRES solve starts from it, so that its result depends on it to the tolerance).
+   subroutine exchange_state(self, state, cursor)
+      class(tube_capsule_t), intent(inout) :: self
+      real(dp), intent(inout) :: state(:)
+      type(state_cursor_t), intent(inout) :: cursor
+      call cursor%reals(state, self%positions, size(self%positions))
+      if (self%lambda == 1.0_dp) return
+      call cursor%flag(state, self%have_guess)
+      call cursor%reals(state, self%u_guess, size(self%u_guess))
+   end subroutine exchange_state
 
    !> Heun's RK2 in the frame of the centroid, then the centroid put back at the origin.
    subroutine rk2_step(self)

@@ -24,7 +24,8 @@ program axi_probe
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
    use ring_stresslet, only: ring_stresslet_kernel, stresslet_segment, double_layer_row
    use run_options, only: run_options_t
-   use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
+   use axisymmetric_tube, only: axisymmetric_tube_t
+   use axisymmetric_operator, only: velocity_jacobian, largest_growth_rate, pack_dofs, unpack_dofs
    implicit none
 
    character(len=64) :: command

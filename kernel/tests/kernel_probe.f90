@@ -450,7 +450,8 @@ contains
    !> full velocity evaluations, on a capsule deformed by a few RK2 steps.
    subroutine probe_tube_jacobian(a_over_l, ca)
       use omp_lib, only: omp_get_wtime
-      use axisymmetric_tube, only: axisymmetric_tube_t, velocity_jacobian, pack_dofs
+      use axisymmetric_tube, only: axisymmetric_tube_t
+      use axisymmetric_operator, only: velocity_jacobian, pack_dofs
       use run_options, only: run_options_t
       real(dp), intent(in) :: a_over_l, ca
       type(axisymmetric_tube_t) :: tube

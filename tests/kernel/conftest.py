@@ -162,3 +162,49 @@ def cached_capsim(capsim: Path, root: Path, *fixed: str, timeout: float = 900, e
         return cache[key]
 
     return run
+
+
+def run_killed_repeatedly(capsim: Path, args: list[str], out: Path, kills: int, seed: int,
+                          within: float, timeout: float = 600) -> str:
+    """Run capsim ARGS --out OUT with checkpoints every 0.1 s, SIGKILL it ``kills`` times (the
+    first run once its first checkpoint exists, each at a random moment up to ``within``
+    seconds later; every later run resumes from the last checkpoint), then let it finish and
+    return the last run's stdout, which must report the resume. `args` ends with --quiet,
+    dropped for the last run. ``within`` must leave the case unfinished at every kill: the
+    caller takes a fraction of the uninterrupted run's wall time, divided among the kills."""
+    import random
+    import signal
+    import time
+
+    rng = random.Random(seed)
+    checkpoint = Path(str(out) + ".ckpt")
+    for kill in range(kills):
+        proc = subprocess.Popen([str(capsim), *args, "--checkpoint-every", "0.1", "--out", str(out)])
+        deadline = time.time() + 120
+        while not checkpoint.exists() and time.time() < deadline and proc.poll() is None:
+            time.sleep(0.02)
+        time.sleep(rng.uniform(0.05, within))
+        assert proc.poll() is None, f"the run finished before kill {kill + 1}: make the case longer"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        assert not out.exists() and checkpoint.exists()      # nothing half-written
+    result = subprocess.run([str(capsim), *args[:-1], "--checkpoint-every", "0.1", "--out", str(out)],
+                            capture_output=True, text=True, check=True, timeout=timeout)
+    assert "resumed from checkpoint" in result.stdout
+    assert not checkpoint.exists()
+    return result.stdout
+
+
+def assert_same_case_file(reference: Path, other: Path) -> None:
+    """Every dataset bit for bit, and every attribute equal but those of the run's own
+    circumstances: wall times and whether the 3D wall's LU came from the cache."""
+    own = {"wall_time_s", "wall_setup_s", "wall_from_cache"}
+    a, b = datasets(reference), datasets(other)
+    assert a.keys() == b.keys()
+    for name in a:
+        assert np.array_equal(a[name], b[name]), f"{name} differs"
+    with h5py.File(reference) as f, h5py.File(other) as g:
+        keys = set(f.attrs) - own
+        assert keys == set(g.attrs) - own
+        for key in keys:
+            assert np.array_equal(f.attrs[key], g.attrs[key]), f"attribute {key}: {f.attrs[key]!r} != {g.attrs[key]!r}"

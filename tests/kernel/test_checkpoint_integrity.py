@@ -4,7 +4,7 @@ A damaged or foreign checkpoint is reported on one line (stderr) and the run sta
 ending exactly as an uninterrupted run; a checkpoint that cannot be written leaves the previous
 one in place, no temporary file, and exits 1 with one line.
 
-Layout (case_output.f90, write_checkpoint): 'CAPSCKP2', CRC-32 (int32) of every byte after it,
+Layout (case_output.f90, write_checkpoint): 'CAPSCKP3', CRC-32 (int32) of every byte after it,
 len(signature) (int32), signature, step (int32), t, size(x) (int32), x, rows (int32), n_rec
 (int32), history, wall_time_s; little-endian on the machines the tests run on."""
 from __future__ import annotations
@@ -23,7 +23,7 @@ from conftest import datasets
 
 #: ~4 s on one core, steady at t = 2 (shear, level 2, RK2).
 ARGS = ["--flow", "shear", "--law", "NH", "--ca", "0.02", "--level", "2", "--threads", "1"]
-MAGIC = b"CAPSCKP2"
+MAGIC = b"CAPSCKP3"
 
 
 def killed_checkpoint(capsim: Path, out: Path, *extra: str) -> bytes:

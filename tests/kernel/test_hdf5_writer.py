@@ -2,8 +2,8 @@
 
 The Fortran check program ``bin/hdf5_writer_check`` writes a small case-like file; this test
 reads it back so that the conventions the analysis code relies on (Fortran ``x(3,n)`` reads as
-``(n,3)``, scalar datasets, ``units`` attributes, gzip on large datasets, errors returned rather
-than aborting) cannot drift silently.
+``(n,3)``, scalar datasets, ``units`` attributes, gzip on large datasets, checksums on every
+dataset, errors returned rather than aborting) cannot drift silently.
 """
 
 import subprocess
@@ -87,9 +87,10 @@ def test_nodes_fortran_3n_reads_as_n3(h5):
         for i in range(1, 4):
             assert data[j - 1, i - 1] == 10 * j + i
     assert text(nodes.attrs["units"]) == "a"
-    # Small datasets stay contiguous: chunk and filter overhead would outweigh any saving.
-    assert nodes.chunks is None
+    # Small datasets are not compressed (the filter's overhead would outweigh any saving), but
+    # chunked, as their checksum needs.
     assert nodes.compression is None
+    assert nodes.fletcher32
 
 
 def test_triangles(h5):
@@ -121,3 +122,74 @@ def test_history_t_is_gzip_compressed(h5):
 
 def test_failed_write_leaves_no_object(h5):
     assert "nosuch" not in h5
+
+
+def test_every_dataset_carries_a_checksum(h5):
+    # Arrays: Fletcher-32 per chunk. Scalars (rank 0 cannot be chunked): compact, inside their
+    # object header, which the file format of HDF5 1.8 on checksums.
+    found = []
+    h5.visititems(lambda name, obj: found.append(obj) if isinstance(obj, h5py.Dataset) else None)
+    assert len(found) == 4
+    for ds in found:
+        if ds.shape == ():
+            assert ds.id.get_create_plist().get_layout() == h5py.h5d.COMPACT, ds.name
+        else:
+            assert ds.fletcher32, ds.name
+    assert h5.id.get_access_plist().get_libver_bounds()[0] >= h5py.h5f.LIBVER_V18
+
+
+def stored_ranges(path: Path) -> dict[str, tuple[int, int]]:
+    """Byte range (offset, size) in the file of each dataset's stored data: the first chunk of
+    a chunked dataset; for a compact scalar, the one place its value's bytes occur outside
+    every chunk (the value may also be a history entry), if there is one place only (a 0.0
+    is everywhere: such scalars are left out)."""
+    ranges, scalars = {}, {}
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            if not isinstance(obj, h5py.Dataset):
+                return
+            if obj.chunks is not None:
+                info = obj.id.get_chunk_info(0)
+                ranges[name] = (info.byte_offset, info.size)
+            else:
+                scalars[name] = obj[()].tobytes()
+        f.visititems(visit)
+    data = path.read_bytes()
+    for name, pattern in scalars.items():
+        places, at = [], data.find(pattern)
+        while at >= 0:
+            if not any(o <= at < o + n for o, n in ranges.values()):
+                places.append(at)
+            at = data.find(pattern, at + 1)
+        if len(places) == 1:
+            ranges[name] = (places[0], len(pattern))
+    return ranges
+
+
+def f_shape(path: Path, name: str) -> tuple:
+    with h5py.File(path, "r") as f:
+        return f[name].shape
+
+
+def test_a_flipped_byte_in_any_dataset_fails_its_read(capsim, tmp_path):
+    # A case file with arrays small and large (gzip) and scalars (/steady).
+    case = tmp_path / "case.h5"
+    subprocess.run([str(capsim), "--flow", "tube", "--law", "NH", "--a-over-l", "0.6", "--ca", "0.003",
+                    "--n-meridian", "24", "--integrator", "newton", "--threads", "1", "--quiet", "--out", str(case)],
+                   check=True, timeout=300)
+    with h5py.File(case, "r") as f:      # whole, it reads
+        names = []
+        f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        for name in names:
+            f[name][()]
+    ranges = stored_ranges(case)
+    arrays = [name for name in names if f_shape(case, name) != ()]
+    assert set(arrays) <= set(ranges)
+    assert len(set(ranges) - set(arrays)) >= 3       # scalars (/steady) too
+    for name, (offset, size) in ranges.items():
+        damaged = tmp_path / "damaged.h5"
+        data = bytearray(case.read_bytes())
+        data[offset + size // 2] ^= 0x10
+        damaged.write_bytes(bytes(data))
+        with h5py.File(damaged, "r") as f, pytest.raises((OSError, KeyError)):
+            f[name][()]
