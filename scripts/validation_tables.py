@@ -107,8 +107,57 @@ def example_fits() -> str:
     return _markdown(["batch", "law", "fitted", "median H/a", "G_s [N/m]", "true G_s [N/m]"], rows)
 
 
+RUNS = __import__("pathlib").Path(__file__).resolve().parents[1] / "docs" / "validation" / "runs"
+
+
+def diagnosis_confusion() -> str:
+    """The confusion study of the diagnosis (issue 19, item 6), from the rows its run wrote
+    (``docs/validation/runs/confusion.csv``, by ``tests/python/confusion_study.py``)."""
+    import csv
+
+    with (RUNS / "confusion.csv").open(encoding="utf-8") as stream:
+        rows = list(csv.DictReader(stream))
+
+    def number(text: str, digits: str) -> str:
+        return "—" if text in ("", "None") else format(float(text), digits)
+
+    table = [[f"`{r['batch']}`", r["membrane"], r["expected"], r["verdict"], r["named"] or "—", r["closest"] or "—",
+              number(r["reduced_chi2"], ".2f"), number(r["g_s_before"], ".4f"), number(r["g_s_after"], ".4f"),
+              "yes" if r["right"] == "True" else "**no**", "**yes**" if r["wrong_effect_named"] == "True" else "no"]
+             for r in rows]
+    right = sum(r["right"] == "True" for r in rows)
+    wrong = sum(r["wrong_effect_named"] == "True" for r in rows)
+    return (_markdown(["batch", "membrane", "right answer", "verdict", "named", "closest", "χ²/dof left",
+                       "G_s before [N/m]", "G_s after [N/m]", "right", "wrong effect named"], table)
+            + f"\n\n{right} of {len(rows)} right; a wrong effect named in {wrong}. True G_s 0.025 N/m; G_s by "
+            "fit-tube's estimator (lengths), after only where the verdict supports it.")
+
+
+def interval_coverage() -> str:
+    """Measured coverage of the diagnosis' intervals (issue 19, item 4), from the rows its run
+    wrote (``docs/validation/runs/interval_coverage.csv``, by ``tests/python/interval_coverage.py``)."""
+    sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))
+    from interval_coverage import summarise
+
+    def cell(entry: tuple) -> str:
+        k, n, low, high = entry
+        return "—" if n == 0 else f"{k}/{n} = {100 * k / n:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
+
+    rows = []
+    for e in summarise(RUNS / "interval_coverage.csv"):
+        rows.append([e["config"], str(e["batches"]), cell(e["covered"]), cell(e["g_s_lengths_covered"]),
+                     cell(e["g_s_contours_covered"]),
+                     f"{e['median_error']:+.3g}" if "median_error" in e else "—",
+                     f"{e['median_width']:.3g}" if "median_width" in e else "—"])
+    return _markdown(["effect, true strength", "batches", "strength interval holds the truth",
+                      "G_s interval (lengths) holds it", "G_s interval (contour fits) holds it",
+                      "median error of the strength", "median interval width"], rows)
+
+
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
-                                        "compare-methods": compare_methods, "example-fits": example_fits}
+                                        "compare-methods": compare_methods, "example-fits": example_fits,
+                                        "diagnosis-confusion": diagnosis_confusion,
+                                        "interval-coverage": interval_coverage}
 
 
 def main(argv: list[str]) -> int:

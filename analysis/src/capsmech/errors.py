@@ -17,6 +17,11 @@ class DatabaseError(CapsmechError, ValueError):
     """A database cannot be assembled or loaded; the message names the file and the item."""
 
 
+class ExtractionError(CapsmechError, ValueError):
+    """Frames that cannot be read or measured; the message names the file and the problem
+    (``capsmech.imaging``; here so that every reader can raise it without importing another)."""
+
+
 class CapsmechWarning(UserWarning):
     """Base class of capsmech's warnings."""
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from capsmech.api import as_database, diagnose
-from capsmech.cli.common import add_database_option
+from capsmech.cli.common import add_database_option, check_output
 from capsmech.diagnosis.shear import ERROR_PX, LAMBDA_VALUE, PIXEL_SIZE, THETA_ERROR
 from capsmech.errors import CapsmechError
 from capsmech.io.database import DatabaseError
@@ -39,6 +39,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from capsmech.diagnosis.sequential import SequentialDiagnosis
 
     levels = {option: _levels(getattr(args, option), option) for option in ("prestress_levels", "kb_levels")}
+    # Outputs are checked before the minutes of work that fill them.
+    if args.out:
+        check_output(args.out, "--out", (".md",), create_parent=True)
+    if args.json:
+        check_output(args.json, "--json", (".json",))
     database = as_database(args.database, "tube", "diagnose")
     try:
         outcome = diagnose(args.measurements, database, args.law, effect_databases=args.effects_database,
@@ -76,7 +81,17 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             chosen = [r.chosen for r in sequence.rounds[:k - 1] if r.chosen is not None]
             fixed = ", ".join(f"{c.name} = {c.theta:.3g}" for c in chosen)
             print(f"with {fixed} fixed: {later.verdict}")
-        print(f"effects found: {sequence.verdict}; G_s {sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
+        if sequence.kind == "effect":
+            (before, _, n_before), (after, _, n_after) = sequence.g_s_lengths[0], sequence.g_s_lengths[-1]
+            print(f"effects found: {sequence.verdict}; G_s by the lengths (fit-tube's estimator) {before:.4g} N/m "
+                  f"({n_before} capsules) -> {after:.4g} N/m ({n_after}); by the contour fits "
+                  f"{sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
+        else:
+            print(f"verdict for the batch: {sequence.verdict}")
+    if args.json:
+        from capsmech.diagnosis.record import write_json
+
+        print(f"wrote {write_json(outcome, args.json, Path(args.measurements).name)}")
     if args.out:
         print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
         for k, later in enumerate(sequence.rounds[1:] if sequence is not None else [], start=2):
@@ -191,6 +206,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
     diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
+    diag.add_argument("--json", metavar="FILE.json",
+                      help="write the verdict (effect / none / unexplained), the strengths with their intervals, "
+                           "G_s before and after, the goodness of fit and the capsules left out, as JSON")
     diag.set_defaults(func=cmd_diagnose)
     _add_diagnose_shear(sub)
     mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from capsmech.inversion.fitting import tube_inverter
-from capsmech.inversion.inverters import TubeInverter
+from capsmech.inversion.inverters import TubeFit, TubeInverter
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
@@ -150,8 +150,19 @@ class _BlendedInverter:
         self.nearer = self.inverters[int(np.argmax(self.weights))]
         self.table = self.nearer.table
 
-    def fit(self, L_z: float, L_p: float):
-        return self.nearer.fit(L_z, L_p)
+    def fit(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> TubeFit:
+        """Fit one capsule's lengths [l] at each level (``TubeInverter.fit``) and blend the fits
+        with the levels' weights, as the law blends their profiles: fit-tube's estimator at a
+        strength between two levels. Flagged where a level reproduces no such lengths."""
+        fits = [inverter.fit(L_z, L_p, v_c, mu) for inverter in self.inverters]
+        failed = [f for f in fits if not f.ok]
+        if failed:
+            return TubeFit(flag=failed[0].flag)
+
+        def blend(name: str) -> float:
+            return float(sum(w * getattr(f, name) for w, f in zip(self.weights, fits)))
+
+        return TubeFit(G_s=blend("G_s"), a_over_l=blend("a_over_l"), Ca_s=blend("Ca_s"), vc_over_V=blend("vc_over_V"))
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
         profiles = [p for p in (inverter.profile(a_over_l, Ca_s) for inverter in self.inverters) if p is not None]

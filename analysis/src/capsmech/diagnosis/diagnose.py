@@ -58,6 +58,7 @@ assessed: needs simulations", with the grid the workflow must run (``needs``).
 """
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -72,10 +73,12 @@ from capsmech.diagnosis.candidates import (
     contour_offset_candidate,
     tube_radius_candidate,
 )
+from capsmech.diagnosis.goodness import GoodnessOfFit, goodness_of_fit
 from capsmech.diagnosis.scoring import (
     REFINE_EVALUATIONS,
     BatchScore,
     CandidateResult,
+    capsules_prefer,
     compare_supported,
     evaluate_candidate,
     noise_levels,
@@ -118,29 +121,101 @@ class Diagnosis:
     offcentre: list = field(default_factory=list)
     #: Why no candidate was assessed, when none was.
     note: str = ""
+    #: What the explanation leaves (the chosen candidate at its value, else the base fit),
+    #: tested against the noise (``capsmech.diagnosis.goodness``); None when not assessed.
+    fit: GoodnessOfFit | None = None
 
     @property
     def rivals(self) -> list[CandidateResult]:
-        """Other supported candidates the data cannot tell from the chosen one (BIC within
-        MIN_BIC_DROP of it)."""
-        return rivals_of(self.chosen, self.results, lambda r: r.bic_drop_common)
+        """Other supported candidates the data cannot tell from the chosen one: BIC within
+        MIN_BIC_DROP of it, or capsules that do not prefer the chosen one consistently
+        (``capsules_prefer``)."""
+        if self.chosen is None:
+            return []
+        chosen = self.chosen
+        close = rivals_of(chosen, self.results, lambda r: r.bic_drop_common)
+        return close + [r for r in self.results if r.supported and r is not chosen and r not in close
+                        and not capsules_prefer(chosen, r)]
+
+    @property
+    def kind(self) -> str:
+        """``effect`` (the chosen candidate leaves the batch consistent with noise), ``cannot_tell``
+        (so does it, but the data cannot tell it from a rival: ``rivals``), ``none`` (no candidate
+        supported, and none needed), ``unexplained`` (what is left is not noise) or
+        ``not_assessed``."""
+        if self.fit is None:
+            return "not_assessed"
+        if not self.fit.consistent:
+            return "unexplained"
+        if self.chosen is None:
+            return "none"
+        return "cannot_tell" if self.rivals else "effect"
+
+    @property
+    def closest(self) -> CandidateResult | None:
+        """The candidate that came closest to explaining the batch: the chosen one, else the
+        assessed candidate whose fit leaves the smallest chi2 per degree of freedom."""
+        if self.chosen is not None:
+            return self.chosen
+        assessed = [r for r in self.results if r.fit is not None]
+        return min(assessed, key=lambda r: r.fit.reduced_chi2) if assessed else None  # type: ignore[union-attr]
 
     @property
     def verdict(self) -> str:
         if self.note and not self.results:
             return self.note
+        if self.kind == "not_assessed":
+            return "not assessed: " + (self.note or "no capsule could be fitted")
+        if self.kind == "unexplained":
+            assert self.fit is not None
+            closest = self.closest
+            if closest is None or closest.fit is None:
+                near = "no candidate was assessed"
+            else:
+                near = (f"closest: {closest.name} ({strength_text(closest)}), which "
+                        f"leaves chi2/dof {closest.fit.reduced_chi2:.2f} where noise reaches at most "
+                        f"{closest.fit.reduced_chi2_limit:.2f}" + ("" if closest.supported else
+                                                                    ", and is not supported"))
+            return ("unexplained: no candidate leaves the batch consistent with its tracing noise ("
+                    + "; ".join(self.fit.failures) + "); " + near
+                    + "; G_s from these fits is not supported")
         if self.chosen is None:
-            return "no candidate effect is supported: the residual is within noise"
+            return f"no candidate effect is supported: the residual is within noise ({self.fit.summary()})"  # type: ignore[union-attr]
         c = self.chosen
         rivals = ""
         if self.rivals:
             rivals = ("; these data cannot tell it from " + ", ".join(
                 f"{r.name} ({r.parameter} = {r.theta:.3g} {r.unit}, BIC drop {r.bic_drop_common:.1f})" for r in self.rivals)
                 + ": measure what separates them (the flow rate, the tube radius) to decide")
-        return (f"{c.name}: {c.parameter} = {c.theta:.3g} {c.unit} [{c.interval[0]:.3g}, {c.interval[1]:.3g}], "
+        prefix = "cannot tell which of these: " if self.rivals else ""
+        return (prefix + f"{c.name}: {strength_text(c)}, "
                 f"BIC drop {c.bic_drop:.1f} ({c.bic_drop_common:.1f} on the capsules every supported candidate fits), "
                 f"cross-validated chi2 gain {c.cv_gain:.2f} +- {c.cv_gain_error:.2f} "
-                f"per capsule (p = {c.cv_p_value:.2g})" + rivals)
+                f"per capsule (p = {c.cv_p_value:.2g}); what it leaves is within noise ({self.fit.summary()})"  # type: ignore[union-attr]
+                + rivals)
+
+
+def strength_text(result: CandidateResult) -> str:
+    """The candidate's fitted strength with its interval, in words; a yes/no candidate (another
+    law group) has no strength and no interval."""
+    if result.discrete:
+        return "a yes/no candidate: no strength, no interval"
+    return (f"{result.parameter} = {result.theta:.3g} {result.unit} "
+            f"[{result.interval[0]:.3g}, {result.interval[1]:.3g}]").replace("  ", " ")
+
+
+def batch_fit(capsules: Sequence[Capsule], score: BatchScore) -> GoodnessOfFit | None:
+    """What one fit of the batch leaves, tested against the noise (None: fewer than 2 fitted)."""
+    lengths = np.array([c["L_z"] / c["pixel_size"] if math.isfinite(c["pixel_size"]) else math.nan
+                        for c in capsules])
+    # The score's chi2 sums the same PROFILE_POINTS residuals over the capsule's noise level:
+    # their ratio gives that level in pixels.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma_px = np.sqrt(np.sum(score.residual ** 2, axis=1) / score.chi2)
+    try:
+        return goodness_of_fit(score.residual, sigma_px, lengths, score.g_s, score.delta)
+    except ValueError:
+        return None
 
 
 def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw,
@@ -197,9 +272,13 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
         result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
         results.append(result)
     chosen = compare_supported(results, base)
+    for result in results:
+        if result.after is not None:
+            result.fit = batch_fit(with_contours, result.after)
+    fit = chosen.fit if chosen is not None else batch_fit(with_contours, base)
     offcentre = (fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
                  if offcentre_table is not None else [])
-    return Diagnosis(base_law, results, chosen, base, excluded, offcentre)
+    return Diagnosis(base_law, results, chosen, base, excluded, offcentre, fit=fit)
 
 
 def _base_database(database: TubeDatabase | DatabaseSet) -> TubeDatabase:

@@ -106,34 +106,57 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
     return written
 
 
+def _lengths(summary: tuple[float, float, int]) -> str:
+    """fit-tube's G_s summary (mean, sd, capsules) in words."""
+    mean, sd, n = summary
+    return f"{mean:.4g} ± {sd:.2g} ({n})" if math.isfinite(mean) else f"none ({n})"
+
+
 def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures: bool = True) -> Path:
     """A Markdown report: the verdict, per candidate its parameter with the interval, the
     criteria and G_s before and after, the grids candidates need, and the figures (written
     whole: temporary name, then renamed)."""
-    from capsmech.diagnosis.diagnose import NOT_ASSESSED
+    from capsmech.diagnosis.diagnose import NOT_ASSESSED, strength_text
+    from capsmech.diagnosis.goodness import ALPHA
     from capsmech.diagnosis.scoring import CV_ALPHA, MIN_BIC_DROP, PROFILE_POINTS
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"# capsmech diagnose{': ' + batch if batch else ''}", "",
              f"Base law: `{diagnosis.base_law}`.", "", f"**Verdict:** {diagnosis.verdict}.", "",
-             "| candidate | parameter | interval | chi2 base -> fitted | BIC drop | CV gain per capsule (p) "
-             "| G_s before [N/m] | G_s after [N/m] | supported |",
+             "| candidate | strength [interval] | chi2 base -> fitted | chi2/dof left (limit) | BIC drop "
+             "| CV gain per capsule (p) | G_s contour fits, before -> after [N/m] "
+             "| G_s lengths (fit-tube), before -> after [N/m] | supported |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in diagnosis.results:
         if r.note:
             lines.append(f"| {r.name} | | | | | | | | {r.note} |")
             continue
+        left = f"{r.fit.reduced_chi2:.2f} ({r.fit.reduced_chi2_limit:.2f})" if r.fit is not None else ""
         lines.append(
-            f"| {r.name} | {r.parameter} = {r.theta:.3g} {r.unit} | [{r.interval[0]:.3g}, {r.interval[1]:.3g}] "
-            f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
-            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
+            f"| {r.name} | {strength_text(r)} "
+            f"| {r.chi2_base:.1f} -> {r.chi2:.1f} | {left} | {r.bic_drop:.1f} | {r.cv_gain:.2f} ({r.cv_p_value:.2g}) "
+            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} -> {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
+            f"| {_lengths(r.g_s_lengths_before)} -> {_lengths(r.g_s_lengths_after)} "
             f"| {'yes' if r.supported else 'no'} |")
     lines += [f"| {name} | | | | | | | | {why} |" for name, why in NOT_ASSESSED.items()]
     lines += ["", "Supported: leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < "
               f"{CV_ALPHA}) and the BIC drops by more than {MIN_BIC_DROP:g}. Interval: two jackknife "
               "standard errors. chi2: contour residuals over each capsule's tracing noise, "
-              f"{PROFILE_POINTS} points a capsule.", ""]
+              f"{PROFILE_POINTS} points a capsule. G_s, mean ± standard deviation over the capsules, by two "
+              "estimators, each the same before and after: the contour fits (each capsule's whole contour fitted "
+              "over (a/l, Ca_s); the capsules every value of the candidate fits) and fit-tube's (each capsule's "
+              "lengths L_z, L_p inverted; in brackets the capsules it fits). They answer the same question "
+              "from different data and need not agree; compare before with after within one.", ""]
+    if diagnosis.fit is not None:
+        fit = diagnosis.fit
+        lines += ["## What the explanation leaves", "",
+                  f"Tested against the tracing noise (capsmech.diagnosis.goodness, each test at p < {ALPHA:g}): "
+                  f"{fit.summary()}. " + ("Consistent with noise." if fit.consistent else
+                                          "**Not consistent with noise**: " + "; ".join(fit.failures) + "."), "",
+                  "Mean residual profile over the capsules [px] (front pole to rear pole, "
+                  f"{len(fit.profile)} points, ± standard error): "
+                  + ", ".join(f"{v:+.2f}±{e:.2f}" for v, e in zip(fit.profile, fit.profile_error)) + ".", ""]
     compared = sorted((r for r in diagnosis.results if r.supported and math.isfinite(r.bic_drop_common)),
                       key=lambda r: -r.bic_drop_common)
     if len(compared) > 1:

@@ -13,14 +13,19 @@ from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
 from capsmech.diagnosis.diagnose import (
     Diagnosis,
     _base_database,
+    batch_fit,
     diagnose,
     fit_offcentre,
     screen_asymmetric,
 )
+from capsmech.diagnosis.goodness import GoodnessOfFit
 from capsmech.diagnosis.scoring import (
     PROFILE_POINTS,
     PROFILE_RISE,
+    BatchScore,
     _g_s_summary,
+    _law_inverter,
+    length_g_s,
     noise_levels,
     score_batch,
 )
@@ -41,12 +46,38 @@ class SequentialDiagnosis:
     #: The two strengths fitted together (``joint_refine``), when both effects have one.
     joint: JointFit | None = None
 
+    #: What the effects found leave (all of them switched on), tested against the noise; the
+    #: first round's when none was found.
+    fit: GoodnessOfFit | None = None
+    #: G_s by fit-tube's estimator (``length_g_s``: mean, sd, capsules) before and, when effects
+    #: were found, with all of them switched on.
+    g_s_lengths: list[tuple[float, float, int]] = field(default_factory=list)
+    #: The batch's fit with every effect found switched on (None when none was found).
+    final: BatchScore | None = field(default=None, repr=False)
+
+    @property
+    def kind(self) -> str:
+        """``effect``, ``none``, ``unexplained`` or ``not_assessed`` (as ``Diagnosis.kind``), for
+        the batch with every effect found switched on."""
+        if not self.effects:
+            return self.rounds[0].kind
+        if self.fit is None:
+            return "not_assessed"
+        if not self.fit.consistent:
+            return "unexplained"
+        return "cannot_tell" if any(r.rivals for r in self.rounds) else "effect"
+
     @property
     def verdict(self) -> str:
         if not self.effects:
             return self.rounds[0].verdict
         found = "; then ".join(f"{name} = {theta:.3g}" for name, theta in self.effects)
-        return f"{found} ({self.note})" if self.note else found
+        found = f"{found} ({self.note})" if self.note else found
+        if self.kind == "unexplained":
+            assert self.fit is not None
+            return (f"unexplained: the effects found ({found}) leave the batch inconsistent with its tracing noise ("
+                    + "; ".join(self.fit.failures) + "); G_s from these fits is not supported")
+        return found
 
 
 def _apply_all(capsules: Sequence[Capsule], base_law: str, fixed: Sequence[tuple[Candidate, float]],
@@ -176,7 +207,9 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         rounds[0].offcentre = fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table)
     fixed: list[tuple[Candidate, float]] = []
     note = ""
-    while rounds[-1].chosen is not None:
+    # A round whose choice the data cannot make (rivals) ends the sequence: fixing one of two
+    # indistinguishable effects would build the next round on a guess.
+    while rounds[-1].chosen is not None and not rounds[-1].rivals:
         chosen = rounds[-1].chosen
         fixed.append((next(c for c in library(base_law) if c.name == chosen.name), chosen.theta))
         if len(fixed) == max_effects:
@@ -210,10 +243,14 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
                 f"over {joint.capsules} capsules")
     effects = [(c.name, theta) for c, theta in fixed]
     g_s = [rounds[0].chosen.g_s_before if rounds[0].chosen else (math.nan, math.nan)]
+    fit, final = rounds[0].fit, None
+    g_s_lengths = [length_g_s(with_contours, _law_inverter(database, base_law))]
     if fixed:
         state, law = _apply_all(with_contours, base_law, fixed, library)
         final = score_batch(state, database, law, sigma)
         keep = np.isfinite(final.g_s)
         g_s.append(_g_s_summary(final, keep)[0])
-    return SequentialDiagnosis(rounds, effects, g_s, note, joint)
+        g_s_lengths.append(length_g_s(state, _law_inverter(database, law)))
+        fit = batch_fit(with_contours, final)
+    return SequentialDiagnosis(rounds, effects, g_s, note, joint, fit, g_s_lengths, final)
 

@@ -15,11 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.errors import CapsmechError
-
-
-class ExtractionError(CapsmechError, ValueError):
-    """Frames that cannot be read or measured; the message names the file and the problem."""
+from capsmech.errors import ExtractionError
 
 
 @dataclass

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.imaging.frames import ExtractionError
+from capsmech.errors import ExtractionError
 
 
 @dataclass

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capsmech.imaging.frames import ExtractionError
+from capsmech.errors import ExtractionError
 
 #: File name endings read as video.
 VIDEO_SUFFIXES = {".avi", ".mp4", ".m4v", ".mov", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".ogv"}

@@ -1,0 +1,144 @@
+"""A diagnosis as plain data (``capsmech diagnose --json``, issue 19 item 5): the verdict's kind,
+the effects with their strengths and intervals, G_s before and after by both estimators, the
+goodness of fit, and the capsules used and left out. The console and the Markdown report say
+the same in words.
+
+A number the verdict does not support is not written: an ``unexplained`` batch has no
+``g_s_after`` (null, with the reason); a yes/no candidate (another law group) has no strength
+and no interval.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from capsmech.diagnosis.diagnose import Diagnosis
+from capsmech.diagnosis.goodness import GoodnessOfFit
+from capsmech.diagnosis.scoring import CandidateResult
+from capsmech.diagnosis.sequential import SequentialDiagnosis
+
+#: Level of the G_s intervals (Student t on the capsules' mean).
+G_S_LEVEL = 0.95
+
+
+def _number(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _summary(values: np.ndarray) -> tuple[float, float, int]:
+    """(mean, sd, count) of the finite values."""
+    g = values[np.isfinite(values)]
+    return (float(g.mean()), float(g.std(ddof=1)), len(g)) if len(g) > 1 else (math.nan, math.nan, len(g))
+
+
+def g_s_interval(mean: float, sd: float, n: int, level: float = G_S_LEVEL) -> dict[str, Any]:
+    """G_s [N/m] with the interval of its mean over n capsules (Student t)."""
+    if n < 2 or not (math.isfinite(mean) and math.isfinite(sd)):
+        return {"value": None, "interval": None, "capsules": n}
+    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
+    return {"value": mean, "interval": [mean - half, mean + half], "sd": sd, "capsules": n, "level": level}
+
+
+def candidate_record(result: CandidateResult) -> dict[str, Any]:
+    """One candidate's evidence."""
+    record: dict[str, Any] = {"name": result.name, "supported": result.supported, "note": result.note or None}
+    if result.note:
+        return record
+    record.update({
+        "parameter": None if result.discrete else result.parameter,
+        "unit": None if result.discrete else result.unit,
+        "strength": None if result.discrete else _number(result.theta),
+        "interval": None if result.discrete else [_number(v) for v in result.interval],
+        "capsules": result.capsules, "chi2_base": _number(result.chi2_base), "chi2": _number(result.chi2),
+        "bic_drop": _number(result.bic_drop), "cv_gain": _number(result.cv_gain),
+        "cv_p_value": _number(result.cv_p_value),
+        "g_s_contour_fits": {"before": g_s_interval(*result.g_s_before, result.capsules),
+                             "after": g_s_interval(*result.g_s_after, result.capsules)},
+        "g_s_lengths": {"before": g_s_interval(*result.g_s_lengths_before),
+                        "after": g_s_interval(*result.g_s_lengths_after)},
+        "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
+    })
+    return record
+
+
+def _effect(result: CandidateResult, theta: float, interval: tuple[float, float]) -> dict[str, Any]:
+    """An effect found: its name, strength and interval (none for a yes/no candidate)."""
+    if result.discrete:
+        return {"name": result.name, "strength": None, "interval": None, "unit": None}
+    return {"name": result.name, "parameter": result.parameter, "strength": _number(theta),
+            "interval": [_number(v) for v in interval], "unit": result.unit}
+
+
+def _fit(fit: GoodnessOfFit | None) -> dict[str, Any] | None:
+    return fit.as_dict() if fit is not None else None
+
+
+def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") -> dict[str, Any]:
+    """The whole diagnosis as a JSON-ready dict (see the module)."""
+    first = outcome.rounds[0] if isinstance(outcome, SequentialDiagnosis) else outcome
+    kind = outcome.kind
+    record: dict[str, Any] = {"batch": batch, "base_law": str(first.base_law), "verdict": kind,
+                              "verdict_text": outcome.verdict, "goodness_of_fit": _fit(outcome.fit)}
+    effects = []
+    if isinstance(outcome, SequentialDiagnosis):
+        chosen = [r.chosen for r in outcome.rounds if r.chosen is not None]
+        for k, ((_, theta), result) in enumerate(zip(outcome.effects, chosen)):
+            # Two strengths fitted together carry the joint fit's intervals.
+            interval = outcome.joint.intervals[k] if outcome.joint is not None else result.interval
+            effects.append(_effect(result, theta, interval))
+    elif first.chosen is not None:
+        effects.append(_effect(first.chosen, first.chosen.theta, first.chosen.interval))
+    record["effects"] = effects if kind == "effect" else []
+    # Candidates the data cannot tell apart (verdict cannot_tell): the chosen one and its rivals.
+    tied = [r for r in outcome.rounds if r.rivals] if isinstance(outcome, SequentialDiagnosis) else (
+        [first] if first.rivals else [])
+    record["cannot_tell"] = ([r.name for r in [tied[0].chosen, *tied[0].rivals] if r is not None]
+                             if kind == "cannot_tell" and tied else [])
+    closest = first.closest
+    record["closest"] = candidate_record(closest) if closest is not None else None
+    # G_s by two estimators, each the same before and after (issue 19, item 3): fit-tube's
+    # (lengths inverted) and the contour fits'. "After" only where the verdict supports it.
+    if isinstance(outcome, SequentialDiagnosis):
+        lengths = list(outcome.g_s_lengths)
+        contour = [(m, s, outcome.fit.capsules if outcome.fit is not None else 0) for m, s in outcome.g_s]
+        if not outcome.effects:
+            contour = [_summary(first.base.g_s)] if first.base is not None else []
+    else:
+        chosen_result = first.chosen
+        c = chosen_result
+        lengths = [c.g_s_lengths_before, c.g_s_lengths_after] if c is not None else []
+        contour = ([(*c.g_s_before, c.capsules), (*c.g_s_after, c.capsules)] if c is not None else
+                   [_summary(first.base.g_s)] if first.base is not None else [])
+    if not lengths and closest is not None:
+        lengths = [closest.g_s_lengths_before]
+    g_s: dict[str, Any] = {}
+    for name, values in (("lengths", lengths), ("contour_fits", contour)):
+        before = g_s_interval(*values[0]) if values and math.isfinite(values[0][0]) else None
+        after = g_s_interval(*values[1]) if kind == "effect" and len(values) > 1 else None
+        g_s[name] = {"before": before, "after": after}
+    record["g_s"] = g_s
+    if kind != "effect":
+        record["g_s_after_reason"] = (
+            "no effect found: G_s is the base law's (before)" if kind == "none" else
+            "cannot_tell: G_s after depends on which of the tied candidates is right (see candidates)"
+            if kind == "cannot_tell" else
+            f"{kind}: no candidate leaves the batch consistent with its noise, so no G_s after is supported")
+    record["candidates"] = [candidate_record(r) for r in first.results]
+    record["left_out"] = [{"id": capsule, "reason": why} for capsule, why in first.excluded]
+    if first.base is not None:
+        record["capsules_fitted_by_base"] = int(sum(1 for v in first.base.chi2 if math.isfinite(v)))
+    return record
+
+
+def write_json(outcome: Diagnosis | SequentialDiagnosis, path: str | Path, batch: str = "") -> Path:
+    """Write ``diagnosis_record`` to ``path`` whole (temporary name, then renamed)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(diagnosis_record(outcome, batch), indent=1) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,153 @@
+"""Verdicts on batches the method was not tuned on (issue 19, items 2, 5 and 6).
+
+The batches come from ``independent_batches`` (numpy, h5py and capsim only; the kernel runs
+shipped as a pool): a different size range, mesh, noise model, contour sampling and length
+measurement from capsmech's own generator. The default suite diagnoses three small batches
+with two candidates each; the whole confusion study (every batch, the whole library) and the
+interval coverage study are ``validate`` (``confusion_study.py``, ``interval_coverage.py``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from functools import cache
+from pathlib import Path
+
+import independent_batches as ib
+import numpy as np
+import pytest
+
+from capsmech.diagnosis.candidates import DatabaseSet, contour_offset_candidate, law_candidate, tube_radius_candidate
+from capsmech.diagnosis.diagnose import diagnose
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
+from capsmech.io.measurements import read_measurements
+
+CAPSULES = 8
+
+
+@cache
+def pool() -> ib.Pool:
+    return ib.load_pool()
+
+
+@cache
+def databases() -> DatabaseSet:
+    return DatabaseSet([load_database(database_path("tube-paper"))])
+
+
+def batch(tmp_path: Path, name: str, seed: int = 11):
+    key, keywords, _ = ib.CONFUSION_BATCHES[name]
+    drawn = ib.draw_batch(pool(), key, tmp_path, name, seed=seed, n=CAPSULES, **keywords)
+    return drawn, read_measurements(drawn.csv, "tube")
+
+
+def test_the_pool_is_the_kernel_steady_shapes_of_every_membrane():
+    p = pool()
+    assert p.keys == list(ib.POOL_KEYS)
+    assert np.all(p.status == "steady")
+    # Latin hypercube: one capsule in each of the 24 slices of a/l and of ln Ca_s.
+    for values, (low, high), log in ((p.a_over_l, ib.A_OVER_L, False), (p.Ca_s, ib.CA_S, True)):
+        u = (np.log(values / low) / np.log(high / low)) if log else (values - low) / (high - low)
+        assert sorted(np.floor(u * len(values)).astype(int)) == list(range(len(values)))
+
+
+def test_lengths_read_off_a_noiseless_trace_are_the_kernels(monkeypatch):
+    """The generator's own check: without noise, the lengths it measures on its traced contour
+    are the kernel's L_z and L_p to 0.15 px (a contour sampled every 2.5 px)."""
+    monkeypatch.setattr(ib, "NOISE_PX", 0.0)
+    p, k = pool(), ib.load_pool().keys.index("NH")
+    with np.load(ib.POOL) as f:
+        true_lz, true_lp = f["L_z"][k], f["L_p"][k]
+    scale = ib.TUBE_RADIUS_UM / ib.PIXEL_SIZE_UM
+    rng = np.random.default_rng(0)
+    for i in range(0, 24, 5):
+        section = ib._closed_section(p.r[k, i], p.z[k, i]) * scale
+        L_z, L_p = ib.measured_lengths(ib.traced(section, rng))
+        assert L_z == pytest.approx(true_lz[i] * scale, abs=0.15)
+        assert L_p == pytest.approx(true_lp[i] * scale, abs=0.15)
+
+
+def test_a_distortion_no_candidate_describes_is_unexplained(tmp_path):
+    """A cos(4 phi) ripple of 1.5 px: the offset and radius candidates lower chi2, but what they
+    leave is far from noise, so no effect is named and G_s after is not given."""
+    drawn, capsules = batch(tmp_path, "outside_ripple_1.5px")
+    result = diagnose(capsules, databases(), "NH", [contour_offset_candidate("NH"), tube_radius_candidate("NH")],
+                      refine_evaluations=0)
+    assert result.kind == "unexplained", result.verdict
+    assert result.fit is not None and result.fit.reduced_chi2 > 3 * result.fit.reduced_chi2_limit
+    assert result.verdict.startswith("unexplained") and "closest" in result.verdict
+
+
+def test_a_law_of_the_database_is_named_without_an_interval(tmp_path):
+    drawn, capsules = batch(tmp_path, "law_GH_nu0.5")
+    result = diagnose(capsules, databases(), "NH", [law_candidate("NH", "GH_nu0.5"), contour_offset_candidate("NH")],
+                      refine_evaluations=0)
+    assert result.kind == "effect" and result.chosen is not None, result.verdict
+    assert result.chosen.name == "law GH_nu0.5" and result.chosen.discrete
+    assert "no interval" in result.verdict
+
+
+def test_an_offset_is_never_named_a_tube_radius_error(tmp_path):
+    """Offset and radius scale a near-spherical contour alike: the verdict is the offset, or
+    the two tied (cannot_tell), never the radius alone."""
+    drawn, capsules = batch(tmp_path, "offset_2.2px")
+    result = diagnose(capsules, databases(), "NH", [contour_offset_candidate("NH"), tube_radius_candidate("NH")],
+                      refine_evaluations=0)
+    assert result.kind in ("effect", "cannot_tell"), result.verdict
+    named = {result.chosen.name, *(r.name for r in result.rivals)} if result.chosen else set()
+    assert "contour_offset" in named, result.verdict
+    if result.kind == "effect":
+        assert result.chosen.name == "contour_offset"
+
+
+def test_cli_json_says_unexplained_and_gives_no_g_s_after(tmp_path):
+    """``capsmech diagnose --json``: the verdict's kind, no effect, no G_s after (with the
+    reason), the goodness of fit with its p-values, every candidate's evidence."""
+    drawn, _ = batch(tmp_path, "outside_ripple_1.5px")
+    out = tmp_path / "verdict.json"
+    run = subprocess.run([sys.executable, "-m", "capsmech.cli", "diagnose", str(drawn.csv), "--candidate",
+                          "contour_offset", "--max-effects", "1", "--json", str(out)],
+                         capture_output=True, text=True, timeout=1800)
+    assert run.returncode == 0, run.stderr
+    record = json.loads(out.read_text())
+    assert record["verdict"] == "unexplained" and record["effects"] == []
+    assert record["g_s"]["lengths"]["after"] is None and "no G_s after" in record["g_s_after_reason"]
+    before = record["g_s"]["lengths"]["before"]
+    assert before["interval"][0] < before["value"] < before["interval"][1]
+    fit = record["goodness_of_fit"]
+    assert not fit["consistent"] and fit["chi2_p_value"] < 0.01 and len(fit["residual_profile_px"]) == 16
+    (candidate,) = record["candidates"]
+    assert candidate["name"] == "contour_offset" and math.isfinite(candidate["strength"])
+    assert candidate["interval"][0] < candidate["strength"] < candidate["interval"][1]
+    assert "verdict: unexplained" in run.stdout
+
+
+@pytest.mark.validate
+def test_confusion_study_names_no_wrong_effect(tmp_path):
+    """Every batch of the study (the whole library, capsmech's defaults): no wrong effect named,
+    every batch outside the library unexplained (about 15 core-minutes)."""
+    import confusion_study
+
+    confusion_study.main([str(tmp_path), "--workers", "2"])
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "confusion.csv").open()))
+    assert len(rows) == len(ib.CONFUSION_BATCHES)
+    assert not [r["batch"] for r in rows if r["wrong_effect_named"] == "True"]
+    assert all(r["verdict"] == "unexplained" for r in rows if r["expected"] == "unexplained")
+
+
+@pytest.mark.validate
+@pytest.mark.xfail(strict=True, reason="issue 19 item 4 open: the intervals carry no systematic error yet and "
+                                       "cover the truth in 12-68 % of the batches (docs/validation/diagnosis.md)")
+def test_intervals_hold_the_truth_at_their_level(tmp_path):
+    import interval_coverage
+
+    out = interval_coverage.run_study(10, 2, tmp_path / "coverage.csv", configs=[0, 2, 4, 6])
+    for entry in interval_coverage.summarise(out):
+        k, n, _, high = entry["covered"]
+        if n:
+            assert high >= 0.95, entry
