@@ -31,7 +31,7 @@ FFLAGS  ?= $(OPT) -fopenmp -std=f2018 -Wall -Wextra -Wimplicit-interface -fimpli
 LDLIBS  := -L$(HDF5_LIB) -lhdf5hl_fortran -lhdf5_hl -lhdf5_fortran -lhdf5 -llapack -lblas
 
 BUILD   := build/$(FLAVOUR)
-BIN     ?= bin
+BIN     := bin
 FLAGS_STAMP := $(BUILD)/flags
 BIN_STAMP   := $(BIN)/.flavour
 VENV    := .venv
@@ -107,13 +107,15 @@ demo: setup
 	$(PY) -m capsmech.cli population demo/fit_tube_batch_NH.csv --plot demo/population_NH.png --out demo/population_NH.csv
 
 # Timings of the default (native) build; bench_build_flavours.py builds both flavours into
-# build/bench-*/ and prints the portable/native ratio.
+# build/bench-*/ and prints the portable/native ratio; bench_elliptic.py the elliptic integrals' ratio
+# per call (with --baseline OTHER/bin, tube cases against an older build).
 bench: build venv
 	$(PY) bench/bench_single_layer.py
 	$(PY) bench/bench_tube_axi.py
 	$(PY) bench/bench_tube_3d.py
 	$(PY) bench/bench_inverse.py
 	$(PY) bench/bench_build_flavours.py
+	$(PY) bench/bench_elliptic.py
 
 validate: setup
 	$(PY) -m pytest -m validate
