@@ -1,8 +1,8 @@
 """Time the kernel's hot path: one velocity evaluation and one RK2 step, levels 3 and 4,
 on 1 and 2 OpenMP threads, with the speed-up measured in the same run.
 
-Run through `make bench` (which builds with -O3 -march=native first) or directly after
-`make build`. Prints figures only: machines are shared and noisy, so nothing here is a test.
+Run through `make bench` or directly after `make build` (the default, native build). Prints
+figures only: machines are shared and noisy, so nothing here is a test.
 """
 from __future__ import annotations
 

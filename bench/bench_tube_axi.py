@@ -2,7 +2,7 @@
 10 s a case), with the linearly implicit solver (the default) against explicit RK2 measured
 in the same run, and the projected time of the paper's tube grid.
 
-Run through `make bench` (which builds with -O3 -march=native first) or after `make build`.
+Run through `make bench` or after `make build` (the default build, -O3 -march=native).
 Prints figures only: the machines are shared and noisy, so nothing here is a test.
 """
 from __future__ import annotations

@@ -4,6 +4,9 @@
 !>
 !>   axi_probe ellip M1                     K, E, B, D from the complementary parameter m1 = 1 - m
 !>   axi_probe ellip-m M                    K(m), E(m)
+!>   axi_probe ellip-sweep                  largest relative deviation of the fast K, E, B, D
+!>                                          from the AGM reference over a dense grid (see below)
+!>   axi_probe ellip-bench N REPEATS        seconds per call, fast form and AGM, interleaved
 !>   axi_probe kernel R0 Z0 R Z             ring Stokeslet M (m_rr m_rz m_zr m_zz)
 !>   axi_probe log-coefficient R0           a in M = -a ln(rho) I + bounded
 !>   axi_probe segment R0 Z0 RA ZA RB ZB FAR FAZ FBR FBZ END    segment integral (u_r u_z)
@@ -20,7 +23,7 @@
 program axi_probe
    use capsim_kinds, only: dp, pi
    use command_args, only: int_arg, real_arg, string_arg
-   use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1
+   use elliptic_integrals, only: elliptic_k, elliptic_e, elliptic_kebd_m1, elliptic_kebd_agm_m1
    use ring_stokeslet, only: ring_kernel, ring_log_coefficient, segment_integral
    use ring_stresslet, only: ring_stresslet_kernel, stresslet_segment, double_layer_row
    use run_options, only: run_options_t
@@ -36,6 +39,10 @@ program axi_probe
    case ('ellip-m')
       write (*, '(a,es24.16)') 'k ', elliptic_k(real_arg(2))
       write (*, '(a,es24.16)') 'e ', elliptic_e(real_arg(2))
+   case ('ellip-sweep')
+      call probe_ellip_sweep()
+   case ('ellip-bench')
+      call probe_ellip_bench(int_arg(2), int_arg(3))
    case ('kernel')
       call probe_kernel(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
    case ('log-coefficient')
@@ -55,7 +62,7 @@ program axi_probe
    case ('jacobian')
       call probe_jacobian(real_arg(2), real_arg(3), int_arg(4), real_arg(5))
    case default
-      write (*, '(a)') 'usage: axi_probe ellip|ellip-m|kernel|log-coefficient|segment|sphere|bench ...'
+      write (*, '(a)') 'usage: axi_probe ellip|ellip-m|ellip-sweep|ellip-bench|kernel|log-coefficient|segment|sphere|bench ...'
       error stop 2
    end select
 
@@ -154,6 +161,69 @@ contains
       write (*, '(a,es24.16)') 'b ', b
       write (*, '(a,es24.16)') 'd ', d
    end subroutine probe_ellip
+
+   !> The fast K, E, B, D (elliptic_kebd_m1 and the m-forms) against Bulirsch's AGM, as the
+   !> largest relative deviation over: m = i/100000 on [0, 1) and m = 1 - 10**(-j/8) up to
+   !> m = 1 - 1e-15 (K(m), E(m) from m, m_k m_e); m1 = 10**(-j/10) from 1 down to 1e-300 and
+   !> m1 = i/100000 on (0, 1] (all four from m1, m1_k m1_e m1_b m1_d).
+   subroutine probe_ellip_sweep()
+      integer, parameter :: n_uniform = 100000
+      real(dp) :: m, dev(2), dev1(4), k, e, b, d, kr, er, br, dr
+      integer :: i, j
+      dev = 0.0_dp
+      do i = 0, n_uniform + 120
+         if (i < n_uniform) then
+            m = real(i, dp) / n_uniform
+         else
+            m = 1.0_dp - 10.0_dp**(-real(i - n_uniform, dp) / 8)
+         end if
+         call elliptic_kebd_agm_m1(1.0_dp - m, kr, er, br, dr)
+         dev = max(dev, abs([elliptic_k(m) / kr, elliptic_e(m) / er] - 1.0_dp))
+      end do
+      dev1 = 0.0_dp
+      do j = 0, 3000 + n_uniform
+         if (j <= 3000) then
+            m = 10.0_dp**(-real(j, dp) / 10)
+         else
+            m = real(j - 3000, dp) / n_uniform
+         end if
+         call elliptic_kebd_m1(m, k, e, b, d)
+         call elliptic_kebd_agm_m1(m, kr, er, br, dr)
+         dev1 = max(dev1, abs([k / kr, e / er, b / br, d / dr] - 1.0_dp))
+      end do
+      write (*, '(a,es12.4)') 'm_k ', dev(1)
+      write (*, '(a,es12.4)') 'm_e ', dev(2)
+      write (*, '(a,es12.4)') 'm1_k ', dev1(1)
+      write (*, '(a,es12.4)') 'm1_e ', dev1(2)
+      write (*, '(a,es12.4)') 'm1_b ', dev1(3)
+      write (*, '(a,es12.4)') 'm1_d ', dev1(4)
+   end subroutine probe_ellip_sweep
+
+   !> CPU seconds per call (the process's, so that a loaded machine does not count) of the fast
+   !> form and of the AGM on the same N arguments, timed alternately REPEATS times (lines fast_s_I and agm_s_I; the caller takes medians). The
+   !> arguments: m1 log-uniform on [1e-12, 1], the range a ring kernel sees from a target 1e-6
+   !> ring radii to several radii away (rho/R = sqrt(m1)).
+   subroutine probe_ellip_bench(n, repeats)
+      integer, intent(in) :: n, repeats
+      real(dp) :: m1(n), k(n), e(n), b(n), d(n), kr(n), er(n), br(n), dr(n), t0, t1
+      integer :: i, r
+      character(len=32) :: key
+      m1 = [(10.0_dp**(-12.0_dp * modulo(0.6180339887498949_dp * i, 1.0_dp)), i = 1, n)]
+      do r = 1, repeats
+         call cpu_time(t0)
+         call elliptic_kebd_m1(m1, k, e, b, d)
+         write (key, '(a,i0)') 'fast_s_', r
+         call cpu_time(t1)
+         write (*, '(a,1x,es24.16)') trim(key), (t1 - t0) / n
+         call cpu_time(t0)
+         call elliptic_kebd_agm_m1(m1, kr, er, br, dr)
+         write (key, '(a,i0)') 'agm_s_', r
+         call cpu_time(t1)
+         write (*, '(a,1x,es24.16)') trim(key), (t1 - t0) / n
+      end do
+      ! The results are used (so neither call is optimised away) and agree to rounding.
+      write (*, '(a,es12.4)') 'max_rel_diff ', maxval(abs([k / kr, e / er, b / br, d / dr] - 1.0_dp))
+   end subroutine probe_ellip_bench
 
    subroutine probe_kernel(r0, z0, r, z)
       real(dp), intent(in) :: r0, z0, r, z
