@@ -195,3 +195,26 @@ def test_the_shipped_table_is_reproduced_by_the_kernel(table, tmp_path):
     np.testing.assert_allclose(mode, table.mode[i, j], atol=1e-6)
     for name, value in second.items():
         assert value == pytest.approx(table.second_order[name][i, j], rel=1e-6, abs=1e-6)
+
+
+def test_a_damaged_offcentre_table_is_refused_by_name(tmp_path):
+    """A flipped byte in the shipped table's mode (Fletcher-32) or a truncated file: one
+    OffcentreError naming the file, not an h5py OSError."""
+    import h5py
+
+    from capsmech.diagnosis.offcentre import OffcentreError, OffcentreTable
+    from capsmech.io.catalog import database_path
+
+    source = database_path("offcentre")
+    with h5py.File(source) as f:
+        offset = f["mode"].id.get_offset() if f["mode"].chunks is None else f["mode"].id.get_chunk_info(0).byte_offset
+    data = bytearray(source.read_bytes())
+    data[offset + 3] ^= 0xFF
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(OffcentreError, match="damaged.h5"):
+        OffcentreTable.read(damaged)
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(source.read_bytes()[:2000])
+    with pytest.raises(OffcentreError, match="truncated.h5"):
+        OffcentreTable.read(truncated)

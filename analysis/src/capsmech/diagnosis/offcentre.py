@@ -139,12 +139,18 @@ class OffcentreTable:
         path = Path(path)
         if not path.is_file():
             raise OffcentreError(f"{path}: no such off-centre table")
-        with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != FORMAT:
-                raise OffcentreError(f"{path}: not an off-centre table (format attribute {f.attrs.get('format')!r})")
-            return cls(a_over_l=f["a_over_l"][()], Ca_s=f["Ca_s"][()], s=f["s"][()], mode=f["mode"][()],
-                       second_order={name: f[f"second_order/{name}"][()] for name in SECOND_ORDER},
-                       b0=float(f.attrs["b0"]), source=str(f.attrs["source"]))
+        try:
+            with h5py.File(path, "r") as f:
+                if f.attrs.get("format") != FORMAT:
+                    raise OffcentreError(f"{path}: not an off-centre table (format attribute "
+                                         f"{f.attrs.get('format')!r})")
+                return cls(a_over_l=f["a_over_l"][()], Ca_s=f["Ca_s"][()], s=f["s"][()], mode=f["mode"][()],
+                           second_order={name: f[f"second_order/{name}"][()] for name in SECOND_ORDER},
+                           b0=float(f.attrs["b0"]), source=str(f.attrs["source"]))
+        except (OSError, KeyError, RuntimeError) as err:
+            # A damaged file: its checksums (Fletcher-32 on the datasets, the object headers')
+            # fail on read; a truncated one does not open.
+            raise OffcentreError(f"{path}: damaged or not an off-centre table ({err})") from None
 
 
 def antisymmetric_part(section: np.ndarray | PreparedContour, meridian: np.ndarray, points: int = MODE_POINTS
