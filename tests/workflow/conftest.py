@@ -44,3 +44,27 @@ def smoke_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     elapsed = time.monotonic() - started
     assert result.returncode == 0, result.stdout[-4000:]
     return {"workdir": workdir, "seconds": elapsed, "output": result.stdout}
+
+
+def assert_same_database(a: Path, b: Path, rtol: float = 0.0) -> None:
+    """Two databases equal value for value (``rtol`` 0: bit for bit; NaN equals NaN): the same
+    laws, provenance (creation date aside), statuses and messages, every column (wall times
+    aside) and profile."""
+    import numpy as np
+
+    from capsmech.io.database import load_database
+
+    da, db = load_database(a), load_database(b)
+    assert list(da.laws) == list(db.laws)
+    assert {k: v for k, v in da.provenance.items() if k != "created"} == \
+        {k: v for k, v in db.provenance.items() if k != "created"}
+    for key, ta in da.laws.items():
+        tb = db.law(key)
+        assert list(ta.status) == list(tb.status) and list(ta.message) == list(tb.message)
+        for name in ta.columns:
+            if name != "wall_time_s":
+                np.testing.assert_allclose(ta.columns[name], tb.columns[name], rtol=rtol, atol=rtol,
+                                           err_msg=f"{key} {name}")
+        for name in ta.profiles:
+            np.testing.assert_allclose(ta.profiles[name], tb.profiles[name], rtol=rtol, atol=rtol,
+                                       err_msg=f"{key} {name}")

@@ -32,11 +32,9 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
-from capsmech.io.database import load_database
 from capsmech.workflow.grid import expand_cases, load_grid
 from capsmech.workflow.slurm import (
     JobRequest,
@@ -46,7 +44,7 @@ from capsmech.workflow.slurm import (
     parse_min_job_age,
 )
 
-from conftest import REPO, SMOKE, SNAKEFILE, run_snakemake
+from conftest import REPO, SMOKE, SNAKEFILE, assert_same_database, run_snakemake
 
 SCRIPT = REPO / "scripts" / "slurm_one_node.sh"
 SLURM_PROFILE = REPO / "workflow" / "profiles" / "slurm"
@@ -206,22 +204,6 @@ def run_on_slurm(workdir: Path, configfile: Path, *extra: str, timeout: float = 
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=timeout)
 
 
-def same_database(a: Path, b: Path) -> None:
-    """Equal value for value: every column (wall times aside), profile, status, message, provenance."""
-    da, db = load_database(a), load_database(b)
-    assert list(da.laws) == list(db.laws)
-    assert {k: v for k, v in da.provenance.items() if k != "created"} == \
-        {k: v for k, v in db.provenance.items() if k != "created"}
-    for key, ta in da.laws.items():
-        tb = db.law(key)
-        assert list(ta.status) == list(tb.status) and list(ta.message) == list(tb.message)
-        for name in ta.columns:
-            if name != "wall_time_s":
-                np.testing.assert_array_equal(ta.columns[name], tb.columns[name], err_msg=f"{key} {name}")
-        for name in ta.profiles:
-            np.testing.assert_array_equal(ta.profiles[name], tb.profiles[name], err_msg=f"{key} {name}")
-
-
 def _our_jobs() -> list[str]:
     return subprocess.run(["squeue", "-h", "-t", "PD,R,CG", "-o", "%i"], text=True,
                           capture_output=True).stdout.split()
@@ -243,7 +225,7 @@ def test_smoke_grid_on_slurm_equals_local(slurm_cluster: dict, smoke_run: dict, 
     assert len(submitted) == cases
     assert "Falling back to 'sacct'" not in result.stdout
     for flow in ("tube", "shear"):
-        same_database(tmp_path / grid["databases_dir"] / f"{flow}.h5",
+        assert_same_database(tmp_path / grid["databases_dir"] / f"{flow}.h5",
                       smoke_run["workdir"] / grid["databases_dir"] / f"{flow}.h5")
     assert _our_jobs() == []
     print(f"smoke grid on a {slurm_cluster['cpus']}-CPU SLURM node: {steps} of {steps} steps, {cases} jobs, "
@@ -320,7 +302,7 @@ def test_cancelled_and_killed_cases_resume_from_their_checkpoints(slurm_cluster:
         assert match, f"{case} did not resume from its checkpoint:\n{log_text[-2000:]}"
         resumed[case] = float(match.group(1))
         assert resumed[case] > 0
-    same_database(workdir / "db" / "shear.h5", tmp_path / "local" / "db" / "shear.h5")
+    assert_same_database(workdir / "db" / "shear.h5", tmp_path / "local" / "db" / "shear.h5")
     assert _our_jobs() == []
     print(f"faults on SLURM: {CANCELLED} cancelled (job {job_id}), {KILLED} killed; resumed at t = "
           f"{resumed[CANCELLED]:g} and {resumed[KILLED]:g}; database equal to the local one; {elapsed:.0f} s")

@@ -20,7 +20,7 @@ from capsmech.io.database import RESULTS, expected_units, load_database
 from capsmech.workflow.grid import expand_cases, load_grid
 from capsmech.workflow.runner import clear_stale_lock, source_code_version
 
-from conftest import LOCAL_PROFILE, REPO, SMOKE, SNAKEFILE, run_snakemake, snakemake_argv
+from conftest import LOCAL_PROFILE, REPO, SMOKE, SNAKEFILE, assert_same_database, run_snakemake, snakemake_argv
 
 GRID = load_grid(SMOKE)
 
@@ -71,23 +71,6 @@ def test_smoke_grid_end_to_end(smoke_run: dict) -> None:
     print(f"smoke grid end to end: {smoke_run['seconds']:.1f} s")
 
 
-def _same_database(a: Path, b: Path) -> None:
-    """Equal to 1e-12 in every column and profile, equal statuses and messages; the creation
-    date and the wall times may differ."""
-    da, db = load_database(a), load_database(b)
-    assert list(da.laws) == list(db.laws)
-    assert {k: v for k, v in da.provenance.items() if k != "created"} == \
-        {k: v for k, v in db.provenance.items() if k != "created"}
-    for key, ta in da.laws.items():
-        tb = db.law(key)
-        assert list(ta.status) == list(tb.status) and list(ta.message) == list(tb.message)
-        for name in ta.columns:
-            if name != "wall_time_s":
-                np.testing.assert_allclose(ta.columns[name], tb.columns[name], rtol=1e-12, atol=1e-12)
-        for name in ta.profiles:
-            np.testing.assert_allclose(ta.profiles[name], tb.profiles[name], rtol=1e-12, atol=1e-12)
-
-
 def test_kill_and_rerun_recomputes_only_missing_cases(smoke_run: dict, tmp_path: Path) -> None:
     """SIGKILL the whole workflow while cases run; the rerun keeps the finished case files,
     computes the rest, and gives the database of the uninterrupted run."""
@@ -123,7 +106,7 @@ def test_kill_and_rerun_recomputes_only_missing_cases(smoke_run: dict, tmp_path:
     kept = {p: mtime for p, mtime in finished.items() if p.relative_to(workdir).as_posix() not in recomputed}
     assert len(kept) >= 2 and all(p.stat().st_mtime_ns == mtime for p, mtime in kept.items())
     for flow, path in databases(workdir).items():
-        _same_database(path, databases(smoke_run["workdir"])[flow])
+        assert_same_database(path, databases(smoke_run["workdir"])[flow], rtol=1e-12)
 
 
 def _cases_to_run(workdir: Path, configfile: Path) -> set[str]:

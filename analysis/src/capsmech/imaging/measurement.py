@@ -116,6 +116,18 @@ def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: 
         trace.flag = f"asymmetric ({trace.asymmetry:.3f} > {settings.max_asymmetry} of L_z/2)"
 
 
+
+def _focus_flag(trace, width: float, contrast: float, ratio: float) -> str:
+    """Why an outline (a frame's or one of its objects') is out of focus against the stack's
+    median line width and contrast, or '' when it is in focus."""
+    if trace.kind == "silhouette":
+        return "out of focus (no transparent interior, the stack's other capsules are rings)"
+    if trace.line_width_px > ratio * width:
+        return f"out of focus (line {trace.line_width_px:.1f} px wide, stack median {width:.1f} px)"
+    if trace.line_contrast < contrast / ratio:
+        return f"out of focus (line contrast {trace.line_contrast:.3f}, stack median {contrast:.3f})"
+    return ""
+
 def flag_out_of_focus(results: Sequence[FrameResult], settings: ExtractionSettings) -> None:
     """Flag the frames whose line is much wider or fainter than the stack's traced rings'.
 
@@ -132,22 +144,11 @@ def flag_out_of_focus(results: Sequence[FrameResult], settings: ExtractionSettin
     for r in results:
         # The objects of a frame with several, each on its own.
         for t in r.traces if len(r.traces) > 1 else []:
-            if t.flag:
-                continue
-            if t.kind == "silhouette":
-                t.flag = "out of focus (no transparent interior, the stack's other capsules are rings)"
-            elif t.line_width_px > settings.focus_ratio * width:
-                t.flag = f"out of focus (line {t.line_width_px:.1f} px wide, stack median {width:.1f} px)"
-            elif t.line_contrast < contrast / settings.focus_ratio:
-                t.flag = f"out of focus (line contrast {t.line_contrast:.3f}, stack median {contrast:.3f})"
+            if not t.flag:
+                t.flag = _focus_flag(t, width, contrast, settings.focus_ratio)
         if r.objects == 0 or r.flag.startswith("out of focus"):
             continue
-        if r.kind == "silhouette":
-            r.flag = "out of focus (no transparent interior, the stack's other capsules are rings)"
-        elif r.line_width_px > settings.focus_ratio * width:
-            r.flag = f"out of focus (line {r.line_width_px:.1f} px wide, stack median {width:.1f} px)"
-        elif r.line_contrast < contrast / settings.focus_ratio:
-            r.flag = f"out of focus (line contrast {r.line_contrast:.3f}, stack median {contrast:.3f})"
+        r.flag = _focus_flag(r, width, contrast, settings.focus_ratio) or r.flag
         if r.flag.startswith("out of focus"):
             # A blurred outline's centroid is no position to track by: the object's pixels are.
             r.contour = None
