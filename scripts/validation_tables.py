@@ -133,7 +133,7 @@ def diagnosis_confusion() -> str:
             "fit-tube's estimator (lengths), after only where the verdict supports it.")
 
 
-def interval_coverage() -> str:
+def interval_coverage(name: str = "interval_coverage.csv") -> str:
     """Measured coverage of the diagnosis' intervals (issue 19, item 4), from the rows its run
     wrote (``docs/validation/runs/interval_coverage.csv``, by ``tests/python/interval_coverage.py``)."""
     sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))
@@ -144,7 +144,7 @@ def interval_coverage() -> str:
         return "—" if n == 0 else f"{k}/{n} = {100 * k / n:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
 
     rows = []
-    for e in summarise(RUNS / "interval_coverage.csv"):
+    for e in summarise(RUNS / name):
         rows.append([e["config"], str(e["batches"]), cell(e["covered"]), cell(e["g_s_lengths_covered"]),
                      cell(e["g_s_contours_covered"]),
                      f"{e['median_error']:+.3g}" if "median_error" in e else "—",
@@ -157,7 +157,9 @@ def interval_coverage() -> str:
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,
-                                        "interval-coverage": interval_coverage}
+                                        "interval-coverage": interval_coverage,
+                                        "interval-coverage-statistical-only":
+                                            lambda: interval_coverage("interval_coverage_statistical_only.csv")}
 
 
 def main(argv: list[str]) -> int:

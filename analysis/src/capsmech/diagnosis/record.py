@@ -54,6 +54,7 @@ def candidate_record(result: CandidateResult) -> dict[str, Any]:
         "unit": None if result.discrete else result.unit,
         "strength": None if result.discrete else _number(result.theta),
         "interval": None if result.discrete else [_number(v) for v in result.interval],
+        "interval_systematic": None if result.discrete else _number(result.systematic),
         "capsules": result.capsules, "chi2_base": _number(result.chi2_base), "chi2": _number(result.chi2),
         "bic_drop": _number(result.bic_drop), "cv_gain": _number(result.cv_gain),
         "cv_p_value": _number(result.cv_p_value),
