@@ -37,6 +37,11 @@ NOT_RUN = {
     "capsmech extract recording.tif": "a placeholder for a user's recording; --background, --frame-times, "
                                       "--channel-width and --walls are run on real and rendered stacks by "
                                       "tests/python/test_real_frames.py and test_extraction.py",
+    "capsmech extract measurement.rtdc": "a placeholder for a user's .rtdc recording (the shipped .rtdc excerpts are "
+                                         "cells, which extract measures as no capsule); tests/python/test_rtdc.py "
+                                         "runs extract on them and checks frames, times and traces",
+    "capsmech extract film.mp4": "a placeholder for a user's video; tests/python/test_video.py runs extract on a "
+                                 "real AVI and a generated MKV",
     "capsmech diagnose-shear shear.csv": "a placeholder for a user's own batch (the same command on a shipped "
                                          "batch runs above)",
 }
