@@ -73,7 +73,9 @@ def test_smoke_grid_end_to_end(smoke_run: dict) -> None:
 
 def test_kill_and_rerun_recomputes_only_missing_cases(smoke_run: dict, tmp_path: Path) -> None:
     """SIGKILL the whole workflow while cases run; the rerun keeps the finished case files,
-    computes the rest, and gives the database of the uninterrupted run."""
+    computes the rest (a case killed after its first checkpoint resumes from it), and gives the
+    database of the uninterrupted run bit for bit (issue 25, item 1: resume is exact for every
+    integrator; measured before it was: 6.5e-6 in D12 and 2.5e-2 in a profile)."""
     workdir = tmp_path / "killed"
     workdir.mkdir()
     cases_dir = workdir / GRID["results_dir"] / "cases"
@@ -106,7 +108,7 @@ def test_kill_and_rerun_recomputes_only_missing_cases(smoke_run: dict, tmp_path:
     kept = {p: mtime for p, mtime in finished.items() if p.relative_to(workdir).as_posix() not in recomputed}
     assert len(kept) >= 2 and all(p.stat().st_mtime_ns == mtime for p, mtime in kept.items())
     for flow, path in databases(workdir).items():
-        assert_same_database(path, databases(smoke_run["workdir"])[flow], rtol=1e-12)
+        assert_same_database(path, databases(smoke_run["workdir"])[flow])
 
 
 def _cases_to_run(workdir: Path, configfile: Path) -> set[str]:
