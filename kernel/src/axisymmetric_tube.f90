@@ -127,6 +127,9 @@ contains
          ! Newton from the sphere is fragile at fine meshes (a/l = 0.6, Ca_s = 0.004, 64
          ! elements: no convergence at Ca_s = 1e-3); `auto` then falls back on time stepping.
          newton_failure = summary%message
+         ! newton_run leaves Ca where its continuation stopped (the nearly rigid start, 1e-3):
+         ! the time steps must run at the requested Ca.
+         self%ca = opts%ca
          self%solver = solver_implicit
          self%dt = implicit_dt
          self%dt_max = implicit_dt
