@@ -42,6 +42,12 @@ NOT_RUN = {
                                          "runs extract on them and checks frames, times and traces",
     "capsmech extract film.mp4": "a placeholder for a user's video; tests/python/test_video.py runs extract on a "
                                  "real AVI and a generated MKV",
+    "capsmech diagnose batch.csv --simulate": "a placeholder for a user's batch, and ~190 kernel cases; "
+                                              "tests/workflow/test_simulate_on_demand.py runs the on-demand path "
+                                              "(make validate: this command on a Skalak C = 3 batch)",
+    "capsmech database simulate --law SK_C5 --like tube-paper": "198 kernel cases (the paper grid); "
+                                                                "tests/workflow/test_simulate_on_demand.py runs it "
+                                                                "over the smoke grid",
     "capsmech diagnose-shear shear.csv": "a placeholder for a user's own batch (the same command on a shipped "
                                          "batch runs above)",
 }

@@ -32,6 +32,7 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -325,3 +326,25 @@ def test_requests_the_cluster_cannot_serve_stop_the_run(slurm_cluster: dict, tmp
     assert "Slurm accounting storage is disabled" in result.stdout
     assert "has been submitted" not in result.stdout and _our_jobs() == []
     print(f"unschedulable request and unreadable status reported in {elapsed:.0f} s")
+
+
+@pytest.mark.cluster
+def test_simulations_on_demand_run_on_the_cluster(slurm_cluster: dict, tmp_path: Path) -> None:
+    """Issue 22, item 5: the on-demand path (``diagnose --simulate``, ``database simulate``) with
+    the SLURM profile: every case a SLURM job, the database equal to the local profile's."""
+    from test_simulate_on_demand import TINY
+
+    from capsmech.io.database import load_database
+    from capsmech.workflow.simulate import simulate_grid
+
+    local = simulate_grid(TINY, root=tmp_path / "local", cores=2)
+    on_slurm = simulate_grid(TINY, root=tmp_path / "slurm", profile=SLURM_PROFILE, snakemake_args=FAST_STATUS)
+    log = (on_slurm.parent / "workflow.log").read_text()
+    assert len(re.findall(r"has been submitted with SLURM jobid (\d+)", log)) == 4, log[-3000:]
+    # The two caches place their files differently (recorded in the provenance): compare the
+    # law's rows, bit for bit.
+    a, b = load_database(on_slurm).law("SK_C4"), load_database(local).law("SK_C4")
+    assert list(a.status) == list(b.status)
+    for column in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V"):
+        assert np.array_equal(a.column(column, steady_only=False), b.column(column, steady_only=False)), column
+    assert _our_jobs() == []

@@ -229,13 +229,14 @@ def plot_population(results: ResultsLike | Sequence[str | Path], verdict: Popula
 #: Levels of the scalar effect candidates when not given (those of the shipped effect databases).
 DEFAULT_PRESTRESS_LEVELS = (0.04, 0.06, 0.08)
 DEFAULT_KB_LEVELS = (0.0025, 0.005, 0.01)
-CANDIDATE_NAMES = ("contour_offset", "tube_radius", "prestress", "kb", "laws")
+CANDIDATE_NAMES = ("contour_offset", "tube_radius", "prestress", "kb", "SK_C", "GH_nu", "laws")
 
 
 def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law: str = "NH", *,
              effect_databases: Sequence[DatabaseLike] | None = None, other_laws: Sequence[str] | None = None,
              prestress_levels: Sequence[float] = DEFAULT_PRESTRESS_LEVELS,
-             kb_levels: Sequence[float] = DEFAULT_KB_LEVELS, candidates: Sequence[str] | None = None,
+             kb_levels: Sequence[float] = DEFAULT_KB_LEVELS,
+             family_levels: Mapping[str, Sequence[float]] | None = None, candidates: Sequence[str] | None = None,
              max_effects: int = 2, offcentre_table: OffcentreTable | str | Path | None = "offcentre",
              progress: bool = False) -> SequentialDiagnosis | Diagnosis:
     """Which effect the base model lacks, from what the fits of a tube batch leave (closing the loop).
@@ -254,6 +255,11 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
         Law groups to test as candidates (default every other law of the database).
     prestress_levels, kb_levels : sequence of float
         Levels of the pre-stress and bending candidates (empty: no such candidate).
+    family_levels : mapping, optional
+        Levels of the continuous law parameters, e.g. ``{"SK_C": [1, 2, 4, 8]}`` (an empty list: no
+        such candidate). Levels no database holds make the candidate "needs simulations". A
+        family not given is tried over the levels of ``LAW_FAMILIES`` that the databases hold
+        (GH's nu_s over 0, 0.2 and 0.5 with the shipped ones), if at least two.
     candidates : sequence of str, optional
         Test only these (``CANDIDATE_NAMES``).
     max_effects : int
@@ -270,6 +276,7 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
     """
     from capsmech.diagnosis.candidates import DatabaseSet, candidate_library
     from capsmech.diagnosis.diagnose import diagnose as diagnose_round
+    from capsmech.diagnosis.law_family import LAW_FAMILIES, family_member, law_family_candidates
     from capsmech.diagnosis.sequential import diagnose_sequential
 
     base = as_database(database, "tube", "diagnose")
@@ -293,10 +300,27 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
     if max_effects < 1:
         raise DatabaseError(f"max_effects: must be at least 1, got {max_effects}")
     table = _offcentre(offcentre_table)
+    unknown = [f for f in family_levels or {} if f not in LAW_FAMILIES]
+    if unknown:
+        raise DatabaseError(f"family_levels: unknown law family {', '.join(unknown)}; valid: {', '.join(LAW_FAMILIES)}")
+    for family, values in (family_levels or {}).items():
+        if len(values) == 1 or any(not math.isfinite(v) for v in values):
+            raise DatabaseError(f"family_levels: {family} needs at least two finite levels (none: no candidate), "
+                                f"got {list(values)}")
+    family_levels_here = _family_levels(family_levels, databases.laws)
 
     def library(base_law: Any) -> list:
         found = candidate_library(base_law, list(base.laws), list(prestress_levels), other_laws,
                                   kb_levels=list(kb_levels))
+        families = [c for c in law_family_candidates(base_law, family_levels_here)
+                    if not candidates or c.name in candidates]
+        if other_laws is None:
+            # A family at one of its levels is that law group: its yes/no candidate would only
+            # tie with the family (named by the user with --other-law, it stays).
+            covered = {c.name for c in families}
+            found = [c for c in found if not (c.name.startswith("law ") and (member := family_member(c.name[4:]))
+                                              and member[0] in covered)]
+        found += families
         if candidates:
             found = [c for c in found if c.name in candidates or ("laws" in candidates and c.name.startswith("law "))]
         return found
@@ -307,6 +331,22 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
     names = {c.name for c in library(law)}
     return diagnose_sequential(batch, databases, law, lambda current: [c for c in library(current) if c.name in names],
                                max_effects=max_effects, offcentre_table=table, progress=progress)
+
+
+def _family_levels(given: Mapping[str, Sequence[float]] | None, laws: Sequence[str]) -> dict[str, list[float]]:
+    """The levels of each law family's candidate: those given, else the family's default levels
+    the databases hold (GH's nu_s: 0, 0.2, 0.5 in the paper grid; Skalak's C: 1 only, so no
+    candidate: no simulations unless asked for)."""
+    from capsmech.diagnosis.law_family import LAW_FAMILIES, family_key
+
+    out = {}
+    for family, (_, defaults) in LAW_FAMILIES.items():
+        if given is not None and family in given:
+            out[family] = [float(v) for v in given[family]]
+        else:
+            held = [float(v) for v in defaults if family_key(family, v) in laws]
+            out[family] = held if len(held) >= 2 else []
+    return out
 
 
 def _offcentre(table: OffcentreTable | str | Path | None) -> OffcentreTable | None:

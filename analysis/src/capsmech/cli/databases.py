@@ -26,6 +26,8 @@ def cmd_database(args: argparse.Namespace) -> int:
     from capsmech.workflow.assembly import assemble_database
     from capsmech.workflow.grid import load_grid
 
+    if args.action == "simulate":
+        return _simulate_laws(args)
     if args.action == "assemble":
         out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out)
         print(f"wrote {out}")
@@ -37,6 +39,33 @@ def cmd_database(args: argparse.Namespace) -> int:
         counts = {s: int((table.status == s).sum()) for s in sorted(set(table.status))}
         print(f"  {key:<10} {len(table):4d} cases  " + ", ".join(f"{n} {s}" for s, n in counts.items()))
     return 0
+
+
+def _simulate_laws(args: argparse.Namespace) -> int:
+    """``database simulate``: new law groups over an existing database's tube grid, through the
+    workflow (local or the profile given), cached under the user's data directory."""
+    import sys
+
+    from tqdm import tqdm
+
+    from capsmech.api import as_database
+    from capsmech.workflow.simulate import cached_grid, case_count, law_grid, simulate_grid
+
+    like = as_database(args.like, "tube", "database simulate --like")
+    grid = law_grid(like.grid, args.law, like.accuracy)
+    _, folder = cached_grid(grid)
+    cases = case_count(grid)
+    print(f"capsmech database simulate: {', '.join(args.law)} over the {like.grid_name!r} grid: {cases} cases "
+          f"({args.profile or 'local profile'}) into {folder}", flush=True)
+    with tqdm(total=cases, desc="simulating", unit="step", disable=not sys.stderr.isatty()) as bar:
+        def advance(done: int, total: int) -> None:
+            bar.total, bar.n = total, done
+            bar.refresh()
+
+        path = simulate_grid(grid, profile=args.profile, cores=args.cores, progress=advance)
+    print(f"wrote {path}")
+    args.database = path
+    return cmd_database(argparse.Namespace(action="show", database=path))
 
 
 def cmd_figures(args: argparse.Namespace) -> int:
@@ -72,6 +101,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     assemble.add_argument("--flow", required=True, choices=("tube", "shear"))
     assemble.add_argument("--cases", required=True, help="directory holding <flow>/<law>/<case>.h5")
     assemble.add_argument("--out", required=True, help="database file to write")
+    simulate = actions.add_parser("simulate", help="a database of new law groups over an existing database's tube "
+                                                   "grid, through the workflow (cached under the user's data directory)")
+    simulate.add_argument("--law", action="append", required=True, metavar="KEY",
+                          help="law key to simulate, e.g. SK_C5 or GH_nu0.35 or NH+prestress0.03 (repeatable)")
+    simulate.add_argument("--like", default="tube-paper", metavar="NAME|H5",
+                          help="the database whose nodes and settings to use (default tube-paper)")
+    simulate.add_argument("--profile", metavar="DIR",
+                          help="Snakemake profile (default the local one; e.g. workflow/profiles/slurm)")
+    simulate.add_argument("--cores", type=int, metavar="N", help="cores of a local run (default the profile's)")
     summary = actions.add_parser("show", help="summarise a database (name or file)")
     summary.add_argument("database", metavar="NAME|H5")
     database.set_defaults(func=cmd_database)

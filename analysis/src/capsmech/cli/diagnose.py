@@ -44,31 +44,41 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         check_output(args.out, "--out", (".md",), create_parent=True)
     if args.json:
         check_output(args.json, "--json", (".json",))
+    if args.profile and not args.simulate:
+        raise MeasurementError("--profile: only with --simulate (it says where the simulations run)")
     database = as_database(args.database, "tube", "diagnose")
-    try:
-        outcome = diagnose(args.measurements, database, args.law, effect_databases=args.effects_database,
-                           other_laws=args.other_law, prestress_levels=levels["prestress_levels"],
-                           kb_levels=levels["kb_levels"], candidates=args.candidate, max_effects=args.max_effects,
-                           offcentre_table=None if args.offcentre_table == "none" else args.offcentre_table,
-                           progress=sys.stderr.isatty())
-    except ValueError as err:
-        if isinstance(err, CapsmechError):
-            raise
-        raise MeasurementError(f"{args.measurements}: {err}") from None
-    sequence: SequentialDiagnosis | None
-    if isinstance(outcome, SequentialDiagnosis):
-        sequence, result = outcome, outcome.rounds[0]
-    else:
-        sequence, result = None, outcome
-    for r in result.results:
-        if r.needs is None:
-            continue
-        path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
-                          header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
-                                 "candidate needs.\nRun: make database GRID=" + r.needs["name"])
-        print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
-              f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
-              f"make database GRID={r.needs['name']} (grid written to {path})")
+    effect_databases = list(args.effects_database) if args.effects_database else None
+    simulated: dict[str, Path] = {}
+    while True:
+        outcome = _diagnose_batch(args, database, effect_databases, levels)
+        sequence: SequentialDiagnosis | None
+        if isinstance(outcome, SequentialDiagnosis):
+            sequence, result = outcome, outcome.rounds[0]
+        else:
+            sequence, result = None, outcome
+        rounds = sequence.rounds if sequence is not None else [result]
+        needs = {r.needs["name"]: (r.name, r.needs) for one in rounds for r in one.results if r.needs is not None}
+        if not args.simulate or not needs or set(needs) <= set(simulated):
+            break
+        # Effects on demand: compute what the candidates need, then diagnose again with it.
+        for name, (candidate, grid) in needs.items():
+            if name not in simulated:
+                simulated[name] = _simulate(args, candidate, grid, database)
+        if effect_databases is None:
+            from capsmech.io.catalog import effect_database_paths
+
+            effect_databases = [str(p) for p in effect_database_paths()]
+        effect_databases += [str(p) for p in simulated.values() if str(p) not in effect_databases]
+    for one in rounds:
+        for r in one.results:
+            if r.needs is None or r.needs["name"] in simulated:
+                continue
+            path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
+                              header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
+                                     "candidate needs.\nRun: make database GRID=" + r.needs["name"])
+            print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
+                  f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
+                  f"make database GRID={r.needs['name']} (grid written to {path}), or diagnose --simulate")
     for capsule, why in result.excluded:
         print(f"capsmech diagnose: left out {capsule}: {why}")
     for fit in result.offcentre:
@@ -98,6 +108,71 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             out = Path(args.out).with_name(f"{Path(args.out).stem}_round{k}{Path(args.out).suffix}")
             print(f"wrote {write_report(later, out, Path(args.measurements).name + f' (round {k})')}")
     return 0
+
+
+def _diagnose_batch(args: argparse.Namespace, database, effect_databases: list[str] | None,
+                    levels: dict[str, list[float]]):
+    """One diagnosis of the batch with the databases known so far."""
+    try:
+        return diagnose(args.measurements, database, args.law, effect_databases=effect_databases,
+                        other_laws=args.other_law, prestress_levels=levels["prestress_levels"],
+                        kb_levels=levels["kb_levels"], family_levels=_family_levels(args),
+                        candidates=args.candidate, max_effects=args.max_effects,
+                        offcentre_table=None if args.offcentre_table == "none" else args.offcentre_table,
+                        progress=sys.stderr.isatty())
+    except ValueError as err:
+        if isinstance(err, CapsmechError):
+            raise
+        raise MeasurementError(f"{args.measurements}: {err}") from None
+
+
+def _family_levels(args: argparse.Namespace) -> dict[str, list[float]]:
+    """--C-levels and --nu-s-levels as law-family levels (an empty text: no such candidate)."""
+    from capsmech.diagnosis.law_family import LAW_FAMILIES
+
+    out = {}
+    for family, option in (("SK_C", "C_levels"), ("GH_nu", "nu_s_levels")):
+        text = getattr(args, option)
+        if text is None:
+            # --simulate computes the family's default levels; without it, the databases' levels.
+            if args.simulate:
+                out[family] = list(LAW_FAMILIES[family][1])
+            continue
+        name = "--" + option.replace("_", "-")
+        try:
+            values = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise MeasurementError(f"{name}: not a comma-separated list of numbers: {text!r}") from None
+        if values and (len(values) < 2 or not all(math.isfinite(v) for v in values)):
+            raise MeasurementError(f"{name}: give at least two finite levels (empty: no candidate), got {text!r}")
+        out[family] = values
+    return out
+
+
+def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) -> Path:
+    """Run the grid a candidate needs through the workflow (cached), with an estimate first."""
+    from tqdm import tqdm
+
+    from capsmech.diagnosis.effect_grid import case_count, estimated_core_minutes
+    from capsmech.workflow.simulate import cached_grid, simulate_grid
+
+    placed, folder = cached_grid(grid)
+    cases = case_count(grid)
+    if (folder / "tube.h5").is_file():
+        print(f"capsmech diagnose: candidate {candidate}: {cases} cases found in the cache {folder}")
+        return folder / "tube.h5"
+    minutes = estimated_core_minutes(grid, database, args.law)
+    print(f"capsmech diagnose: candidate {candidate} needs {cases} cases (~{minutes:.0f} core-min, "
+          f"{args.profile or 'local profile'}); computing them into {folder}", flush=True)
+    with tqdm(total=None, desc=f"simulating {candidate}", unit="step", disable=not sys.stderr.isatty()) as bar:
+        def advance(done: int, total: int) -> None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+
+        path = simulate_grid(grid, profile=args.profile, cores=args.cores, progress=advance)
+    print(f"capsmech diagnose: candidate {candidate}: simulated, database {path}")
+    return path
 
 
 def cmd_make_batch(args: argparse.Namespace) -> int:
@@ -196,7 +271,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="pre-stress levels of the prestress candidate (default 0.04,0.06,0.08; empty: no candidate)")
     diag.add_argument("--kb-levels", default="0.0025,0.005,0.01", metavar="K1,K2,..",
                       help="bending stiffness levels of the kb candidate (default 0.0025,0.005,0.01; empty: no candidate)")
-    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "laws"),
+    diag.add_argument("--C-levels", dest="C_levels", metavar="C1,C2,..",
+                      help="levels of the Skalak C candidate, a law family fitted between its levels (default: "
+                           "those the databases hold, 1,2,4,8 with --simulate; empty: no candidate)")
+    diag.add_argument("--nu-s-levels", dest="nu_s_levels", metavar="N1,N2,..",
+                      help="levels of the GH nu_s candidate (default 0,0.2,0.5; empty: no candidate)")
+    diag.add_argument("--simulate", action="store_true",
+                      help="compute the simulations a candidate needs (through the workflow, cached under the "
+                           "user's data directory by grid and kernel version), then diagnose with them")
+    diag.add_argument("--profile", metavar="DIR",
+                      help="Snakemake profile of --simulate (default the local one; e.g. workflow/profiles/slurm)")
+    diag.add_argument("--cores", type=int, metavar="N", help="cores of a local --simulate (default the profile's)")
+    diag.add_argument("--candidate", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb",
+                                                                "SK_C", "GH_nu", "laws"),
                       help="test only these candidates (repeatable; default all: the effect library)")
     diag.add_argument("--max-effects", type=int, default=2, metavar="N",
                       help="effects to look for one after another, each fixed before the next (default 2; 1: one)")

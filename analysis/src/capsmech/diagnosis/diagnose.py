@@ -235,7 +235,8 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     sees the same capsules). ``offcentre_table``: an ``capsmech.diagnosis.offcentre.OffcentreTable``;
     the capsules screened out are then fitted with their own offset (``fit_offcentre``).
     ``progress``: a progress bar over the candidates (each refits the batch many times)."""
-    from capsmech.diagnosis.effect_grid import needed_grid
+    from capsmech.diagnosis.effect_grid import FAMILY_CA_SPREAD, needed_grid
+    from capsmech.diagnosis.law_family import LAW_FAMILIES
 
     if candidates is None:
         candidates = [contour_offset_candidate(base_law), tube_radius_candidate(base_law)]
@@ -269,7 +270,9 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
         result = CandidateResult(candidate.name, candidate.parameter, candidate.unit,
                                  note="not assessed: needs simulations")
         name = re.sub(r"[^A-Za-z0-9_-]", "_", candidate.name.replace(".", "p"))
-        result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s)
+        # A law family moves the fitted Ca_s far more than an effect does: a wider Ca_s range.
+        spread = FAMILY_CA_SPREAD if candidate.name in LAW_FAMILIES else (1.0, 1.0)
+        result.needs = needed_grid(name, missing, base_database, base.a_over_l, base.Ca_s, spread)
         results.append(result)
     chosen = compare_supported(results, base)
     for result in results:

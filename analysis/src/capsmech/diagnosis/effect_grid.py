@@ -44,11 +44,23 @@ def bracketing_nodes(nodes: Sequence[float], values: np.ndarray, margin: int = M
     return [float(v) for v in axis[low:high + 1]]
 
 
+#: How far a law family's members move a shape's fitted Ca_s from the base law's: the pool's
+#: Skalak C = 3 capsules (true Ca_s 0.022-0.067) fit NH at 0.01-0.04, and C = 8 needs more
+#: still; a family's grid spans the base fits' Ca_s from /SPREAD_LOW to xSPREAD_HIGH.
+FAMILY_CA_SPREAD = (1.5, 3.0)
+
+
 def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over_l: np.ndarray,
-                Ca_s: np.ndarray) -> dict[str, Any]:
-    """The grid of the effect's law keys on the nodes around the fitted (a/l, Ca_s)."""
+                Ca_s: np.ndarray, ca_spread: tuple[float, float] = (1.0, 1.0)) -> dict[str, Any]:
+    """The grid of the effect's law keys on the nodes around the fitted (a/l, Ca_s);
+    ``ca_spread`` (low, high) widens the Ca_s range to [min / low, max * high] first (a law
+    family, ``FAMILY_CA_SPREAD``)."""
     base = database.grid
     tube = base["tube"]
+    finite = np.asarray(Ca_s, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if len(finite) and ca_spread != (1.0, 1.0):
+        Ca_s = np.concatenate([finite, [finite.min() / ca_spread[0], finite.max() * ca_spread[1]]])
     name = f"effects_{effect}"
     grid: dict[str, Any] = {
         "name": name,
