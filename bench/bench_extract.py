@@ -7,12 +7,14 @@ measuring the capsules (velocity included) and writing the CSV, the contours and
 per-frame report. Prints the frames per second and the total time; not a test.
 With ``--accuracy``, instead: the L_z and L_p errors (px) of the extraction on every steady
 profile of the development database (6 rendered frames each, l = 60 px). With ``--small``,
-instead: frames of 320x80 px, the size of a real-time deformability cytometer's, with the
-channel tilted by 0.5 deg (so every frame is rotated level), the analysis alone (no files):
-issue 20 asks 100 frames/s on one core. It prints the rate by wall clock and by this process's
+instead: frames of 320x80 px, the size of a real-time deformability cytometer's, in one run
+both rendered (the channel tilted by 0.5 deg, so every frame is rotated level; the analysis
+alone, no files) and real (dclab's fmt-hdf5_reference_2025 pages, tests/data/real_frames/,
+cycled to the same count and streamed from an .rtdc file written for the run): issue 20 asks
+100 frames/s on one core. It prints, for each, the rate by wall clock and by this process's
 CPU time (the one-core figure on a shared machine), their ratio to the target, the stages'
 shares, and the cost of one frame in Gaussian filters of a frame timed in the same run (a ratio
-that does not depend on the machine's load).
+that does not depend on the machine's load); then the real / rendered ratio.
 
     .venv/bin/python bench/bench_extract.py [--frames 1000] [--accuracy | --small]
 """
@@ -97,10 +99,11 @@ def accuracy(radius_px: float = 60.0, n_frames: int = 6) -> None:
 
 
 def small(n_frames: int) -> None:
-    """Frames per second of the analysis on n_frames of 320x80 px, tilted by 0.5 deg."""
+    """Frames per second of the analysis on n_frames of 320x80 px: rendered (tilted by 0.5 deg)
+    and real (dclab's recording streamed from an .rtdc file), in one run."""
     from scipy import ndimage
 
-    from capsmech.imaging.extraction import FrameStack, extract_stack
+    from capsmech.imaging.extraction import FrameStack, read_frames
 
     rows = load_database(database_path("tube-paper")).law("NH").steady_rows()
     i = int(np.argmin(np.abs(rows["a_over_l"] - 0.9) + np.abs(rows["Ca_s"] - 0.06)))
@@ -109,26 +112,61 @@ def small(n_frames: int) -> None:
     rng = np.random.default_rng(0)
     frames = [np.clip(ndimage.rotate(render_frame([(outline, 60.0 + 5.0 * (k % 40))], style, rng).astype(float), -0.5,
                                      reshape=False, mode="nearest"), 0, 255).astype(np.uint8) for k in range(n_frames)]
-    stack = FrameStack(frames, [str(k) for k in range(n_frames)])
+    reference = _reference_ms(frames[0])
+    print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f}")
+    rendered = _timed(FrameStack(frames, [str(k) for k in range(n_frames)]), 1000.0, reference,
+                      f"rendered: {n_frames} frames of 320x80 px, tilt 0.5 deg drawn")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = _real_rtdc(Path(tmp) / "real.rtdc", n_frames)
+        real = _timed(read_frames([path]), None, reference,
+                      f"real: dclab's fmt-hdf5_reference_2025 pages (320x80 px) cycled to {n_frames} frames, "
+                      f"streamed from an .rtdc file (gzip chunks of 100 events)")
+    print(f"real / rendered frames/s (CPU): {real / rendered:.2f}")
+
+
+#: The real recording the benchmark streams: 6 pages of 320x80 px, cells and debris.
+REAL_PAGES = REPO / "tests" / "data" / "real_frames" / "fmt-hdf5_reference_2025" / "frames.tif"
+
+
+def _real_rtdc(path: Path, n_frames: int) -> Path:
+    """An .rtdc file of the real pages cycled to n_frames, laid out as dclab writes one (events/image
+    in gzip chunks of 100 events, events/frame 3 camera frames apart, the calibration attributes)."""
+    import h5py
+    import tifffile
+
+    pages = tifffile.imread(REAL_PAGES)
+    with h5py.File(path, "w") as out:
+        out.attrs.update({"imaging:pixel size": 0.2675, "imaging:frame rate": 3443.66, "setup:channel width": 20.0})
+        out.create_dataset("events/image", data=pages[np.arange(n_frames) % len(pages)], chunks=(100, *pages.shape[1:]),
+                           compression="gzip")
+        out["events/frame"] = 3.0 * np.arange(n_frames)
+    return path
+
+
+def _timed(stack, frame_rate: float | None, reference_ms: float, label: str) -> float:
+    """Run the analysis of ``stack``, print its rate and stages; return its frames/s by CPU time."""
+    from capsmech.imaging.extraction import extract_stack
+
+    n_frames = len(stack)
     # The stages from the progress calls (after each frame): before the first frame is the
     # stack's preparation (tilt, background, walls), after the last the tracks and the flow.
     ticks: list[float] = []
-    reference = _reference_ms(frames[0])
     start, cpu = time.perf_counter(), time.process_time()
-    channel, results = extract_stack(stack, frame_rate=1000.0, progress=lambda done, total: ticks.append(time.perf_counter()))
+    channel, results = extract_stack(stack, frame_rate=frame_rate,
+                                     progress=lambda done, total: ticks.append(time.perf_counter()))
     total, cpu_total = time.perf_counter() - start, time.process_time() - cpu
     per_frame = (ticks[-1] - ticks[0]) / max(1, len(ticks) - 1)
     prepare_s = ticks[0] - start - per_frame
-    print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f}")
-    print(f"{n_frames} frames of 320x80 px, tilt {channel.tilt_deg:+.3f} deg found (0.5 drawn), "
-          f"{sum(r.good for r in results)} good: {total:.2f} s wall, {cpu_total:.2f} s CPU of this process "
+    print(f"{label}: tilt {channel.tilt_deg:+.3f} deg, {sum(r.good for r in results)} good frames, "
+          f"{sum(len(r.traces) for r in results)} objects: {total:.2f} s wall, {cpu_total:.2f} s CPU of this process "
           f"(ratio {cpu_total / total:.2f}: below 1 when other processes share the core)")
-    print(f"frames/s: {n_frames / total:.0f} wall, {n_frames / cpu_total:.0f} CPU; target 100: ratio "
+    print(f"  frames/s: {n_frames / total:.0f} wall, {n_frames / cpu_total:.0f} CPU; target 100: ratio "
           f"{n_frames / cpu_total / 100:.2f} (CPU)")
-    print(f"stages (wall): preparation {prepare_s:.2f} s ({100 * prepare_s / total:.0f} %), frames "
+    print(f"  stages (wall): preparation {prepare_s:.2f} s ({100 * prepare_s / total:.0f} %), frames "
           f"{1e3 * per_frame:.1f} ms each ({100 * per_frame * n_frames / total:.0f} %), tracks and flow "
-          f"{total - (ticks[-1] - start):.2f} s; one frame = {1e3 * per_frame / reference:.0f} Gaussian filters "
-          f"of a frame ({reference:.3f} ms each, timed now: a load-independent ratio)")
+          f"{total - (ticks[-1] - start):.2f} s; one frame = {1e3 * per_frame / reference_ms:.0f} Gaussian filters "
+          f"of a frame ({reference_ms:.3f} ms each, timed now: a load-independent ratio)")
+    return n_frames / cpu_total
 
 
 def _reference_ms(frame: np.ndarray, repeats: int = 200) -> float:

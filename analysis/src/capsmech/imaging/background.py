@@ -6,10 +6,15 @@ gradients divide out, whatever their shape. The empty-channel image is, in order
 preference, the user's background image (or the recording's own), the temporal median of the
 stack with the passing objects masked out, or - for stacks too short for a temporal median -
 each levelled frame's per-row median (walls are horizontal once the channel is levelled).
+
+A temporal median is only as good as the frames in which a pixel is free: a capsule that sits
+for most of a short film leaves too few. :class:`StackBackground` says, pixel by pixel, where
+the background cannot be trusted, so that objects there are flagged instead of measured wrong.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
@@ -23,6 +28,38 @@ MAX_FRAMES_TEMPORAL = 101
 OBJECT_SIGMAS = 4.0
 #: Object masks grow by this many pixels: the blurred edges of a line lie below the threshold.
 OBJECT_MARGIN_PX = 3
+#: A pixel's background is trusted when at least this many frames show it free of any object.
+#: One is enough: masks are grown by OBJECT_MARGIN_PX, so a free pixel is one no object came
+#: near, and one frame's noise adds sqrt(2) to the contrast's, far below the detection's 6
+#: deviations. With none the background is a guess (:func:`_covered_background`).
+MIN_FREE_FRAMES = 1
+#: A pixel covered in every frame is steady (static dirt) when its grey level varies over the
+#: frames by at most this many times the frame-to-frame noise.
+STEADY_SIGMAS = 3.0
+
+
+@dataclass
+class StackBackground:
+    """A stack's static background and how far it can be trusted, pixel by pixel.
+
+    Attributes
+    ----------
+    image : 2-D float32 array
+        The empty channel (levelled).
+    free_frames : 2-D int array
+        In how many of the ``frames`` each pixel was free of any object.
+    untrusted : 2-D bool array
+        Pixels free in fewer than :data:`MIN_FREE_FRAMES` frames that :func:`_covered_background`
+        cannot vouch for: their background is a guess, and an object over them cannot be
+        measured reliably.
+    frames : int
+        The frames the median was taken over.
+    """
+
+    image: np.ndarray
+    free_frames: np.ndarray
+    untrusted: np.ndarray
+    frames: int
 
 
 def row_background(image: np.ndarray) -> np.ndarray:
@@ -41,15 +78,16 @@ def noise_level(values: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
-def stack_background(frames: Sequence[np.ndarray]) -> np.ndarray | None:
+def stack_background(frames: Sequence[np.ndarray]) -> StackBackground | None:
     """Static background of a levelled stack: temporal median with the moving objects left out.
 
     A plain temporal median keeps whatever lies in a pixel in at least half the frames - a
     slow capsule that covers the same pixels all along its passage. So each frame's objects
     are found first against its own per-row median (object-free where the capsule fills less
     than half of a row), masked, and the median is taken over the frames left. A pixel masked
-    in every frame is a static object (dirt: the plain temporal median is right there) or a
-    part of a slow capsule (the per-row median is the background there): see
+    in every frame is a static object (dirt: the plain temporal median is right there), a
+    part of a slow capsule (the per-row median is the background there), or neither to tell -
+    then the background there is not trusted (``StackBackground.untrusted``): see
     :func:`_covered_background`.
 
     Parameters
@@ -59,8 +97,9 @@ def stack_background(frames: Sequence[np.ndarray]) -> np.ndarray | None:
 
     Returns
     -------
-    2-D float32 array, or None
-        None when the stack has fewer than :data:`MIN_FRAMES_TEMPORAL` frames.
+    StackBackground or None
+        The background with the count of free frames per pixel and the pixels it cannot vouch
+        for; None when the stack has fewer than :data:`MIN_FRAMES_TEMPORAL` frames.
     """
     if len(frames) < MIN_FRAMES_TEMPORAL:
         return None
@@ -76,9 +115,12 @@ def stack_background(frames: Sequence[np.ndarray]) -> np.ndarray | None:
     masked = np.where(masks, np.nan, stack)
     covered = masks.all(axis=0)
     background = _nanmedian_first_axis(np.where(covered[None], 0.0, masked))
+    free = len(stack) - masks.sum(axis=0)
+    vouched = np.zeros_like(covered)
     if covered.any():
-        background = np.where(covered, _covered_background(stack, masks, covered, plain, rows), background)
-    return background.astype(np.float32)
+        fill, vouched = _covered_background(stack, masks, covered, plain, rows)
+        background = np.where(covered, fill, background)
+    return StackBackground(background.astype(np.float32), free, (free < MIN_FREE_FRAMES) & ~vouched, len(stack))
 
 
 def _nanmedian_first_axis(stack: np.ndarray) -> np.ndarray:
@@ -106,37 +148,58 @@ def flat_field(image: np.ndarray, background: np.ndarray) -> np.ndarray:
 
 
 def _covered_background(stack: np.ndarray, masks: np.ndarray, covered: np.ndarray, plain: np.ndarray,
-                        rows: np.ndarray) -> np.ndarray:
-    """The background where every frame's mask covers a pixel: the plain median or the row median.
+                        rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The background where every frame's mask covers a pixel: the plain median or the row median;
+    and which covered pixels it can vouch for.
 
     Such a pixel is a static object (dirt, a patch of the chip: the plain temporal median is
-    right) or part of a slow object that stays put - a capsule's top and bottom membrane run
-    along the flow and cover the same pixels in every frame of its passage (the row's median
-    is right). Frames in which nothing moves tell them apart: when at least a fifth of the
-    frames show no moving object, whatever every frame shows is static. Otherwise a covered
-    region that borders pixels masked in many (a third or more) but not all frames belongs to a
-    moving object; one surrounded by pixels masked in none or a few (noise) is static. The edges
-    of a wall line flicker in many frames: rows beside a wall line do not count.
+    right) or lies under moving objects in every frame - a slow capsule's top and bottom
+    membrane run along the flow and cover the same pixels all along its passage, or one object
+    follows another over the same spot in a short film (the row's median is the best guess
+    there). A covered region is static when both hold:
+
+    - it is steady: its pixels keep their grey level from frame to frame (a robust spread over
+      the frames within :data:`STEADY_SIGMAS` of the frame-to-frame noise); objects passing
+      over it change it;
+    - it is no part of a moving object: at least a fifth of the frames show no moving object
+      (then whatever every frame shows is static), or it does not border pixels masked in many
+      (a third or more) but not all frames. The edges of a wall line flicker in many frames:
+      rows beside a wall line do not count.
+
+    Vouched for: a static region (the plain median), and a region beside the motion of an
+    object (the row's median: the walls are level, and the object moves on, as the pixels
+    around show). Not vouched for: a region neither steady nor beside a moving object - objects
+    that follow one another over the same spot, in a film too short to show it free.
     """
     from skimage.measure import label as label_components
 
     from capsmech.imaging.channel import wall_lines
 
+    values = stack[:, covered]
+    level_now = np.maximum(np.median(values, axis=0), 1e-6)
+    spread = 1.4826 * np.median(np.abs(values - level_now), axis=0) / level_now
+    # The frame-to-frame noise (relative), robust to the objects: consecutive frames differ by
+    # sqrt(2) times it where nothing moves.
+    noise = max(noise_level((stack[1:, ::2, ::2] - stack[:-1, ::2, ::2]) / np.maximum(plain[::2, ::2], 1e-6))
+                / np.sqrt(2), 1e-4)
+    steady = np.zeros_like(covered)
+    steady[covered] = spread <= STEADY_SIGMAS * noise
     # Frames in which nothing moves: under 40 % of the busiest frame's moving pixels (noise and
     # the flicker of the wall lines mask a few hundred pixels in every frame).
     moving = (masks & ~covered[None]).reshape(len(stack), -1).sum(axis=1)
     quiet = int(np.sum(moving < 0.4 * moving.max()))
-    if quiet >= max(1, len(stack) // 5):
-        return plain
     partial = (masks.sum(axis=0) >= max(2, len(stack) // 3)) & ~covered
     for row in wall_lines(plain):
         partial[max(0, int(row) - 4):int(row) + 6] = False
     parts, count = label_components(covered, return_num=True, connectivity=2)
     row_level = np.broadcast_to(np.median(rows, axis=0)[:, :1], plain.shape)
     out = plain.copy()
+    vouched = covered.copy()
     for k in range(1, count + 1):
         part = parts == k
         shell = ndimage.binary_dilation(part, iterations=2) & ~part
-        if shell.any() and partial[shell].mean() > 0.3:
+        beside_motion = quiet < max(1, len(stack) // 5) and shell.any() and partial[shell].mean() > 0.3
+        if beside_motion or steady[part].mean() < 0.5:
             out[part] = row_level[part]
-    return out
+            vouched[part] = beside_motion
+    return out, vouched

@@ -32,16 +32,18 @@ Per frame (:func:`analyse_contrast`)
        ways, the larger), over L_z / 2; above ``max_asymmetry`` the frame is ``asymmetric``.
 Per stack, after the frames (``tracking``)
     Every traced object is measured on its own (``measurement.measure_trace``) and gets a
-    track (``track_objects``: optimal assignment between consecutive frames; two frames of
-    one passage with one object each are always linked). The flow's direction is the sign of
+    track (``track_objects``: optimal assignment between frames, bridging up to
+    ``TRACK_MEMORY_FRAMES`` missing frames; two frames of one passage with one object each are
+    always linked). The flow's direction is the sign of
     the objects' median step between consecutive frames (``flow_steps``, no direction
     assumed); with ``flow_direction='auto'`` frames moving in -x are mirrored and analysed again.
 Per capsule (:func:`measure_capsules`)
     Each track is a capsule, also when several are in view at once. Its lengths are the
     medians over its good objects, with their standard deviation as spread; v_c is the slope
     of the least-squares line through the contour's area centroid against the frames' times,
-    with its standard error. A track ends at a frame without it, at a gap in the frame times,
-    or when the object jumps back against the flow.
+    with its standard error. A track ends when the capsule is missing from more than
+    ``TRACK_MEMORY_FRAMES`` camera frames in a row (counted from the frames' times), or when
+    the object jumps back against the flow.
 """
 from __future__ import annotations
 
@@ -53,9 +55,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from capsmech.imaging.background import flat_field, row_background, stack_background
+from capsmech.imaging.background import MIN_FREE_FRAMES, flat_field, row_background, stack_background
 from capsmech.imaging.channel import Walls, estimate_tilt, find_walls, level
-from capsmech.imaging.frames import ExtractionError, FrameStack, expand_frame_paths, read_frame_times, read_frames
+from capsmech.imaging.frames import (
+    ExtractionError,
+    FrameStack,
+    expand_frame_paths,
+    mirror_frames,
+    read_frame_times,
+    read_frames,
+)
 from capsmech.imaging.measurement import (
     DEFAULT_SETTINGS,
     ExtractionSettings,
@@ -75,6 +84,7 @@ from capsmech.imaging.tracking import (
     assign_passages,
     fit_velocity,
     flow_steps,
+    frame_interval,
     gap_limit,
     measure_capsules,
     track_objects,
@@ -84,6 +94,11 @@ __all__ = ["ExtractionError", "FrameStack", "Walls", "expand_frame_paths", "read
            "ExtractionSettings", "FrameResult", "Channel", "prepare", "analyse_contrast", "analyse_frame",
            "flag_out_of_focus", "CapsuleMeasurement", "assign_passages", "fit_velocity", "measure_capsules",
            "extract", "extract_stack", "track_objects", "progress_printer", "iter_good"]
+
+
+#: An object is measured only when at most this fraction of its contour lies on pixels whose
+#: stack background cannot be trusted (a few noisy pixels at the edge of a mask are harmless).
+MAX_UNTRUSTED_CONTOUR = 0.05
 
 
 @dataclass
@@ -108,6 +123,11 @@ class Channel:
     flow_check : str
         How the direction was found: from the objects' motion, given and confirmed, given and
         contradicted by the motion, or assumed (no object followed from frame to frame).
+    untrusted : 2-D bool array or None
+        Levelled pixels whose stack background cannot be trusted
+        (``background.StackBackground.untrusted``); None: a given background, trusted.
+    background_check : str
+        Where the stack background cannot be trusted, in words ('' where it can everywhere).
     """
 
     walls: Walls
@@ -117,6 +137,18 @@ class Channel:
     width_check: str = ""
     flow_direction: str = "right"
     flow_check: str = ""
+    untrusted: np.ndarray | None = None
+    background_check: str = ""
+
+    def background_trusted_under(self, trace: TracedObject) -> bool:
+        """Whether the background under a traced object's contour can be trusted: at most
+        :data:`MAX_UNTRUSTED_CONTOUR` of its contour points on untrusted pixels."""
+        if self.untrusted is None or not self.untrusted.any():
+            return True
+        rows, cols = self.untrusted.shape
+        x = np.clip(np.round(trace.contour[:, 0]).astype(int), 0, cols - 1)
+        y = np.clip(np.round(trace.contour[:, 1]).astype(int), 0, rows - 1)
+        return float(self.untrusted[y, x].mean()) <= MAX_UNTRUSTED_CONTOUR
 
     def levelled(self, image: np.ndarray) -> np.ndarray:
         """A frame rotated level."""
@@ -173,12 +205,19 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
     raw = background if background is not None else np.median(
         np.stack([np.asarray(frames[k], dtype=np.float32) for k in picks]), axis=0)
     tilt = estimate_tilt(raw) if tilt_deg is None else float(tilt_deg)
+    untrusted, trust_check = None, ""
     if background is not None:
         levelled_bg: np.ndarray | None = level(background, tilt)
         source = "given"
     else:
-        levelled_bg = stack_background([level(frames[k], tilt) for k in picks])
-        source = "temporal median" if levelled_bg is not None else "per-row median of each frame"
+        estimate = stack_background([level(frames[k], tilt) for k in picks])
+        levelled_bg = estimate.image if estimate is not None else None
+        source = "temporal median" if estimate is not None else "per-row median of each frame"
+        if estimate is not None and estimate.untrusted.any():
+            untrusted = estimate.untrusted
+            free = "no frame" if MIN_FREE_FRAMES == 1 else f"fewer than {MIN_FREE_FRAMES} frames"
+            trust_check = (f"background not trusted on {int(untrusted.sum())} px ({free} of {estimate.frames} shows "
+                           f"them free of objects);\nobjects there are flagged: give --background to measure them")
     if isinstance(walls, Walls):
         found = walls
     elif walls is not None:
@@ -192,7 +231,7 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
         check = (f"channel width {found.width_px:.1f} px found, {channel_width_px:.1f} px given: "
                  f"{100 * diff:+.1f} %" + (" (more than 10 % apart: check the walls or the width)"
                                             if abs(diff) > 0.10 else ""))
-    return Channel(found, tilt, levelled_bg, source, check)
+    return Channel(found, tilt, levelled_bg, source, check, untrusted=untrusted, background_check=trust_check)
 
 
 def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray:
@@ -330,14 +369,33 @@ def _analyse(stack: FrameStack, settings: ExtractionSettings, progress: Callable
         if progress is not None:
             progress(k + 1, len(stack))
     flag_out_of_focus(results, settings)
+    _flag_untrusted_background(results, channel)
     for r in results:
         # A frame's flag is its only object's (focus is judged per frame, against the stack).
         if r.objects == 1 and len(r.traces) == 1 and r.flag and not r.traces[0].flag:
             r.traces[0].flag = r.flag
-    assign_passages(results, jump_px=0.25 * channel.walls.radius_px, frame_rate=rate)
+    interval = frame_interval(results, rate)
+    assign_passages(results, jump_px=0.25 * channel.walls.radius_px, interval_s=interval)
     track_objects(results, max_step_px=channel.walls.width_px, max_cross_px=0.25 * channel.walls.radius_px,
-                  max_step_s=gap_limit(results, frame_rate=rate))
+                  interval_s=interval)
     return channel, results
+
+
+#: The flag of an object over pixels whose stack background cannot be trusted.
+UNTRUSTED_FLAG = "background not trusted under the object (too few frames free of objects there)"
+
+
+def _flag_untrusted_background(results: list[FrameResult], channel: Channel) -> None:
+    """Flag the objects (and single-object frames) lying on untrusted background, rather than
+    measuring them against a background that may hold a part of them. The flag replaces a shape
+    flag (asymmetric, off the axis: the shape itself is in doubt), not a cut by the border."""
+    for r in results:
+        for t in r.traces:
+            if not t.flag.startswith("touches") and not channel.background_trusted_under(t):
+                t.flag = UNTRUSTED_FLAG
+        if (len(r.traces) == 1 and r.objects == 1 and r.traces[0].flag == UNTRUSTED_FLAG
+                and not r.flag.startswith(("touches", "out of focus"))):
+            r.flag = UNTRUSTED_FLAG
 
 
 #: The median step [px] between frames that tells the flow's direction; at least this many steps.
@@ -383,7 +441,7 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
         channel.flow_check = (f"flow direction {given}: " + ("given" if direction != "auto" else "assumed")
                               + " (no object followed over consecutive frames)")
     elif direction == "auto" and step < 0:
-        stack.frames = [np.ascontiguousarray(f[:, ::-1]) for f in stack.frames]
+        stack.frames = mirror_frames(stack.frames)
         if background is not None:
             background = np.ascontiguousarray(np.asarray(background)[:, ::-1])
         if isinstance(walls, Walls):

@@ -222,8 +222,12 @@ def write_channel_overlay(path: str | Path, background: np.ndarray, channel: Cha
     """Draw the levelled background (or first frame) with the walls, the axis, the tilt removed."""
     title = (f"levelled by {channel.tilt_deg:+.3f} deg; walls at rows {channel.walls.top_row:.2f}, "
              f"{channel.walls.bottom_row:.2f} ({channel.walls.source}), width {channel.walls.width_px:.1f} px; "
-             f"background: {channel.background_source}" + (f"\n{channel.width_check}" if channel.width_check else ""))
+             f"background: {channel.background_source}" + (f"\n{channel.width_check}" if channel.width_check else "")
+             + (f"\n{channel.background_check}" if channel.background_check else ""))
     fig, ax = _figure(background, title)
+    if channel.untrusted is not None and channel.untrusted.any():
+        # Where the background is a guess: objects there are flagged, not measured.
+        ax.contour(channel.untrusted, levels=[0.5], colors="orangered", linewidths=0.6)
     for row in (channel.walls.top_row, channel.walls.bottom_row):
         ax.axhline(row, color="deepskyblue", lw=0.8)
     ax.axhline(channel.walls.axis_row, color="gold", lw=0.6, ls="--")

@@ -12,6 +12,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -24,8 +25,10 @@ class FrameStack:
 
     Attributes
     ----------
-    frames : list of 2-D arrays
-        One grey image per frame (original dtype for grey files, float32 for colour ones).
+    frames : sequence of 2-D arrays
+        One grey image per frame (original dtype for grey files, float32 for colour ones): a
+        list, or for a single ``.rtdc`` file a sequence that reads each frame from the file when
+        it is asked for (``rtdc.RtdcFrames``: bounded memory).
     labels : list of str
         ``file`` or ``file[page]`` for each frame, for messages and reports.
     frame_rate : float or None
@@ -52,7 +55,7 @@ class FrameStack:
         motion by ``extraction.extract_stack``, which mirrors them when they move in -x).
     """
 
-    frames: list[np.ndarray]
+    frames: Sequence[np.ndarray]
     labels: list[str]
     frame_rate: float | None = None
     pixel_size_um: float | None = None
@@ -189,21 +192,26 @@ def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | No
     return [_to_grey(frame, str(path)) for frame in data], frame_rate, pixel_um
 
 
-def _read_file(path: Path, stack: FrameStack) -> tuple[list[np.ndarray], np.ndarray | None, np.ndarray | None]:
-    """One file's frames, its frame numbers and times when it has them; its metadata into ``stack``."""
+def _read_file(path: Path, stack: FrameStack,
+               mirror: bool) -> tuple[Sequence[np.ndarray], np.ndarray | None, np.ndarray | None]:
+    """One file's frames, its frame numbers and times when it has them; its metadata into ``stack``.
+
+    An ``.rtdc`` file's frames come as a lazy sequence, mirrored already when ``mirror``; the
+    other files' as a list, as read.
+    """
     import imageio.v3 as iio
 
     suffix = path.suffix.lower()
     if suffix in _RTDC_SUFFIXES:
         from capsmech.imaging.rtdc import read_rtdc
 
-        rec = read_rtdc(path)
+        rec = read_rtdc(path, mirror)
         stack.frame_rate = stack.frame_rate or rec.frame_rate
         stack.pixel_size_um = stack.pixel_size_um or rec.pixel_size_um
         stack.channel_width_um = stack.channel_width_um or rec.channel_width_um
         if rec.background is not None and stack.background is None:
             stack.background, stack.background_source = rec.background, f"{path.name}: events/image_bg (median)"
-        return list(rec.frames), rec.frame_numbers, rec.times_s
+        return rec.frames, rec.frame_numbers, rec.times_s
     from capsmech.imaging.video import VIDEO_SUFFIXES, read_video
 
     if suffix in VIDEO_SUFFIXES:
@@ -221,6 +229,16 @@ def _read_file(path: Path, stack: FrameStack) -> tuple[list[np.ndarray], np.ndar
     if image.ndim == 3 and image.shape[-1] not in (3, 4):
         return [_to_grey(f, str(path)) for f in image], None, None   # an animated format: one image per page
     return [_to_grey(image, str(path))], None, None
+
+
+def _check_size(frame: np.ndarray, path: Path, page: int, stack: FrameStack | None) -> None:
+    """Refuse a frame of another size than the stack's first, or too small to hold a channel."""
+    if stack is not None and stack.frames and frame.shape != stack.frames[0].shape:
+        raise ExtractionError(f"{path}: frame {page} is {frame.shape[1]}x{frame.shape[0]} px, "
+                              f"the first frame ({stack.labels[0]}) is "
+                              f"{stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px")
+    if frame.shape[0] < 16 or frame.shape[1] < 16:
+        raise ExtractionError(f"{path}: frame {page} is only {frame.shape[1]}x{frame.shape[0]} px")
 
 
 def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
@@ -255,23 +273,27 @@ def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
     stack = FrameStack([], [], flow_direction=flow_direction)
     numbers: list[np.ndarray | None] = []
     times: list[np.ndarray | None] = []
-    for path in expand_frame_paths(paths):
+    files = expand_frame_paths(paths)
+    for path in files:
         try:
-            frames, file_numbers, file_times = _read_file(path, stack)
+            frames, file_numbers, file_times = _read_file(path, stack, mirror=flow_direction == "left")
         except ExtractionError:
             raise
         except Exception as err:  # noqa: BLE001 - any reader failure is the file's problem
             raise ExtractionError(f"{path}: cannot read as an image: {err}") from None
         numbers.append(file_numbers)
         times.append(file_times)
+        lazy = not isinstance(frames, list)
+        if lazy and len(files) == 1:
+            # A recording read as it is asked for (an .rtdc file): kept lazy, so that a file of
+            # gigabytes streams through the extraction; its pages all have the dataset's shape.
+            _check_size(frames[0], path, 0, None)
+            stack.frames = frames
+            stack.labels = [f"{path}[{page}]" for page in range(len(frames))]
+            continue
         for page, frame in enumerate(frames):
-            if stack.frames and frame.shape != stack.frames[0].shape:
-                raise ExtractionError(f"{path}: frame {page} is {frame.shape[1]}x{frame.shape[0]} px, "
-                                      f"the first frame ({stack.labels[0]}) is "
-                                      f"{stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px")
-            if frame.shape[0] < 16 or frame.shape[1] < 16:
-                raise ExtractionError(f"{path}: frame {page} is only {frame.shape[1]}x{frame.shape[0]} px")
-            stack.frames.append(frame[:, ::-1] if flow_direction == "left" else frame)
+            _check_size(frame, path, page, stack)
+            cast(list, stack.frames).append(frame[:, ::-1] if flow_direction == "left" and not lazy else frame)
             stack.labels.append(f"{path}[{page}]" if len(frames) > 1 else str(path))
         if progress is not None:
             progress(f"read {len(stack)} frames")
@@ -283,6 +305,15 @@ def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
     if stack.background is not None and flow_direction == "left":
         stack.background = stack.background[:, ::-1]
     return stack
+
+
+def mirror_frames(frames: Sequence[np.ndarray]) -> Sequence[np.ndarray]:
+    """The frames mirrored left to right: a lazy recording stays lazy (it mirrors as it reads)."""
+    from capsmech.imaging.rtdc import RtdcFrames
+
+    if isinstance(frames, RtdcFrames):
+        return RtdcFrames(frames.path, frames.events, not frames.mirror)
+    return [np.ascontiguousarray(f[:, ::-1]) for f in frames]
 
 
 def read_frame_times(path: str | Path, count: int) -> np.ndarray:

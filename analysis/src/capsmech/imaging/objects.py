@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy import ndimage
@@ -83,9 +84,9 @@ class TracedObject:
         """Where the contour lies, in words."""
         return CONTOUR_AT[self.kind]
 
-    @property
+    @cached_property
     def centre(self) -> tuple[float, float]:
-        """Area centroid (x, y) of the contour."""
+        """Area centroid (x, y) of the contour (computed once: the tracker asks for it per link)."""
         return polygon_centroid(self.contour)
 
     @property

@@ -1,14 +1,17 @@
 """Passages and tracks: which frames show the same capsule, and what each capsule measures.
 
 - Passages (:func:`assign_passages`): the single capsule of consecutive frames, one passage
-  until an empty frame, a gap in the frames' times or a jump back against the flow; a passage
-  numbers the frames of the per-frame report.
+  until an empty frame, more than a few missing camera frames or a jump back against the flow;
+  a passage numbers the frames of the per-frame report.
 - Tracks (:func:`track_objects`): every traced object, several per frame included, linked from
   frame to frame by an optimal assignment (``scipy.optimize.linear_sum_assignment``) on the
-  distance from where it should be (moved along the flow by the stack's typical step), with
-  gates: no step back against the flow, none across the channel, none longer than the gate.
-  Each track is one capsule, measured over its good frames (:func:`measure_capsules`), also
-  when other capsules are in view at the same time.
+  distance from where it should be (moved along the flow by its step per frame), with gates: no
+  step back against the flow, none across the channel, none longer than the gate. A track
+  survives up to :data:`TRACK_MEMORY_FRAMES` missing frames (dropped by the camera, counted from
+  the frames' times; or frames where the capsule was not found), as trackpy's ``memory`` - a
+  trackpy-like linker written out here, trackpy not being a dependency. Each track is one
+  capsule, measured over its good frames (:func:`measure_capsules`), also when other capsules
+  are in view at the same time.
 - The flow's direction (:func:`flow_steps`): the objects' steps between consecutive frames,
   matched without assuming a direction.
 """
@@ -51,6 +54,12 @@ class CapsuleMeasurement:
         return not self.problem
 
 
+#: A capsule missed in up to this many frames in a row (frames the camera dropped, or frames in
+#: which it was not detected) keeps its track (trackpy's ``memory``): a dropped frame must not
+#: make two capsules of one.
+TRACK_MEMORY_FRAMES = 3
+
+
 def gap_limit(results: Sequence[FrameResult], max_gap: float = 1.5, frame_rate: float | None = None,
               max_skipped: int = 10) -> float:
     """The longest step between frames [s] that is no gap (inf when the frames have no times).
@@ -65,23 +74,39 @@ def gap_limit(results: Sequence[FrameResult], max_gap: float = 1.5, frame_rate: 
     return min(limit, max_skipped / frame_rate) if frame_rate else limit
 
 
-def assign_passages(results: Sequence[FrameResult], jump_px: float, max_gap: float = 1.5,
-                    frame_rate: float | None = None, max_skipped: int = 10) -> None:
+def frame_interval(results: Sequence[FrameResult], frame_rate: float | None = None) -> float:
+    """The camera's frame interval [s]: 1 / ``frame_rate``, else the median step of the frames'
+    times (a film that drops a few frames keeps its median); NaN when the frames have no times."""
+    if frame_rate:
+        return 1.0 / frame_rate
+    steps = np.diff(np.array([r.time_s for r in results]))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(np.median(steps)) if steps.size else math.nan
+
+
+def frames_apart(before: FrameResult, after: FrameResult, interval_s: float) -> int:
+    """How many camera frames ``after`` comes after ``before``: from their times where both have
+    one (dropped frames counted), else from their page numbers."""
+    if math.isfinite(interval_s) and math.isfinite(before.time_s) and math.isfinite(after.time_s):
+        return max(1, round((after.time_s - before.time_s) / interval_s))
+    return after.index - before.index
+
+
+def assign_passages(results: Sequence[FrameResult], jump_px: float, interval_s: float = math.nan,
+                    memory: int = TRACK_MEMORY_FRAMES) -> None:
     """Number the capsules' passages: a new one after an empty frame, a gap or a jump against the flow.
 
-    A gap in the frames' times: a step longer than ``max_gap`` times the stack's median step,
-    or than ``max_skipped`` frame intervals (1 / ``frame_rate``) - frames recorded apart (real
-    recordings keep only the frames with an event) show different objects, while a camera
-    that keeps every other frame still shows one capsule's passage.
+    A gap: more than ``memory`` camera frames missing between two frames (:func:`frames_apart`;
+    ``interval_s`` the frame interval). Real recordings keep only the frames with an event, so
+    frames recorded far apart show different objects; a film that dropped a frame or two still
+    shows one capsule's passage.
     """
-    limit = gap_limit(results, max_gap, frame_rate, max_skipped)
-    steps = np.diff(np.array([r.time_s for r in results]))
     passage, last_x, inside = -1, math.nan, False
     for k, r in enumerate(results):
         if r.objects == 0:
             inside, last_x = False, math.nan
             continue
-        if k and steps[k - 1] > limit:
+        if k and frames_apart(results[k - 1], r, interval_s) > memory + 1:
             inside, last_x = False, math.nan
         # The contour's centroid where there is one, else the mean column of the object's pixels
         # (a capsule entering at the border): enough to see a jump back against the flow.
@@ -178,49 +203,77 @@ def flow_steps(results: Sequence[FrameResult], max_step_px: float, max_cross_px:
     return np.array(steps)
 
 
+@dataclass
+class _TrackEnd:
+    """Where a track was last seen: its frame, its object and its step per frame [px] (NaN: none yet)."""
+
+    frame: FrameResult
+    trace: TracedObject
+    step_px: float = math.nan
+
+
 def track_objects(results: Sequence[FrameResult], max_step_px: float, max_cross_px: float,
-                  back_px: float = 2.0, max_step_s: float = math.inf) -> int:
+                  back_px: float = 2.0, interval_s: float = math.nan, memory: int = TRACK_MEMORY_FRAMES) -> int:
     """Give every traced object a track number (``TracedObject.track``); return the number of tracks.
 
-    Consecutive frames no more than ``max_step_s`` apart in time (:func:`gap_limit`) are linked
-    object to object: the cost of a link is the distance between the later object and the earlier one
-    moved by the typical step (the median of the links made so far, 0 at first); a link
-    backwards by more than ``back_px``, longer than ``max_step_px`` along the flow or
-    ``max_cross_px`` across it is not made. Objects left unlinked start a new track. Two frames
-    of one passage (:func:`assign_passages`) with one object each are linked without the gates.
+    Gap closing as trackpy's ``memory`` does it: a track last seen ``n`` camera frames back
+    (:func:`frames_apart`: from the frames' times, so that dropped frames count) can take an
+    object of the current frame while ``n <= memory + 1``. The cost of a link is the distance
+    between the object and where the track should be: its last position moved by ``n`` times
+    its own step per frame (else the median step per frame of the links made so far, else 0).
+    A link backwards by more than ``back_px``, longer than ``n * max_step_px`` along the flow or
+    ``max_cross_px`` across it is not made. Tracks seen more recently are linked first, each
+    group by an optimal assignment (``scipy.optimize.linear_sum_assignment``); objects left
+    unlinked start a new track. Two consecutive frames of one passage (:func:`assign_passages`)
+    with one object each are linked without the gates (an object entering at the border, a
+    blurred frame, move its centre).
     """
     from scipy.optimize import linear_sum_assignment
 
     tracks = 0
     steps: list[float] = []
-    previous: list = []
-    previous_frame: FrameResult | None = None
+    ends: dict[int, _TrackEnd] = {}
+    previous: FrameResult | None = None
     for r in results:
         current = list(r.traces)
-        linked = (previous_frame is not None and bool(previous) and bool(current)
-                  and r.index == previous_frame.index + 1
-                  and not (r.time_s - previous_frame.time_s > max_step_s))
-        if (linked and previous_frame is not None and len(previous) == len(current) == 1
-                and r.passage == previous_frame.passage >= 0):
-            # One object in each of two frames of one passage: the same capsule, whatever the
-            # gates say (an object entering at the border, a blurred frame, move its centre).
-            current[0].track = previous[0].track
-        elif linked:
-            step = float(np.median(steps)) if steps else 0.0
-            cost = np.full((len(previous), len(current)), 1e9)
-            for i, p in enumerate(previous):
-                for j, c in enumerate(current):
-                    dx, dy = c.centre[0] - p.centre[0], c.centre[1] - p.centre[1]
-                    if -back_px <= dx <= max_step_px and abs(dy) <= max_cross_px:
-                        cost[i, j] = math.hypot(dx - step, dy)
-            rows, cols = linear_sum_assignment(cost)
-            for i, j in zip(rows, cols):
+        if (previous is not None and len(current) == 1 and len(previous.traces) == 1
+                and r.index == previous.index + 1 and r.passage == previous.passage >= 0):
+            _extend(ends, previous.traces[0].track, r, current[0], interval_s, steps)
+        apart = {track: frames_apart(end.frame, r, interval_s) for track, end in ends.items()}
+        for n in sorted({n for n in apart.values() if 1 <= n <= memory + 1}):
+            free = [c for c in current if c.track < 0]
+            candidates = [track for track, m in apart.items() if m == n and ends[track].frame is not r]
+            if not free or not candidates:
+                continue
+            typical = float(np.median(steps)) if steps else 0.0
+            cost = np.full((len(candidates), len(free)), 1e9)
+            for i, track in enumerate(candidates):
+                end = ends[track]
+                expected = n * (end.step_px if math.isfinite(end.step_px) else typical)
+                for j, c in enumerate(free):
+                    dx, dy = c.centre[0] - end.trace.centre[0], c.centre[1] - end.trace.centre[1]
+                    if -back_px <= dx <= n * max_step_px and abs(dy) <= max_cross_px:
+                        cost[i, j] = math.hypot(dx - expected, dy)
+            for i, j in zip(*linear_sum_assignment(cost)):
                 if cost[i, j] < 1e9:
-                    current[j].track = previous[i].track
-                    steps.append(current[j].centre[0] - previous[i].centre[0])
+                    _extend(ends, candidates[i], r, free[j], interval_s, steps)
         for c in current:
             if c.track < 0:
                 c.track = tracks
+                ends[tracks] = _TrackEnd(r, c)
                 tracks += 1
-        previous, previous_frame = current, r
+        # Tracks not seen for more than ``memory`` frames are over.
+        ends = {t: e for t, e in ends.items() if frames_apart(e.frame, r, interval_s) <= memory + 1}
+        previous = r
     return tracks
+
+
+def _extend(ends: dict[int, _TrackEnd], track: int, frame: FrameResult, trace: TracedObject, interval_s: float,
+            steps: list[float]) -> None:
+    """Link ``trace`` (in ``frame``) to ``track``: its number, the track's new end and step per frame."""
+    end = ends[track]
+    n = max(1, frames_apart(end.frame, frame, interval_s))
+    step = (trace.centre[0] - end.trace.centre[0]) / n
+    trace.track = track
+    ends[track] = _TrackEnd(frame, trace, step)
+    steps.append(step)
