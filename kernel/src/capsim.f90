@@ -13,6 +13,7 @@ program capsim
    use capsule_dynamics, only: capsule_t
    use axisymmetric_tube, only: axisymmetric_tube_t
    use tube_capsule, only: tube_capsule_t
+   use tube_branch, only: run_tube_branch
    implicit none
 
    type(run_options_t) :: opts
@@ -39,6 +40,12 @@ program capsim
    end if
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
    if (opts%threads > 0) call omp_set_num_threads(opts%threads)
+   if (len_trim(opts%branch_ca) > 0) then
+      ! A steady branch: its own case files and branch file (tube_branch).
+      call run_tube_branch(opts, omp_get_max_threads(), stat, errmsg)
+      if (stat /= 0) call die('capsim: error: '//errmsg, 1)
+      stop
+   end if
    call system_clock(clock_start, clock_rate)
 
    if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d') then
