@@ -14,8 +14,7 @@ module axisymmetric_steady
                                     unpack_dofs, restore_volume_and_centre, jacobian_fd_step, rigid_fd_step
    implicit none
    private
-   public :: newton_state_t, newton_run, polish_steady_shape, newton_tolerance, constraint_directions, &
-             projected_residual, stable_rate_limit
+   public :: newton_state_t, newton_run, polish_steady_shape, newton_tolerance, stable_rate_limit
 
    !> Newton tolerance of the polish after time stepping (largest node velocity, V).
    real(dp), parameter :: polish_tol = 1.0e-6_dp

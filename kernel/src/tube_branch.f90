@@ -154,6 +154,8 @@ contains
                ! branch's end; where it is steady instead, the fold belongs to another part of
                ! the discrete branch (the rear of a nearly rigid capsule buckles near Ca_s 0.014
                ! at a/l = 0.9, 32 elements), and the branch starts again from that case.
+               if (.not. opts%quiet) write (*, '(a)') 'capsim: continuation to Ca_s = '//num(values(k))// &
+                  ' stopped at Ca_s = '//num(exp(point%log_ca))//': '//search_text(found)//'; time stepping decides'
                phase = phase_stepping
                model%positions = saved_rz
                model%ca = ca_from
@@ -372,6 +374,22 @@ contains
       end if
       if (stat == 0) call replace_file(path//'.tmp', path, stat, errmsg)
    end subroutine write_branch_file
+
+   !> What a fold search found, for progress lines.
+   function search_text(found) result(text)
+      type(fold_search_t), intent(in) :: found
+      character(len=:), allocatable :: text
+      select case (found%outcome)
+      case (end_fold)
+         text = 'fold at Ca_s = '//num(exp(found%critical_log_ca))
+      case (end_mesh_limit)
+         text = 'element stretch limit at Ca_s = '//num(exp(found%critical_log_ca))
+      case (end_unstable)
+         text = 'stability lost after Ca_s = '//num(exp(found%critical_log_ca))
+      case default
+         text = 'no convergence after '//int_text(found%n_points)//' arclength points'
+      end select
+   end function search_text
 
    !> Why the branch ended, for messages.
    function end_text(outcome, critical_log_ca) result(text)
