@@ -24,7 +24,7 @@ module tube_branch
    use file_ops, only: path_kind, path_regular, replace_file
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t, option_signature, branch_ca_values, branch_case_path
-   use case_output, only: case_summary_t, open_case_file, close_case_file, write_checkpoint, read_checkpoint
+   use case_output, only: case_summary_t, close_case_file, write_checkpoint, read_checkpoint
    use capsule_model, only: num
    use text_format, only: int_text
    use tube_history, only: h_lz, h_lp, h_vc, h_volume, h_stretch
@@ -256,14 +256,7 @@ contains
       call system_clock(clock_end)
       summary%wall_time_s = summary%wall_time_before_s + real(clock_end - clock_start, dp) / clock_rate
       summary%threads = case_threads()
-      if (steady_index > 0) then
-         call open_case_file(case_opts, single%law, summary, single%history_names, single%history_units, &
-                             single%history(:, 1:single%n_rec), f, stat, errmsg, single%history(:, steady_index))
-      else
-         call open_case_file(case_opts, single%law, summary, single%history_names, single%history_units, &
-                             single%history(:, 1:single%n_rec), f, stat, errmsg)
-      end if
-      if (stat == 0) call single%write_geometry(f, stat, errmsg)
+      call single%start_case_file(case_opts, summary, steady_index, f, stat, errmsg)
       if (stat == 0) call close_case_file(f, case_opts, stat, errmsg)
       if (stat /= 0) return
       call delete_if_present(trim(case_opts%out)//'.ckpt')
@@ -302,14 +295,7 @@ contains
       call system_clock(clock_now, clock_rate)
       summary%wall_time_s = real(clock_now - clock_case, dp) / clock_rate
       summary%threads = case_threads()
-      if (trim(summary%status) == 'steady') then
-         call open_case_file(case_opts, model%law, summary, model%history_names, model%history_units, &
-                             model%history(:, 1:1), f, stat, errmsg, model%history(:, 1))
-      else
-         call open_case_file(case_opts, model%law, summary, model%history_names, model%history_units, &
-                             model%history(:, 1:1), f, stat, errmsg)
-      end if
-      if (stat == 0) call model%write_geometry(f, stat, errmsg)
+      call model%start_case_file(case_opts, summary, merge(1, 0, trim(summary%status) == 'steady'), f, stat, errmsg)
       if (stat == 0 .and. present(critical_ca)) call f%write_attr('/', 'branch_critical_Ca_s', critical_ca, stat, errmsg)
       if (stat == 0) call close_case_file(f, case_opts, stat, errmsg)
       if (stat == 0 .and. .not. case_opts%quiet) write (*, '(a)') 'capsim: Ca_s = '//num(case_opts%ca)//' '// &
