@@ -45,7 +45,7 @@ MODULE_ORDER := capsim_kinds lapack_interfaces text_format text_parse file_ops c
            axisymmetric_bending \
             stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \
            run_options case_output state_vector capsule_model tube_history capsule_dynamics \
-           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_tube tube_capsule
+           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_continuation axisymmetric_tube tube_branch tube_capsule
 MODULES := $(foreach m,$(MODULE_ORDER),$(if $(wildcard kernel/src/$(m).f90),$(m)))
 MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
 # Test programs: every kernel/tests/*.f90 is a program that measures and prints.

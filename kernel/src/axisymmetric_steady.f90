@@ -14,10 +14,13 @@ module axisymmetric_steady
                                     unpack_dofs, restore_volume_and_centre, jacobian_fd_step, rigid_fd_step
    implicit none
    private
-   public :: newton_state_t, newton_run, polish_steady_shape
+   public :: newton_state_t, newton_run, polish_steady_shape, newton_tolerance, stable_rate_limit
 
    !> Newton tolerance of the polish after time stepping (largest node velocity, V).
    real(dp), parameter :: polish_tol = 1.0e-6_dp
+   !> A steady shape is linearly stable when no Jacobian eigenvalue has a real part above this
+   !> (V/l): the inflation and axial-shift directions have eigenvalues ~0 (to the noise).
+   real(dp), parameter :: stable_rate_limit = 1.0e-2_dp
 
    !> Newton's bordered system and its LU (kept for the continuation's predictor), its right-hand
    !> side and border, the residual, the last converged shape, and the Jacobian of the polish.
@@ -245,7 +248,6 @@ contains
       type(run_options_t), intent(in) :: opts
       type(case_summary_t), intent(inout) :: summary
       integer, intent(inout) :: steady_index
-      real(dp), parameter :: stable_rate_limit = 1.0e-2_dp
       real(dp) :: t_settled, rate
       real(dp), allocatable :: settled(:, :)
       integer :: n_settled

@@ -17,7 +17,7 @@ module axisymmetric_tube
    use axisymmetric_steady, only: newton_state_t, newton_run, polish_steady_shape
    implicit none
    private
-   public :: axisymmetric_tube_t
+   public :: axisymmetric_tube_t, meridian_stretch_limit
 
    !> The automatic solver choice uses Newton below this Ca and RK2 time stepping above (see run).
    real(dp), parameter :: newton_max_ca = 0.005_dp

@@ -8,11 +8,12 @@ program capsim
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t, parse_command_line, write_help
-   use case_output, only: case_summary_t, open_case_file, close_case_file
+   use case_output, only: case_summary_t, close_case_file
    use capsule_model, only: capsule_model_t
    use capsule_dynamics, only: capsule_t
    use axisymmetric_tube, only: axisymmetric_tube_t
    use tube_capsule, only: tube_capsule_t
+   use tube_branch, only: run_tube_branch
    implicit none
 
    type(run_options_t) :: opts
@@ -39,6 +40,12 @@ program capsim
    end if
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
    if (opts%threads > 0) call omp_set_num_threads(opts%threads)
+   if (len_trim(opts%branch_ca) > 0) then
+      ! A steady branch: its own case files and branch file (tube_branch).
+      call run_tube_branch(opts, omp_get_max_threads(), stat, errmsg)
+      if (stat /= 0) call die('capsim: error: '//errmsg, 1)
+      stop
+   end if
    call system_clock(clock_start, clock_rate)
 
    if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d') then
@@ -68,14 +75,7 @@ program capsim
    summary%wall_time_s = summary%wall_time_before_s + real(clock_end - clock_start, dp) / clock_rate
    summary%threads = omp_get_max_threads()
 
-   if (steady_index > 0) then
-      call open_case_file(opts, model%law, summary, model%history_names, model%history_units, &
-                          model%history(:, 1:model%n_rec), f, stat, errmsg, model%history(:, steady_index))
-   else
-      call open_case_file(opts, model%law, summary, model%history_names, model%history_units, &
-                          model%history(:, 1:model%n_rec), f, stat, errmsg)
-   end if
-   if (stat == 0) call model%write_geometry(f, stat, errmsg)
+   call model%start_case_file(opts, summary, steady_index, f, stat, errmsg)
    if (stat == 0) call close_case_file(f, opts, stat, errmsg)
    if (stat /= 0) call case_file_failed('capsim: error: writing the case file: '//errmsg)
    ! The case file is complete: the checkpoint has served its purpose.

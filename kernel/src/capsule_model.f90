@@ -13,7 +13,7 @@ module capsule_model
    use hdf5_writer, only: h5_file_t
    use membrane_law, only: membrane_law_t
    use run_options, only: run_options_t, option_signature
-   use case_output, only: case_summary_t, write_checkpoint, read_checkpoint
+   use case_output, only: case_summary_t, write_checkpoint, read_checkpoint, open_case_file
    use state_vector, only: state_cursor_t, state_counting, state_storing, state_restoring
    implicit none
    private
@@ -74,6 +74,7 @@ module capsule_model
       procedure :: time_loop
       procedure :: allocate_history
       procedure :: next_record
+      procedure :: start_case_file
    end type capsule_model_t
 
    abstract interface
@@ -262,6 +263,27 @@ contains
       if (trim(summary%status) == 'steady') steady_index = self%n_rec
       summary%volume_change = self%history(self%col_volume, self%n_rec) / v0 - 1.0_dp
    end subroutine time_loop
+
+   !> Creates the case file (opts%out, as OUT.tmp) with the run's attributes, the history rows
+   !> 1:n_rec, /steady from row steady_index when it is > 0, and the model's geometry. The caller
+   !> may add attributes, then closes it (close_case_file), or removes it when stat /= 0.
+   subroutine start_case_file(self, opts, summary, steady_index, f, stat, errmsg)
+      class(capsule_model_t), intent(in) :: self
+      type(run_options_t), intent(in) :: opts
+      type(case_summary_t), intent(in) :: summary
+      integer, intent(in) :: steady_index
+      type(h5_file_t), intent(inout) :: f
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      if (steady_index > 0) then
+         call open_case_file(opts, self%law, summary, self%history_names, self%history_units, &
+                             self%history(:, 1:self%n_rec), f, stat, errmsg, self%history(:, steady_index))
+      else
+         call open_case_file(opts, self%law, summary, self%history_names, self%history_units, &
+                             self%history(:, 1:self%n_rec), f, stat, errmsg)
+      end if
+      if (stat == 0) call self%write_geometry(f, stat, errmsg)
+   end subroutine start_case_file
 
    !> Steady, continuous elongation or mesh breakdown, from the history so far.
    subroutine classify(self, opts, summary, decided)

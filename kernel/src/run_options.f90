@@ -12,7 +12,7 @@ module run_options
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, write_help, path_len
+   public :: run_options_t, parse_command_line, option_signature, write_help, path_len, branch_ca_values, branch_case_path
 
    !> Longest path (--out, --wall-cache, --namelist) the kernel holds; a longer one is refused.
    integer, parameter :: path_len = 1024
@@ -70,6 +70,10 @@ module run_options
       real(dp) :: t_max = 60.0_dp
       integer :: threads = 0
       character(len=path_len) :: out = ''
+      !> Steady branch (tube axi): the requested Ca_s as given ('0.01,0.02,...', '' = one case at
+      !> --ca), and the branch file. --out then holds '{ca}', replaced by each value's text.
+      character(len=path_len) :: branch_ca = ''
+      character(len=path_len) :: branch_summary = ''
       !> Steady: area varies by less than steady_tol * 4 pi a**2 over one time unit, and D12
       !> by less than shape_tol * D12 (+1e-4 absolute).
       real(dp) :: steady_tol = 1.0e-3_dp
@@ -192,6 +196,16 @@ contains
          if (stat /= 0) return
       end do
       if (opts%show_help) return
+      ! A branch runs its cases at the listed Ca_s; --ca, if not given, is the first of them
+      ! (the case that time stepping starts from).
+      if (len_trim(opts%branch_ca) > 0 .and. .not. opts%given(option_index('--ca'))) then
+         block
+            real(dp), allocatable :: values(:)
+            logical :: ok
+            call branch_ca_values(opts, values, ok)
+            if (ok) opts%ca = values(1)
+         end block
+      end if
       call validate(opts, stat, errmsg)
 
    contains
@@ -294,6 +308,10 @@ contains
          call word_field(opts%offset_mode)
       case ('--threads')
          call int_field(opts%threads)
+      case ('--branch-ca')
+         call word_field(opts%branch_ca)
+      case ('--branch-summary')
+         call word_field(opts%branch_summary)
       case default
          stat = 3
          errmsg = name//': in option_table but not bound to a field of run_options_t'
@@ -732,6 +750,14 @@ contains
          errmsg = '--out: missing (path of the HDF5 case file to write)'
       end if
       if (len(errmsg) > 0) return
+      if (len_trim(opts%branch_ca) > 0 .or. len_trim(opts%branch_summary) > 0) then
+         call validate_branch(opts, errmsg)
+         if (len(errmsg) > 0) return
+         call check_output_path(branch_case_path(opts, 1), errmsg)
+         if (len(errmsg) == 0) call check_output_path(trim(opts%branch_summary), errmsg)
+         if (len(errmsg) == 0) stat = 0
+         return
+      end if
       ! Fail now, not after hours of computing, if the output cannot be written.
       call check_output_path(trim(opts%out), errmsg)
       if (len(errmsg) > 0) return
@@ -884,6 +910,90 @@ contains
          end if
       end do
    end function words_joined
+
+   !> A steady branch needs its list (ascending, each value a valid --ca), its branch file,
+   !> and '{ca}' in --out (each case has its own file, named by its value's text).
+   subroutine validate_branch(opts, errmsg)
+      type(run_options_t), intent(in) :: opts
+      character(len=:), allocatable, intent(inout) :: errmsg
+      real(dp), allocatable :: values(:)
+      logical :: ok
+      if (len_trim(opts%branch_ca) == 0) then
+         errmsg = '--branch-summary: only with --branch-ca'
+         return
+      else if (len_trim(opts%branch_summary) == 0) then
+         errmsg = '--branch-summary: missing (the branch file of --branch-ca)'
+         return
+      else if (index(opts%out, '{ca}') == 0) then
+         errmsg = '--out: with --branch-ca it must hold {ca} (one case file per Ca_s), got "'//trim(opts%out)//'"'
+         return
+      end if
+      call branch_ca_values(opts, values, ok)
+      if (.not. ok) then
+         errmsg = '--branch-ca: expected comma-separated numbers in (0, 100], got "'//trim(opts%branch_ca)//'"'
+      else if (any(values(2:) <= values(:size(values) - 1))) then
+         errmsg = '--branch-ca: the values must increase (the branch is followed upwards in Ca_s)'
+      else if (values(1) /= opts%ca) then
+         errmsg = '--ca: with --branch-ca it is the first value of the list, got '//real_text(opts%ca)
+      end if
+   end subroutine validate_branch
+
+   !> The Ca_s of --branch-ca; ok is false unless every item is a number in (0, 100].
+   subroutine branch_ca_values(opts, values, ok)
+      type(run_options_t), intent(in) :: opts
+      real(dp), allocatable, intent(out) :: values(:)
+      logical, intent(out) :: ok
+      integer :: k, n
+      n = count_items(opts%branch_ca)
+      allocate (values(n))
+      ok = n > 0
+      do k = 1, n
+         if (.not. ok) exit
+         call parse_real(branch_item(opts%branch_ca, k), values(k), ok)
+         ok = ok .and. values(k) > 0.0_dp .and. values(k) <= 100.0_dp
+      end do
+   end subroutine branch_ca_values
+
+   !> The case file of the k-th Ca_s of the branch: --out with '{ca}' replaced by the value
+   !> as written in --branch-ca (so that the caller chooses the names).
+   function branch_case_path(opts, k) result(path)
+      type(run_options_t), intent(in) :: opts
+      integer, intent(in) :: k
+      character(len=:), allocatable :: path
+      integer :: at
+      at = index(opts%out, '{ca}')
+      path = opts%out(:at - 1)//branch_item(opts%branch_ca, k)//trim(opts%out(at + 4:))
+   end function branch_case_path
+
+   pure integer function count_items(list) result(n)
+      character(len=*), intent(in) :: list
+      integer :: k
+      n = 0
+      if (len_trim(list) == 0) return
+      n = 1
+      do k = 1, len_trim(list)
+         if (list(k:k) == ',') n = n + 1
+      end do
+   end function count_items
+
+   !> The k-th comma-separated item of list, without blanks.
+   pure function branch_item(list, k) result(item)
+      character(len=*), intent(in) :: list
+      integer, intent(in) :: k
+      character(len=:), allocatable :: item
+      integer :: first, last, j
+      first = 1
+      do j = 1, k - 1
+         first = first + index(list(first:), ',')
+      end do
+      last = index(list(first:), ',')
+      if (last == 0) then
+         last = len_trim(list)
+      else
+         last = first + last - 2
+      end if
+      item = trim(adjustl(list(first:last)))
+   end function branch_item
 
    !> Everything that determines the result: a checkpoint is resumed only if this matches.
    function option_signature(opts) result(sig)
