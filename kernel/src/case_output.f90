@@ -25,6 +25,12 @@ module case_output
       integer :: threads = 1
       real(dp) :: dt = 0
       real(dp) :: volume_change = 0
+      !> Estimated remaining change of the settled shape measure (shear: D12) between the
+      !> steady row and its long-time limit, relative to the row's value; negative where the
+      !> model does not estimate it (tube) or the run is not steady. Written as the root
+      !> attribute time_error_rel, with time_error_measure naming the measure.
+      real(dp) :: time_error = -1
+      character(len=:), allocatable :: time_error_measure
       !> Set when the run cannot go on for a reason outside the model (a checkpoint that cannot
       !> be written): the program then exits 1 with this line and writes no case file.
       character(len=:), allocatable :: fatal
@@ -77,6 +83,10 @@ contains
       if (stat == 0) call f%write_attr('/', 'threads', summary%threads, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'volume_change_rel', summary%volume_change, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'volume_correction', merge(1, 0, opts%volume_correction), stat, errmsg)
+      if (summary%time_error >= 0.0_dp .and. allocated(summary%time_error_measure)) then
+         if (stat == 0) call f%write_attr('/', 'time_error_rel', summary%time_error, stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'time_error_measure', summary%time_error_measure, stat, errmsg)
+      end if
       if (tube) then
          if (stat == 0) call f%write_attr('/', 'a_over_l', opts%a_over_l, stat, errmsg)
          if (stat == 0) call f%write_attr('/', 'model', trim(opts%model), stat, errmsg)
