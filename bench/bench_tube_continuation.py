@@ -21,7 +21,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import h5py
-import numpy as np
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
