@@ -133,20 +133,22 @@ def diagnosis_confusion() -> str:
             "fit-tube's estimator (lengths), after only where the verdict supports it.")
 
 
+def _coverage_cell(entry: tuple) -> str:
+    """A coverage (hits, batches, Wilson interval) as a table cell."""
+    k, n, low, high = entry
+    return "—" if n == 0 else f"{k}/{n} = {100 * k / n:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
+
+
 def interval_coverage(name: str = "interval_coverage.csv") -> str:
     """Measured coverage of the diagnosis' intervals (issue 19, item 4), from the rows its run
     wrote (``docs/validation/runs/interval_coverage.csv``, by ``tests/python/interval_coverage.py``)."""
     sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))
     from interval_coverage import summarise
 
-    def cell(entry: tuple) -> str:
-        k, n, low, high = entry
-        return "—" if n == 0 else f"{k}/{n} = {100 * k / n:.0f} % [{100 * low:.0f}, {100 * high:.0f}]"
-
     rows = []
     for e in summarise(RUNS / name):
-        rows.append([e["config"], str(e["batches"]), cell(e["covered"]), cell(e["g_s_lengths_covered"]),
-                     cell(e["g_s_contours_covered"]),
+        rows.append([e["config"], str(e["batches"]), _coverage_cell(e["covered"]),
+                     _coverage_cell(e["g_s_lengths_covered"]), _coverage_cell(e["g_s_contours_covered"]),
                      f"{e['median_error']:+.3g}" if "median_error" in e else "—",
                      f"{e['median_width']:.3g}" if "median_width" in e else "—"])
     return _markdown(["effect, true strength", "batches", "strength interval holds the truth",
@@ -154,12 +156,34 @@ def interval_coverage(name: str = "interval_coverage.csv") -> str:
                       "median error of the strength", "median interval width"], rows)
 
 
+def g_s_interval_coverage(name: str = "interval_coverage_g_s.csv") -> str:
+    """Measured coverage of the G_s intervals (issue 19, item 4) by each estimator, with the
+    median error and interval width relative to the truth (``interval_coverage.py``'s rows)."""
+    sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))
+    from interval_coverage import summarise
+
+    def percent(entry: dict, key: str) -> str:
+        return f"{100 * entry[key]:+.1f} %" if key in entry else "—"
+
+    rows = []
+    for e in summarise(RUNS / name):
+        rows.append([e["config"], str(e["batches"]),
+                     _coverage_cell(e["g_s_lengths_covered"]), percent(e, "g_s_lengths_median_error"),
+                     percent(e, "g_s_lengths_median_width").lstrip("+"),
+                     _coverage_cell(e["g_s_contours_covered"]), percent(e, "g_s_contours_median_error"),
+                     percent(e, "g_s_contours_median_width").lstrip("+")])
+    return _markdown(["effect, true strength", "batches", "G_s by lengths: interval holds the truth", "median error",
+                      "median width", "G_s by contour fits: interval holds the truth", "median error",
+                      "median width"], rows)
+
+
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,
                                         "interval-coverage": interval_coverage,
                                         "interval-coverage-statistical-only":
-                                            lambda: interval_coverage("interval_coverage_statistical_only.csv")}
+                                            lambda: interval_coverage("interval_coverage_statistical_only.csv"),
+                                        "g-s-interval-coverage": g_s_interval_coverage}
 
 
 def main(argv: list[str]) -> int:

@@ -273,10 +273,12 @@ CONFUSION_BATCHES: dict[str, tuple[str, dict, str | None]] = {
     "prestress_0.07": ("NH+prestress0.07", {}, "prestress"),
     "kb_0.003": ("NH+kb0.003", {}, "kb"),
     "kb_0.007": ("NH+kb0.007", {}, "kb"),
-    "law_GH_nu0.5": ("GH_nu0.5", {}, "law GH_nu0.5"),
+    # GH's nu_s is a continuous candidate over the shipped groups 0, 0.2, 0.5 (law_family): a GH
+    # batch, at a group or between two, is that family's; Skalak's C = 3 needs simulations.
+    "law_GH_nu0.5": ("GH_nu0.5", {}, "GH_nu"),
     "law_SK_C1": ("SK_C1", {}, "law SK_C1"),
     "outside_SK_C3": ("SK_C3", {}, "unexplained"),
-    "outside_GH_nu0.35": ("GH_nu0.35", {}, "unexplained"),
+    "between_GH_nu0.35": ("GH_nu0.35", {}, "GH_nu"),
     "outside_ripple_1.5px": ("NH", {"ripple_px": 1.5}, "unexplained"),
 }
 

@@ -70,6 +70,77 @@ def test_lengths_read_off_a_noiseless_trace_are_the_kernels(monkeypatch):
         assert L_p == pytest.approx(true_lp[i] * scale, abs=0.15)
 
 
+def test_lengths_fitted_on_a_noisy_trace_are_unbiased_where_its_extremes_are_not():
+    """The generator's tracing noise (0.45 px, correlated) makes the extremes of the points
+    read L_z about 0.8 px and L_p 0.4 px long; the contour's fit (``contour_lengths``) reads both
+    within 0.2 px on average over the pool's 24 NH capsules traced four times, and its scatter is
+    not larger than the extremes'."""
+    from capsmech.inversion.lengths import contour_lengths
+
+    p, k = pool(), pool().keys.index("NH")
+    with np.load(ib.POOL) as f:
+        true_lz, true_lp = f["L_z"][k], f["L_p"][k]
+    scale = ib.TUBE_RADIUS_UM / ib.PIXEL_SIZE_UM
+    rng = np.random.default_rng(5)
+    extremes, fitted = [], []
+    for _ in range(4):
+        for i in range(len(true_lz)):
+            contour = ib.traced(ib._closed_section(p.r[k, i], p.z[k, i]) * scale + [300.0, 150.0], rng)
+            truth = np.array([true_lz[i], true_lp[i]]) * scale
+            extremes.append(np.array(ib.measured_lengths(contour)) - truth)
+            fitted.append(np.array(contour_lengths(contour)) - truth)
+    extremes, fitted = np.array(extremes), np.array(fitted)
+    assert extremes.mean(axis=0)[0] > 0.5 and extremes.mean(axis=0)[1] > 0.25
+    assert np.all(np.abs(fitted.mean(axis=0)) < 0.2), fitted.mean(axis=0)
+    assert np.all(fitted.std(axis=0) <= extremes.std(axis=0)), (fitted.std(axis=0), extremes.std(axis=0))
+
+
+def test_lengths_of_an_ellipse_and_of_too_few_points():
+    """An ellipse (semi-axes 90 and 70 px, 230 points): L_z 180 px to 0.01 px and no parachute;
+    a contour of 20 points is too few for the fit: NaN, not a number it cannot support."""
+    from capsmech.inversion.lengths import contour_lengths
+
+    t = np.linspace(0, 2 * np.pi, 230, endpoint=False)
+    ellipse = np.column_stack([300 + 90 * np.cos(t), 150 + 70 * np.sin(t)])
+    L_z, L_p = contour_lengths(ellipse)
+    assert L_z == pytest.approx(180.0, abs=0.01) and L_p == pytest.approx(0.0, abs=0.01)
+    assert all(math.isnan(v) for v in contour_lengths(ellipse[::12]))
+
+
+def test_g_s_by_lengths_holds_the_truth_on_control_batches(tmp_path):
+    """G_s by lengths of 12 control batches (16 NH capsules each, fresh noise): the mean error
+    under 1.5 % (it was -5.2 % with the lengths of the file, read off the extremes), and the 95 %
+    interval (Student t with the databases' accuracy) holds G_s = 0.025 N/m in at least 11."""
+    from capsmech.diagnosis.record import g_s_interval
+    from capsmech.diagnosis.scoring import length_g_s_with_systematic
+    from capsmech.inversion.fitting import tube_inverter
+
+    inverter = tube_inverter(load_database(database_path("tube-paper")), "NH")
+    errors, held = [], 0
+    for seed in range(12):
+        drawn = ib.draw_batch(pool(), "NH", tmp_path, f"control{seed}", seed=4100 + seed, n=16)
+        summary, systematic = length_g_s_with_systematic(read_measurements(drawn.csv, "tube"), inverter)
+        interval = g_s_interval(*summary, systematic)
+        low, high = interval["interval"]
+        assert systematic > 0 and low < interval["value"] < high
+        errors.append(interval["value"] / ib.G_S - 1)
+        held += low <= ib.G_S <= high
+    assert abs(np.mean(errors)) < 0.015, errors
+    assert held >= 11, (held, errors)
+
+
+def test_a_g_s_interval_adds_its_systematic_part_in_quadrature():
+    from scipy import stats
+
+    from capsmech.diagnosis.record import g_s_interval
+
+    statistical = stats.t.ppf(0.975, 15) * 0.004 / 4
+    interval = g_s_interval(0.025, 0.004, 16, 0.0007)
+    assert interval["interval"][1] - 0.025 == pytest.approx(math.hypot(statistical, 0.0007), rel=1e-12)
+    assert g_s_interval(0.025, 0.004, 16)["interval"][1] - 0.025 == pytest.approx(statistical, rel=1e-12)
+    assert g_s_interval(0.025, 0.004, 1)["interval"] is None
+
+
 def test_a_distortion_no_candidate_describes_is_unexplained(tmp_path):
     """A cos(4 phi) ripple of 1.5 px: the offset and radius candidates lower chi2, but what they
     leave is far from noise, so no effect is named and G_s after is not given."""
@@ -159,13 +230,20 @@ def test_strength_intervals_hold_the_truth_at_their_level(tmp_path):
 
 
 @pytest.mark.validate
-@pytest.mark.xfail(strict=True, reason="issue 19 item 4 open: G_s intervals are statistical only; G_s by lengths "
-                                       "read off noisy contours is biased low (control: 16 % coverage)")
 def test_g_s_intervals_hold_the_truth_at_their_level(tmp_path):
+    """G_s after the true effect, by lengths (measured on the contour) and by the contour fits,
+    with the databases' accuracy and the strength's interval carried (measured before: the
+    control 4/25, the effects 8-100 % by lengths and 40-88 % by the contour fits; after, 8
+    batches of each effect and 50 of the control: 113/114 and 64/64). Here 8 batches of the
+    control, an offset and a pre-stress, ~15 core-minutes; the control's G_s by lengths is no
+    longer biased (it was -5.2 %)."""
     import interval_coverage
 
-    out = interval_coverage.run_study(8, 2, tmp_path / "coverage.csv", configs=[8])
+    out = interval_coverage.run_study(8, 2, tmp_path / "coverage.csv", configs=[8, 0, 4])
     for entry in interval_coverage.summarise(out):
-        k, n, _, high = entry["g_s_lengths_covered"]
-        if n:
-            assert high >= 0.95, entry
+        for column in ("g_s_lengths_covered", "g_s_contours_covered"):
+            k, n, _, high = entry[column]
+            if n:
+                assert high >= 0.95, (column, entry)
+        if entry["config"] == "no effect":
+            assert abs(entry["g_s_lengths_median_error"]) < 0.02, entry

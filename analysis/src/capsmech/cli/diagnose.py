@@ -93,7 +93,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"with {fixed} fixed: {later.verdict}")
         if sequence.kind == "effect":
             (before, _, n_before), (after, _, n_after) = sequence.g_s_lengths[0], sequence.g_s_lengths[-1]
-            print(f"effects found: {sequence.verdict}; G_s by the lengths (fit-tube's estimator) {before:.4g} N/m "
+            print(f"effects found: {sequence.verdict}; G_s by the lengths (measured on the contours, inverted) {before:.4g} N/m "
                   f"({n_before} capsules) -> {after:.4g} N/m ({n_after}); by the contour fits "
                   f"{sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
         else:

@@ -36,12 +36,18 @@ def _summary(values: np.ndarray) -> tuple[float, float, int]:
     return (float(g.mean()), float(g.std(ddof=1)), len(g)) if len(g) > 1 else (math.nan, math.nan, len(g))
 
 
-def g_s_interval(mean: float, sd: float, n: int, level: float = G_S_LEVEL) -> dict[str, Any]:
-    """G_s [N/m] with the interval of its mean over n capsules (Student t)."""
+def g_s_interval(mean: float, sd: float, n: int, systematic: float = 0.0, level: float = G_S_LEVEL) -> dict[str, Any]:
+    """G_s [N/m] with the interval of its mean over n capsules: the Student-t half-width of the
+    capsules' scatter and the ``systematic`` half-width [N/m] (the databases' accuracy, and the
+    uncertainty of an effect's strength G_s was computed at; ``capsmech.diagnosis.scoring``),
+    added in quadrature as for the strengths' intervals."""
     if n < 2 or not (math.isfinite(mean) and math.isfinite(sd)):
         return {"value": None, "interval": None, "capsules": n}
-    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
-    return {"value": mean, "interval": [mean - half, mean + half], "sd": sd, "capsules": n, "level": level}
+    statistical = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
+    systematic = float(systematic) if math.isfinite(systematic) else 0.0
+    half = math.hypot(statistical, systematic)
+    return {"value": mean, "interval": [mean - half, mean + half], "sd": sd, "systematic": systematic,
+            "capsules": n, "level": level}
 
 
 def candidate_record(result: CandidateResult) -> dict[str, Any]:
@@ -58,10 +64,10 @@ def candidate_record(result: CandidateResult) -> dict[str, Any]:
         "capsules": result.capsules, "chi2_base": _number(result.chi2_base), "chi2": _number(result.chi2),
         "bic_drop": _number(result.bic_drop), "cv_gain": _number(result.cv_gain),
         "cv_p_value": _number(result.cv_p_value),
-        "g_s_contour_fits": {"before": g_s_interval(*result.g_s_before, result.capsules),
-                             "after": g_s_interval(*result.g_s_after, result.capsules)},
-        "g_s_lengths": {"before": g_s_interval(*result.g_s_lengths_before),
-                        "after": g_s_interval(*result.g_s_lengths_after)},
+        "g_s_contour_fits": {"before": g_s_interval(*result.g_s_before, result.capsules, result.g_s_systematic[0]),
+                             "after": g_s_interval(*result.g_s_after, result.capsules, result.g_s_systematic[1])},
+        "g_s_lengths": {"before": g_s_interval(*result.g_s_lengths_before, result.g_s_lengths_systematic[0]),
+                        "after": g_s_interval(*result.g_s_lengths_after, result.g_s_lengths_systematic[1])},
         "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
     })
     return record
@@ -102,21 +108,27 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
                              if kind == "cannot_tell" and tied else [])
     closest = first.closest
     record["closest"] = candidate_record(closest) if closest is not None else None
-    # G_s by two estimators, each the same before and after (issue 19, item 3): fit-tube's
-    # (lengths inverted) and the contour fits'. "After" only where the verdict supports it.
+    # G_s by two estimators, each the same before and after (issue 19, item 3): by lengths
+    # (measured on the contour, inverted) and by the contour fits. "After" only where the
+    # verdict supports it. Each with its systematic part (``g_s_interval``).
     if isinstance(outcome, SequentialDiagnosis):
-        lengths = list(outcome.g_s_lengths)
-        contour = [(m, s, outcome.fit.capsules if outcome.fit is not None else 0) for m, s in outcome.g_s]
+        lengths_systematic = [*outcome.g_s_lengths_systematic, 0.0, 0.0]
+        contour_systematic = [*outcome.g_s_systematic, 0.0, 0.0]
+        lengths = [(*v, systematic) for v, systematic in zip(outcome.g_s_lengths, lengths_systematic)]
+        contour = [(m, s, outcome.fit.capsules if outcome.fit is not None else 0, systematic)
+                   for (m, s), systematic in zip(outcome.g_s, contour_systematic)]
         if not outcome.effects:
-            contour = [_summary(first.base.g_s)] if first.base is not None else []
+            contour = [(*_summary(first.base.g_s), contour_systematic[0])] if first.base is not None else []
     else:
-        chosen_result = first.chosen
-        c = chosen_result
-        lengths = [c.g_s_lengths_before, c.g_s_lengths_after] if c is not None else []
-        contour = ([(*c.g_s_before, c.capsules), (*c.g_s_after, c.capsules)] if c is not None else
-                   [_summary(first.base.g_s)] if first.base is not None else [])
+        c = first.chosen
+        lengths = ([(*c.g_s_lengths_before, c.g_s_lengths_systematic[0]),
+                    (*c.g_s_lengths_after, c.g_s_lengths_systematic[1])] if c is not None else [])
+        contour = ([(*c.g_s_before, c.capsules, c.g_s_systematic[0]), (*c.g_s_after, c.capsules, c.g_s_systematic[1])]
+                   if c is not None else
+                   [(*_summary(first.base.g_s), closest.g_s_systematic[0] if closest is not None else 0.0)]
+                   if first.base is not None else [])
     if not lengths and closest is not None:
-        lengths = [closest.g_s_lengths_before]
+        lengths = [(*closest.g_s_lengths_before, closest.g_s_lengths_systematic[0])]
     g_s: dict[str, Any] = {}
     for name, values in (("lengths", lengths), ("contour_fits", contour)):
         before = g_s_interval(*values[0]) if values and math.isfinite(values[0][0]) else None

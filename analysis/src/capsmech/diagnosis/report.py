@@ -107,7 +107,7 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
 
 
 def _lengths(summary: tuple[float, float, int]) -> str:
-    """fit-tube's G_s summary (mean, sd, capsules) in words."""
+    """G_s by lengths (mean, sd, capsules) in words."""
     mean, sd, n = summary
     return f"{mean:.4g} ± {sd:.2g} ({n})" if math.isfinite(mean) else f"none ({n})"
 

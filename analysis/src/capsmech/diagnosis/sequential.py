@@ -25,7 +25,7 @@ from capsmech.diagnosis.scoring import (
     BatchScore,
     _g_s_summary,
     _law_inverter,
-    length_g_s,
+    length_g_s_with_systematic,
     noise_levels,
     score_batch,
 )
@@ -49,9 +49,14 @@ class SequentialDiagnosis:
     #: What the effects found leave (all of them switched on), tested against the noise; the
     #: first round's when none was found.
     fit: GoodnessOfFit | None = None
-    #: G_s by fit-tube's estimator (``length_g_s``: mean, sd, capsules) before and, when effects
-    #: were found, with all of them switched on.
+    #: G_s by lengths (``length_g_s``: mean, sd, capsules) before and, when effects were found,
+    #: with all of them switched on.
     g_s_lengths: list[tuple[float, float, int]] = field(default_factory=list)
+    #: The systematic half-widths [N/m] of ``g_s`` and ``g_s_lengths`` (before, after): the
+    #: databases' accuracy and, after, the largest that a round's strength interval carries
+    #: into G_s (``CandidateResult.g_s_systematic``).
+    g_s_systematic: list[float] = field(default_factory=list)
+    g_s_lengths_systematic: list[float] = field(default_factory=list)
     #: The batch's fit with every effect found switched on (None when none was found).
     final: BatchScore | None = field(default=None, repr=False)
 
@@ -244,13 +249,23 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
     effects = [(c.name, theta) for c, theta in fixed]
     g_s = [rounds[0].chosen.g_s_before if rounds[0].chosen else (math.nan, math.nan)]
     fit, final = rounds[0].fit, None
-    g_s_lengths = [length_g_s(with_contours, _law_inverter(database, base_law))]
+    lengths, floor = length_g_s_with_systematic(with_contours, _law_inverter(database, base_law))
+    floor = float(np.nan_to_num(floor))
+    g_s_lengths, contour_systematic, lengths_systematic = [lengths], [floor], [floor]
     if fixed:
         state, law = _apply_all(with_contours, base_law, fixed, library)
         final = score_batch(state, database, law, sigma)
         keep = np.isfinite(final.g_s)
         g_s.append(_g_s_summary(final, keep)[0])
-        g_s_lengths.append(length_g_s(state, _law_inverter(database, law)))
+        lengths, floor = length_g_s_with_systematic(state, _law_inverter(database, law))
+        g_s_lengths.append(lengths)
+        # Each round's strength interval carried into G_s: the largest (an approximation for
+        # two effects, whose joint interval is not propagated).
+        round_choices = [r.chosen for r in rounds if r.chosen is not None]
+        floor = float(np.nan_to_num(floor))
+        contour_systematic.append(max([floor, *(c.g_s_systematic[1] for c in round_choices)]))
+        lengths_systematic.append(max([floor, *(c.g_s_lengths_systematic[1] for c in round_choices)]))
         fit = batch_fit(with_contours, final)
-    return SequentialDiagnosis(rounds, effects, g_s, note, joint, fit, g_s_lengths, final)
+    return SequentialDiagnosis(rounds, effects, g_s, note, joint, fit, g_s_lengths, final=final,
+                               g_s_systematic=contour_systematic, g_s_lengths_systematic=lengths_systematic)
 
