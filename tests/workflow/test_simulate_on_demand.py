@@ -94,7 +94,10 @@ def test_simulate_closes_the_loop_on_a_law_no_database_holds(tmp_path, monkeypat
     """A batch of Skalak C = 3 capsules (the independent generator's pool), diagnosed with
     ``--simulate`` and only the Skalak-C candidate: the levels C = 2, 4, 8 are simulated around
     the batch (about 190 cases of 64 elements, ~40 core-minutes; cached), the verdict names
-    SK_C with an interval holding 3, and G_s after holds the truth better than before."""
+    SK_C with an interval holding 3, and G_s after holds the truth better than before.
+    Measured (kernel 0.3.1 cases, 12 capsules, 189 cases in about 1 h on the loaded 2-core
+    machine): C = 3.19 [2.63, 3.75], within noise (chi2/dof 0.97); G_s by the contour fits
+    0.0716 -> 0.0256 [0.0233, 0.0279] N/m, truth 0.025."""
     import independent_batches as ib
 
     monkeypatch.setenv(DATA_DIR_ENV, str(tmp_path / "cache"))
@@ -109,8 +112,11 @@ def test_simulate_closes_the_loop_on_a_law_no_database_holds(tmp_path, monkeypat
     (effect,) = record["effects"]
     assert effect["name"] == "SK_C"
     assert effect["interval"][0] <= 3.0 <= effect["interval"][1], effect
-    before, after = record["g_s"]["lengths"]["before"]["value"], record["g_s"]["lengths"]["after"]["value"]
-    assert abs(after - ib.G_S) < abs(before - ib.G_S), (before, after)
+    # G_s by the contour fits (by the lengths there is none: these capsules' lengths, with
+    # almost no parachute, are reproduced by no NH node, nor by the blend of two Skalak levels).
+    before, after = record["g_s"]["contour_fits"]["before"], record["g_s"]["contour_fits"]["after"]
+    assert after["interval"][0] <= ib.G_S <= after["interval"][1], after
+    assert abs(after["value"] - ib.G_S) < abs(before["value"] - ib.G_S), (before, after)
 
 
 def test_a_new_law_over_a_shipped_grid_is_one_command(tmp_path):
