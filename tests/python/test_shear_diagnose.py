@@ -186,9 +186,13 @@ def _rerun(name: str, capsule_id: str) -> tuple[float, float]:
 
 
 def test_lambda_one_batch_capsule_is_a_kernel_run():
-    """A few seconds: the lambda = 1 capsule's steady D12 as the truth file holds it (6 digits)."""
+    """A few seconds: the lambda = 1 capsule's steady D12 against the truth file's. The file was
+    made by kernel 0.3.0, whose stopping rule stopped in the decay after the overshoot, +0.4 %
+    above the long-time limit at Ca_s 0.3 (validation: shear flow, stopping rule); kernel 0.3.2
+    runs to the limit. Measured: 0.390059 against 0.391481 (-0.36 %). Until the batch is
+    remade, the rerun must lie below the recorded value by that bias, not more."""
     d12, recorded = _rerun("shear_batch_A", "c002")
-    assert d12 == pytest.approx(recorded, rel=1e-5)
+    assert -0.006 < d12 / recorded - 1 < -0.001
 
 
 @pytest.mark.validate
