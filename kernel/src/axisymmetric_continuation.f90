@@ -411,13 +411,11 @@ contains
 
    !> The two border columns at rz, orthonormalised: the volume gradient and the uniform axial
    !> shift, which moves the z of every node: packed entries 1, 3, 5, ..., m - 1 and m (see
-   !> pack_dofs: q = (z_1, r_2, z_2, ..., r_n-1, z_n-1, z_n)). axisymmetric_steady's
-   !> constraint_directions sets entries 1, 2, 4, ..., m - 2, m instead (the radii of the
-   !> interior nodes): there the "shift" is mostly an inflation and the translation, along
-   !> which J is nearly singular, is left free; its steps then carried translations of the
-   !> size of the step that restore_volume_and_centre took out again (a continuation step of
-   !> 1 % in Ca_s at NH a/l 0.9, Ca_s 0.1, failed). Kept there, as changing it would move the
-   !> existing single-case results (code version); see the report of issue 22.
+   !> pack_dofs: q = (z_1, r_2, z_2, ..., r_n-1, z_n-1, z_n)). Up to kernel 0.3.1
+   !> axisymmetric_steady's constraint_directions set entries 1, 2, 4, ..., m - 2, m (the
+   !> interior radii) and left the translation free (a continuation step of 1 % in Ca_s at NH
+   !> a/l 0.9, Ca_s 0.1, failed with it); kernel 0.3.2 fixed it there, so the two are now the
+   !> same computation on different containers and should become one (next step).
    subroutine constraint_directions(self, border, rz)
       class(axisymmetric_operator_t), intent(inout) :: self
       real(dp), intent(out) :: border(:, :)
