@@ -30,8 +30,7 @@ module axisymmetric_continuation
    use tube_history, only: h_stretch
    use axisymmetric_operator, only: axisymmetric_operator_t, velocity_jacobian, largest_growth_rate, pack_dofs, &
                                     unpack_dofs, restore_volume_and_centre, jacobian_fd_step
-   use axisymmetric_membrane, only: meridian_volume_gradient
-   use axisymmetric_steady, only: newton_state_t, newton_tolerance
+   use axisymmetric_steady, only: newton_state_t, newton_tolerance, constraint_directions, projected_residual
    implicit none
    private
    public :: branch_point_t, fold_search_t, start_branch_point, continue_to_ca, search_fold
@@ -409,35 +408,6 @@ contains
 
    end subroutine correct
 
-   !> The two border columns at rz, orthonormalised: the volume gradient and the uniform axial
-   !> shift, which moves the z of every node: packed entries 1, 3, 5, ..., m - 1 and m (see
-   !> pack_dofs: q = (z_1, r_2, z_2, ..., r_n-1, z_n-1, z_n)). Up to kernel 0.3.1
-   !> axisymmetric_steady's constraint_directions set entries 1, 2, 4, ..., m - 2, m (the
-   !> interior radii) and left the translation free (a continuation step of 1 % in Ca_s at NH
-   !> a/l 0.9, Ca_s 0.1, failed with it); kernel 0.3.2 fixed it there, so the two are now the
-   !> same computation on different containers and should become one (next step).
-   subroutine constraint_directions(self, border, rz)
-      class(axisymmetric_operator_t), intent(inout) :: self
-      real(dp), intent(out) :: border(:, :)
-      real(dp), intent(in) :: rz(:, :)
-      integer :: m
-      m = size(border, 1)
-      call meridian_volume_gradient(rz, self%grad)
-      call pack_dofs(self%grad, border(:, 1))
-      border(:, 2) = 0.0_dp
-      border(1, 2) = 1.0_dp
-      border(3:m - 1:2, 2) = 1.0_dp
-      border(m, 2) = 1.0_dp
-      border(:, 2) = border(:, 2) / norm2(border(:, 2))
-      border(:, 1) = border(:, 1) - dot_product(border(:, 1), border(:, 2)) * border(:, 2)
-      border(:, 1) = border(:, 1) / norm2(border(:, 1))
-   end subroutine constraint_directions
-
-   !> Largest component of u once its parts along the border (inflation, translation) are removed.
-   pure real(dp) function projected_residual(border, u) result(r)
-      real(dp), intent(in) :: border(:, :), u(:)
-      r = maxval(abs(u - matmul(border, matmul(transpose(border), u))))
-   end function projected_residual
 
    !> Largest principal stretch (or its inverse) of the meridian's elements, as recorded in the
    !> history (axisymmetric_tube's record): taken from a record that is then dropped.

@@ -14,7 +14,8 @@ module axisymmetric_steady
                                     unpack_dofs, restore_volume_and_centre, jacobian_fd_step, rigid_fd_step
    implicit none
    private
-   public :: newton_state_t, newton_run, polish_steady_shape, newton_tolerance, stable_rate_limit
+   public :: newton_state_t, newton_run, polish_steady_shape, newton_tolerance, stable_rate_limit, &
+             constraint_directions, projected_residual
 
    !> Newton tolerance of the polish after time stepping (largest node velocity, V).
    real(dp), parameter :: polish_tol = 1.0e-6_dp
@@ -177,8 +178,8 @@ contains
       m = size(self%dofs)
       call self%velocity(self%positions, self%u0)
       call pack_dofs(self%u0, newton%res)
-      call constraint_directions(self, newton, self%positions)
-      residual = projected_residual(newton, newton%res)
+      call constraint_directions(self, newton%border, self%positions)
+      residual = projected_residual(newton%border, newton%res)
       do it = 1, max_iterations
          self%residual = residual
          if (residual < tol) then
@@ -202,8 +203,8 @@ contains
             call restore_volume_and_centre(self, self%rz_pred)
             call self%velocity(self%rz_pred, self%u1)
             call pack_dofs(self%u1, self%dofs_trial)
-            call constraint_directions(self, newton, self%rz_pred)
-            trial = projected_residual(newton, self%dofs_trial)
+            call constraint_directions(self, newton%border, self%rz_pred)
+            trial = projected_residual(newton%border, self%dofs_trial)
             if (trial < (1.0_dp - 0.1_dp * alpha) * residual) exit
             alpha = 0.5_dp * alpha
             if (alpha < 1.0_dp / 64) return
@@ -217,26 +218,27 @@ contains
       self%residual = residual
    end subroutine newton_solve
 
-   !> The two border columns at rz: the volume gradient and the uniform axial shift, orthonormalised.
-   subroutine constraint_directions(self, newton, rz)
+   !> The two border columns at rz, orthonormalised: the volume gradient and the uniform axial
+   !> shift (also the continuation's border, axisymmetric_continuation).
+   subroutine constraint_directions(self, border, rz)
       class(axisymmetric_operator_t), intent(inout) :: self
-      type(newton_state_t), intent(inout) :: newton
+      real(dp), intent(out) :: border(:, :)
       real(dp), intent(in) :: rz(:, :)
       integer :: m
-      m = size(self%dofs)
+      m = size(border, 1)
       call meridian_volume_gradient(rz, self%grad)
-      call pack_dofs(self%grad, newton%border(:, 1))
+      call pack_dofs(self%grad, border(:, 1))
       ! The z entries of the packed dofs: the poles' (1 and m) and every interior node's (odd
       ! entries 3 .. m-1; the even ones are radii). Up to kernel 0.3.1 this took the radii: the
       ! "translation" border was a radial swelling, translation was left free, and the polish
       ! after time stepping stalled at ~1e-3 V (NH a/l 0.9, Ca_s 0.07, 64 elements) and was discarded.
-      newton%border(:, 2) = 0.0_dp
-      newton%border(1, 2) = 1.0_dp
-      newton%border(3:m - 1:2, 2) = 1.0_dp
-      newton%border(m, 2) = 1.0_dp
-      newton%border(:, 2) = newton%border(:, 2) / norm2(newton%border(:, 2))
-      newton%border(:, 1) = newton%border(:, 1) - dot_product(newton%border(:, 1), newton%border(:, 2)) * newton%border(:, 2)
-      newton%border(:, 1) = newton%border(:, 1) / norm2(newton%border(:, 1))
+      border(:, 2) = 0.0_dp
+      border(1, 2) = 1.0_dp
+      border(3:m - 1:2, 2) = 1.0_dp
+      border(m, 2) = 1.0_dp
+      border(:, 2) = border(:, 2) / norm2(border(:, 2))
+      border(:, 1) = border(:, 1) - dot_product(border(:, 1), border(:, 2)) * border(:, 2)
+      border(:, 1) = border(:, 1) / norm2(border(:, 1))
    end subroutine constraint_directions
 
    !> Time stepping declares a steady state when the lengths drift by less than 1e-3 per
@@ -284,11 +286,10 @@ contains
       end if
    end subroutine polish_steady_shape
 
-   !> Largest component of u once its inflation and translation parts are removed.
-   pure real(dp) function projected_residual(newton, u) result(r)
-      type(newton_state_t), intent(in) :: newton
-      real(dp), intent(in) :: u(:)
-      r = maxval(abs(u - matmul(newton%border, matmul(transpose(newton%border), u))))
+   !> Largest component of u once its parts along the border (inflation, translation) are removed.
+   pure real(dp) function projected_residual(border, u) result(r)
+      real(dp), intent(in) :: border(:, :), u(:)
+      r = maxval(abs(u - matmul(border, matmul(transpose(border), u))))
    end function projected_residual
 
 end module axisymmetric_steady
