@@ -4,7 +4,13 @@
 import sys
 from pathlib import Path
 
-from capsmech.workflow.grid import FLOWS, expand_cases, grid_json, validate_grid
+from capsmech.workflow.grid import (
+    FLOWS,
+    expand_branches,
+    expand_cases,
+    grid_json,
+    validate_grid,
+)
 from capsmech.workflow.runner import source_code_version
 
 # Semantic checks the schema cannot express (law parameters, duplicates); names the key.
@@ -23,6 +29,7 @@ LOGS = f"{RESULTS}/logs"
 FIGURES = f"{RESULTS}/figures"
 DATABASES = config["databases_dir"]
 GRID_RECORD = f"{RESULTS}/grid.json"
+BRANCHES_DIR = f"{RESULTS}/branches"
 
 GRID_FLOWS = [flow for flow in FLOWS if flow in config]
 # "tube/NH/a0.8_Ca0.01" -> Case, for every case of the grid.
@@ -32,11 +39,21 @@ CASES = {
     for case in expand_cases(config, flow)
 }
 
+# "tube/NH/a0.8" -> Branch, for a grid whose tube cases are computed by continuation
+# (tube.settings.branch): one kernel run writes every case file of a (law, a/l).
+BRANCHES = {
+    branch.relative_path.removesuffix(".h5"): branch
+    for branch in expand_branches(config)
+}
+# The Ca_s of every branch (the same for all), as they appear in case file names.
+BRANCH_CA = [f"{ca:g}" for ca in next(iter(BRANCHES.values())).Ca_s] if BRANCHES else []
+
 
 wildcard_constraints:
     flow="tube|shear",
     law="[A-Za-z0-9_.+-]+",  # + joins effects to a law: NH+lambda0.001
     case="[A-Za-z0-9_.-]+",
+    size="a[0-9.]+",
 
 
 def grid_case(wildcards):
@@ -45,6 +62,21 @@ def grid_case(wildcards):
     if key not in CASES:
         raise ValueError(f"{key} is not a case of grid {config['name']!r}")
     return CASES[key]
+
+
+def grid_branch(wildcards):
+    """The grid's branch for a branch-file path (a path outside the grid is an error)."""
+    key = f"tube/{wildcards.law}/{wildcards.size}"
+    if key not in BRANCHES:
+        raise ValueError(f"{key} is not a branch of grid {config['name']!r}")
+    return BRANCHES[key]
+
+
+def branch_files(wildcards):
+    """Every branch file of the tube flow of a branch grid (none for shear or a case grid)."""
+    if wildcards.flow != "tube":
+        return []
+    return [f"{BRANCHES_DIR}/{key}.h5" for key in BRANCHES]
 
 
 def kernel_executable(wildcards):

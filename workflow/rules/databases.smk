@@ -19,6 +19,7 @@ rule database:
         grid=GRID_RECORD,
         kernel_version=rules.kernel_version.output.version,
         cases=case_files,
+        branches=branch_files,
     output:
         database=f"{DATABASES}/{{flow}}.h5",
     log:
@@ -27,10 +28,13 @@ rule database:
         "../envs/capsmech.yaml"
     params:
         cases_dir=CASES_DIR,
+        branches=lambda wildcards, input: (
+            f"--branches {BRANCHES_DIR}" if input.branches else ""
+        ),
         python=PYTHON,
     shell:
         "{params.python} -m capsmech.cli database assemble --grid {input.grid} --flow {wildcards.flow}"
-        " --cases {params.cases_dir} --out {output.database} > {log} 2>&1"
+        " --cases {params.cases_dir} {params.branches} --out {output.database} > {log} 2>&1"
 
 
 rule databases:

@@ -29,7 +29,7 @@ def cmd_database(args: argparse.Namespace) -> int:
     if args.action == "simulate":
         return _simulate_laws(args)
     if args.action == "assemble":
-        out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out)
+        out = assemble_database(load_grid(args.grid), args.flow, args.cases, args.out, branches_dir=args.branches)
         print(f"wrote {out}")
         args.database = out
     database = load_database(args.database)
@@ -100,6 +100,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     assemble.add_argument("--grid", required=True, help="grid file (YAML or JSON)")
     assemble.add_argument("--flow", required=True, choices=("tube", "shear"))
     assemble.add_argument("--cases", required=True, help="directory holding <flow>/<law>/<case>.h5")
+    assemble.add_argument("--branches", help="directory holding tube/<law>/a<a/l>.h5, the branch files of a grid "
+                                             "computed by continuation: their critical Ca_s go into the database")
     assemble.add_argument("--out", required=True, help="database file to write")
     simulate = actions.add_parser("simulate", help="a database of new law groups over an existing database's tube "
                                                    "grid, through the workflow (cached under the user's data directory)")

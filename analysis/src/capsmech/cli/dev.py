@@ -1,5 +1,6 @@
 """``capsmech dev ...``: the developers' and the workflow's commands (not a user's job):
-``run-case`` (one grid case, as the workflow's case rule runs it), ``kernel-version`` (check
+``run-case`` (one grid case, as the workflow's case rule runs it), ``run-branch`` (every
+Ca_s of one (law, a/l) by continuation, the workflow's branch rule), ``kernel-version`` (check
 and record the version the built kernel writes), ``unlock-stale`` (remove the lock a killed
 workflow left), ``check-grid`` (``make database`` names a grid that exists and is valid before
 Snakemake starts)."""
@@ -22,6 +23,20 @@ def cmd_run_case(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", (".h5",), create_parent=True)
     run_case(args.capsim or capsim_executable(), kernel_args, args.out,
              code_version=args.code_version, threads=args.threads)
+    return 0
+
+
+def cmd_run_branch(args: argparse.Namespace) -> int:
+    """Run one workflow branch (see :mod:`capsmech.workflow.runner` for the exit-code policy)."""
+    from capsmech.workflow.runner import branch_parts, run_branch
+
+    kernel_args = [a for a in args.kernel_args if a != "--"]
+    _, outs, summary = branch_parts(kernel_args)
+    check_output(summary, "--branch-summary", (".h5",), create_parent=True)
+    for path in outs:
+        check_output(path, "--out", (".h5",), create_parent=True)
+    run_branch(args.capsim or capsim_executable(), kernel_args, code_version=args.code_version,
+               threads=args.threads)
     return 0
 
 
@@ -75,6 +90,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
     run.add_argument("kernel_args", nargs=argparse.REMAINDER, help="-- then the kernel's case arguments")
     run.set_defaults(func=cmd_run_case)
+    branch = actions.add_parser("run-branch", help="run one steady branch for the workflow (capsim --branch-ca)")
+    branch.add_argument("--code-version", required=True, help="code_version every file must carry")
+    branch.add_argument("--threads", type=int, default=1, help="OpenMP threads")
+    branch.add_argument("--capsim", help="kernel executable (default: bin/capsim or $CAPSIM)")
+    branch.add_argument("kernel_args", nargs=argparse.REMAINDER,
+                        help="-- then the branch's kernel arguments (--branch-ca, --branch-summary, --out with {ca})")
+    branch.set_defaults(func=cmd_run_branch)
     version = actions.add_parser("kernel-version", help="print (and check) the code_version the kernel writes")
     version.add_argument("--capsim", default=None, help="kernel executable (default: bin/capsim)")
     version.add_argument("--expect", help="fail unless the kernel writes this version")

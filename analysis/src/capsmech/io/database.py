@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -46,6 +46,9 @@ from capsmech.io.case import (
     require_hdf5_file,
 )
 from capsmech.io.catalog import database_path
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 FORMAT = "capsmech-database"
 FORMAT_VERSION = 1
@@ -65,6 +68,9 @@ RESULTS: dict[str, dict[str, tuple[str, str, str]]] = {
 PROFILES: dict[str, tuple[tuple[str, ...], str]] = {"tube": (("r", "z"), "l"), "shear": (("y", "z"), "a")}
 LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
 TEXT_COLUMNS = ("status", "message")
+#: Optional subgroup of a tube law group computed by continuation: where its steady branch ends,
+#: per a/l (datasets a_over_l, Ca_s, kind).
+CRITICAL_GROUP = "critical"
 
 
 def expected_units(flow: str) -> dict[str, str]:
@@ -111,6 +117,11 @@ class LawTable:
         Units of every dataset.
     attrs : dict[str, Any]
         The group's attributes (law, nu_s, C, counts).
+    critical : dict[str, numpy.ndarray] or None
+        Tube databases computed by continuation: ``a_over_l``, ``Ca_s`` (the critical capillary
+        number where the steady branch ends; NaN where it does not end inside the grid) and
+        ``kind`` (``fold``, ``mesh_limit``, ``none: ...`` or ``failed: ...``), one entry per
+        a/l; None in a database computed case by case.
     """
 
     key: str
@@ -120,6 +131,7 @@ class LawTable:
     profiles: dict[str, np.ndarray]
     units: dict[str, str]
     attrs: dict[str, Any] = field(default_factory=dict)
+    critical: dict[str, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.status)
@@ -215,6 +227,20 @@ class Database:
             raise KeyError(f"{self.path}: no law {key!r}; available: {', '.join(self.laws)}")
         return self.laws[key]
 
+    def critical_Ca_s(self) -> pd.DataFrame:
+        """Where each law's steady branch ends: columns ``law``, ``a_over_l``, ``critical_Ca_s``
+        (NaN where the branch does not end inside the grid) and ``kind`` (``fold``: the branch
+        turns back, continuous elongation beyond; ``mesh_limit``: it leaves what the mesh
+        resolves). Empty for a database computed case by case (no continuation)."""
+        import pandas as pd
+
+        frames = [pd.DataFrame({"law": key, "a_over_l": table.critical["a_over_l"],
+                                "critical_Ca_s": table.critical["Ca_s"], "kind": table.critical["kind"]})
+                  for key, table in self.laws.items() if table.critical is not None]
+        if not frames:
+            return pd.DataFrame(columns=["law", "a_over_l", "critical_Ca_s", "kind"])
+        return pd.concat(frames, ignore_index=True)
+
 
 class TubeDatabase(Database):
     """Tube-flow database: columns a_over_l, Ca_s, L_z, L_p, vc_over_V per law."""
@@ -267,7 +293,24 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
         key=group.name.lstrip("/"), columns=columns, status=status,
         message=np.array(_read(group["message"], where, text=True), dtype=str), profiles=profiles,
         units=found_units, attrs={k: v for k, v in group.attrs.items()},
+        critical=_load_critical(group, where),
     )
+
+
+def _load_critical(group: h5py.Group, where: str) -> dict[str, np.ndarray] | None:
+    """The law group's critical Ca_s per a/l (None when it has none), checked for shape."""
+    if CRITICAL_GROUP not in group:
+        return None
+    ends = group[CRITICAL_GROUP]
+    missing = [name for name in ("a_over_l", "Ca_s", "kind") if name not in ends]
+    if missing:
+        raise DatabaseError(f"{where}: '{ends.name}' has no dataset {missing[0]!r}")
+    critical = {"a_over_l": np.asarray(_read(ends["a_over_l"], where), dtype=float),
+                "Ca_s": np.asarray(_read(ends["Ca_s"], where), dtype=float),
+                "kind": np.array(_read(ends["kind"], where, text=True), dtype=str)}
+    if len({len(values) for values in critical.values()}) != 1:
+        raise DatabaseError(f"{where}: '{ends.name}' datasets differ in length")
+    return critical
 
 
 def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:

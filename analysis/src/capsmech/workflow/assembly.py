@@ -16,6 +16,7 @@ import numpy as np
 
 from capsmech.io.case import EFFECT_DEFAULTS, CaseResult
 from capsmech.io.database import (
+    CRITICAL_GROUP,
     FORMAT,
     FORMAT_VERSION,
     LENGTH_SCALE,
@@ -27,7 +28,7 @@ from capsmech.io.database import (
     expected_units,
 )
 from capsmech.version import __version__
-from capsmech.workflow.grid import Case, expand_cases, flow_settings, grid_json, parse_law
+from capsmech.workflow.grid import Case, expand_branches, expand_cases, flow_settings, grid_json, parse_law
 from capsmech.workflow.runner import read_outcome
 
 
@@ -133,13 +134,13 @@ def _case_row(case: Case, path: Path, points: int) -> dict[str, Any]:
     return row
 
 
-def _write_dataset(group: h5py.Group, name: str, data: Any, units: str) -> None:
+def _write_dataset(group: h5py.Group, name: str, data: Any, units: str, text: bool | None = None) -> None:
     """Write one dataset with its ``units`` attribute and HDF5's Fletcher-32 checksum.
 
-    Text is fixed-length UTF-8 (as long as its longest entry): HDF5 cannot checksum
-    variable-length data, and a reader decodes both alike.
+    Text (``text``, by default the columns of TEXT_COLUMNS) is fixed-length UTF-8 (as long as
+    its longest entry): HDF5 cannot checksum variable-length data, and a reader decodes both alike.
     """
-    if name in TEXT_COLUMNS:
+    if name in TEXT_COLUMNS if text is None else text:
         encoded = [str(text).encode() for text in data]
         values = np.array(encoded, dtype=f"S{max([1, *map(len, encoded)])}")
         dtype = h5py.string_dtype("utf-8", values.dtype.itemsize)
@@ -151,8 +152,34 @@ def _write_dataset(group: h5py.Group, name: str, data: Any, units: str) -> None:
     ds.attrs["units"] = units
 
 
+def _critical_rows(grid: Mapping[str, Any], branches_dir: Path, code_version: str) -> dict[str, dict[str, list]]:
+    """Per law key, the critical Ca_s of each a/l from the branch files (NaN where the branch did
+    not end inside the grid or failed; the kind says which)."""
+    rows: dict[str, dict[str, list]] = {}
+    for branch in expand_branches(grid):
+        path = branches_dir / branch.relative_path
+        if not path.is_file():
+            raise DatabaseError(f"{path}: branch file missing (run the workflow to compute it)")
+        try:
+            with h5py.File(path, "r") as f:
+                critical = float(f.attrs["critical_Ca_s"])
+                kind = f.attrs["critical_kind"]
+                version = f.attrs["code_version"]
+        except (OSError, KeyError) as exc:
+            raise DatabaseError(f"{path}: not a branch file of capsim --branch-ca ({exc})") from None
+        kind, version = (v.decode() if isinstance(v, bytes) else str(v) for v in (kind, version))
+        if version != code_version:
+            raise DatabaseError(f"{path}: written by kernel {version}, the cases by {code_version}: "
+                                "rerun the workflow so that every case is recomputed by one kernel")
+        law = rows.setdefault(branch.law.key, {"a_over_l": [], "Ca_s": [], "kind": []})
+        law["a_over_l"].append(branch.a_over_l)
+        law["Ca_s"].append(critical)
+        law["kind"].append(kind)
+    return rows
+
+
 def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path, out: str | Path,
-                      *, created: str | None = None) -> Path:
+                      *, created: str | None = None, branches_dir: str | Path | None = None) -> Path:
     """Assemble the case files of one flow of a grid into a database file.
 
     Parameters
@@ -167,6 +194,10 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
         Database file to write (``OUT.tmp`` first, renamed when complete).
     created : str, optional
         Creation time recorded in the provenance; default now (UTC, ISO 8601).
+    branches_dir : str or Path, optional
+        Directory holding ``tube/<law>/a<a/l>.h5``, the branch files of a grid computed by
+        continuation (``tube.settings.branch``): each law group gets a ``critical`` group with
+        the critical Ca_s where its steady branch ends, per a/l.
 
     Returns
     -------
@@ -191,6 +222,8 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     if len(versions) != 1:
         raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "
                             "rerun the workflow so that every case is recomputed by one kernel")
+    critical = (_critical_rows(grid, Path(branches_dir), versions[0])
+                if branches_dir is not None and flow == "tube" else {})
     units = expected_units(flow)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
@@ -218,5 +251,12 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
             })
             for name, unit in units.items():
                 _write_dataset(group, name, [row[name] for row in law_rows], unit)
+            if key in critical:
+                ends = group.create_group(CRITICAL_GROUP)
+                ends.attrs["method"] = ("pseudo-arclength continuation of the steady equations in Ca_s "
+                                        "(capsim --branch-ca); NaN: no end inside the grid's Ca_s")
+                _write_dataset(ends, "a_over_l", critical[key]["a_over_l"], "1")
+                _write_dataset(ends, "Ca_s", critical[key]["Ca_s"], "1")
+                _write_dataset(ends, "kind", critical[key]["kind"], "", text=True)
     os.replace(tmp, out)
     return out

@@ -11,6 +11,12 @@ Law keys are the database's group names and map to kernel flags:
 A key may add effects beyond the base model (issue 6), each a further database dimension:
 ``NH+prestress0.05`` -> ``--law NH --prestress 0.05``, ``NH+kb0.01`` -> ``--law NH --kb 0.01``
 (``EFFECTS`` lists those the kernel has).
+
+A tube grid with ``settings.branch: true`` (axisymmetric model) computes its cases by
+continuation: one kernel run per (law, a/l), a :class:`Branch`, follows the steady branch up
+the grid's Ca_s and writes every case file of that (law, a/l) plus a branch file with the
+critical Ca_s where the steady branch ends (``capsim --branch-ca``). The case files are the
+same cases (same names, same kernel arguments but ``--ca``); only how they are computed differs.
 """
 
 from __future__ import annotations
@@ -171,7 +177,7 @@ class Case:
     def case_id(self) -> str:
         """str: file stem, ``a0.8_Ca0.01`` (tube) or ``Ca0.01`` (shear)."""
         ca = f"Ca{self.Ca_s:g}"
-        return ca if self.a_over_l is None else f"a{self.a_over_l:g}_{ca}"
+        return ca if self.a_over_l is None else f"{size_id(self.a_over_l)}_{ca}"
 
     @property
     def relative_path(self) -> str:
@@ -187,6 +193,69 @@ class Case:
         for name, value in self.settings:
             args += [flags[name], str(value)]
         return args
+
+
+def size_id(a_over_l: float) -> str:
+    """str: ``a0.8``, the a/l part of a tube case's file stem and the name of its branch file."""
+    return f"a{a_over_l:g}"
+
+
+@dataclass(frozen=True)
+class Branch:
+    """One kernel run of a branch grid: every Ca_s of one (law, a/l), by continuation.
+
+    Attributes
+    ----------
+    law : Law
+        Membrane law.
+    a_over_l : float
+        Capsule over tube radius [-].
+    Ca_s : tuple of float
+        The grid's capillary numbers, increasing (the branch is followed upwards).
+    settings : tuple of (str, Any)
+        The tube's kernel settings (mesh, time limit of the time-stepped cases).
+    """
+
+    law: Law
+    a_over_l: float
+    Ca_s: tuple[float, ...]
+    settings: tuple[tuple[str, Any], ...]
+
+    @property
+    def relative_path(self) -> str:
+        """str: ``tube/<law key>/a0.8.h5``, the branch file below the branches directory."""
+        return f"tube/{self.law.key}/{size_id(self.a_over_l)}.h5"
+
+    @property
+    def cases(self) -> list[Case]:
+        """The grid's cases this branch computes, in Ca_s order."""
+        return [Case("tube", self.law, ca, self.a_over_l, self.settings) for ca in self.Ca_s]
+
+    def kernel_args(self, cases_dir: str | Path, summary: str | Path) -> list[str]:
+        """Return the capsim arguments of the branch (without ``--threads``): its case files go
+        to ``cases_dir/tube/<law key>/a0.8_Ca<ca>.h5`` (the cases' own paths), the branch file
+        to ``summary``."""
+        pattern = Path(cases_dir) / "tube" / self.law.key / f"{size_id(self.a_over_l)}_Ca{{ca}}.h5"
+        args = ["--flow", "tube", *self.law.kernel_args(), "--a-over-l", repr(self.a_over_l)]
+        for name, value in self.settings:
+            args += [SETTING_FLAGS["tube"][name], str(value)]
+        return args + ["--branch-ca", ",".join(f"{ca:g}" for ca in self.Ca_s),
+                       "--branch-summary", str(summary), "--out", str(pattern)]
+
+
+def uses_branches(grid: Mapping[str, Any]) -> bool:
+    """True when the grid's tube cases are computed by continuation (``tube.settings.branch``)."""
+    return bool(grid.get("tube", {}).get("settings", {}).get("branch", False))
+
+
+def expand_branches(grid: Mapping[str, Any]) -> list[Branch]:
+    """Return the branches of a branch grid, in law, a/l order (empty unless it uses branches)."""
+    if not uses_branches(grid):
+        return []
+    spec = grid["tube"]
+    values = tuple(sorted(float(ca) for ca in spec["Ca_s"]))
+    settings = case_settings(grid, "tube", values[0])
+    return [Branch(parse_law(key), float(a), values, settings) for key in spec["laws"] for a in spec["a_over_l"]]
 
 
 def _key_path(path: Any) -> str:
@@ -247,6 +316,17 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                         if model not in EFFECT_TUBE_MODELS[name]:
                             problems.append(f"{flow}.laws[{i}]: law key {key!r}: {name} needs "
                                             f"tube.settings.model: {' or '.join(EFFECT_TUBE_MODELS[name])}")
+            if flow == "tube" and uses_branches(grid):
+                model = grid[flow].get("settings", {}).get("model", "axi")
+                if model != "axi":
+                    problems.append(f"tube.settings.branch: continuation exists for the axisymmetric model only "
+                                    f"(this grid's model is {model})")
+                if grid[flow].get("settings", {}).get("integrator") == "rk2":
+                    problems.append("tube.settings.branch: continuation finds steady states by Newton's method; "
+                                    "integrator rk2 (time steps only) contradicts it")
+                texts = [f"{float(ca):g}" for ca in grid[flow]["Ca_s"]]
+                if len(set(texts)) != len(texts):
+                    problems.append(f"tube.Ca_s: values that print alike ({texts}) would share a case file")
             if flow == "tube":
                 # capsim refuses an option that does not apply to the tube model (exit 2): refuse
                 # the grid that would ask for it, before any case runs.
@@ -316,6 +396,8 @@ def case_settings(grid: Mapping[str, Any], flow: str, Ca_s: float) -> tuple[tupl
     membrane stiffness). A rule changes exactly the cases it selects (their kernel arguments,
     hence their signature), no others."""
     settings = flow_settings(grid, flow)
+    # How the tube cases are computed (by continuation or one by one), not what they are.
+    settings.pop("branch", None)
     threshold = settings.pop("implicit_below_Ca_s", None)
     if threshold is not None and Ca_s < threshold:
         settings["integrator"] = "implicit"

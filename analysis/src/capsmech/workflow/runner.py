@@ -18,6 +18,11 @@ any other exit code
     'capsim_failure'``, ``status = 'failed'``, ``message`` (exit code and stderr),
     ``exit_code``, ``code_version``, ``kernel_args``. It becomes a database row with
     status ``failed``; it is not retried (delete the file to retry).
+
+A branch (:func:`run_branch`, one run for every Ca_s of a (law, a/l)) follows the same policy
+for its kernel run; when the kernel reports an error of its own, the cases it did not write are
+run one by one (each under the policy above) and the branch file becomes a failure record
+(no critical Ca_s, the reason in ``critical_kind``): a branch that breaks costs time, not rows.
 """
 
 from __future__ import annotations
@@ -216,3 +221,113 @@ def clear_stale_lock(workdir: str | Path) -> bool:
     for lock in locks:
         lock.unlink()
     return True
+
+
+def _check_version(path: Path, code_version: str, capsim: str | Path) -> None:
+    """Remove ``path`` and fail when the kernel that wrote it is not the sources' version."""
+    with h5py.File(path, "r") as f:
+        written = decode_str(f.attrs["code_version"])
+    if written != code_version:
+        path.unlink()
+        raise CaseRunError(f"{capsim} wrote code_version {written!r} in {path} but the kernel sources declare "
+                           f"{code_version!r}: the executable is stale, run `make build`")
+
+
+def write_branch_failure(summary: Path, *, message: str, code_version: str, kernel_args: Sequence[str]) -> None:
+    """Write the branch file of a branch whose kernel run failed: no critical Ca_s, and why."""
+    tmp = summary.with_name(summary.name + ".record.tmp")
+    with h5py.File(tmp, "w") as f:
+        f.attrs["record"] = FAILURE_RECORD
+        f.attrs["critical_Ca_s"] = float("nan")
+        f.attrs["critical_kind"] = f"failed: {message}"
+        f.attrs["code_version"] = code_version
+        f.attrs["kernel_args"] = " ".join(kernel_args)
+    os.replace(tmp, summary)
+
+
+def branch_parts(branch_args: Sequence[str]) -> tuple[list[list[str]], list[Path], Path]:
+    """Split a branch's kernel arguments into its cases: each case's own arguments (the branch's
+    with ``--ca <value>`` instead of the branch options), each case file (``--out`` with
+    ``{ca}`` replaced by the value as written in ``--branch-ca``), and the branch file.
+
+    Raises
+    ------
+    CaseRunError
+        If ``--branch-ca``, ``--branch-summary`` or ``--out`` is missing.
+    """
+    args = list(branch_args)
+    options: dict[str, str] = {}
+    common: list[str] = []
+    i = 0
+    while i < len(args):
+        if args[i] in ("--branch-ca", "--branch-summary", "--out") and i + 1 < len(args):
+            options[args[i]] = args[i + 1]
+            i += 2
+        else:
+            common.append(args[i])
+            i += 1
+    missing = [name for name in ("--branch-ca", "--branch-summary", "--out") if name not in options]
+    if missing:
+        raise CaseRunError(f"branch arguments without {', '.join(missing)}: {' '.join(args)}")
+    values = options["--branch-ca"].split(",")
+    outs = [Path(options["--out"].replace("{ca}", value)) for value in values]
+    return [[*common, "--ca", value] for value in values], outs, Path(options["--branch-summary"])
+
+
+def run_branch(capsim: str | Path, branch_args: Sequence[str], *, code_version: str, threads: int = 1) -> str:
+    """Run one steady branch (``capsim --branch-ca``) and leave its case files and branch file.
+
+    Parameters
+    ----------
+    capsim : str or Path
+        The kernel executable.
+    branch_args : sequence of str
+        The branch's arguments (from :meth:`capsmech.workflow.grid.Branch.kernel_args`), which
+        name its case files and branch file (see :func:`branch_parts`).
+    code_version : str
+        The version every file must carry.
+    threads : int
+        OpenMP threads.
+
+    Returns
+    -------
+    str
+        The branch's end as the kernel records it (``critical_kind``).
+
+    Raises
+    ------
+    CaseRunError
+        On invalid parameters (exit 2), an interrupted run (signal: run again to resume from
+        the branch's checkpoint) or a stale kernel.
+    """
+    case_args, outs, summary = branch_parts(branch_args)
+    for path in [summary, *outs]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    argv = [str(capsim), *branch_args, "--threads", str(threads)]
+    print("running:", " ".join(argv), flush=True)
+    proc = subprocess.run(argv, capture_output=True, text=True)
+    print(proc.stdout, end="", flush=True)
+    if proc.returncode == 0:
+        for path in [summary, *outs]:
+            if not path.is_file():
+                raise CaseRunError(f"{capsim} ended the branch without writing {path}")
+            _check_version(path, code_version, capsim)
+        with h5py.File(summary, "r") as f:
+            kind = decode_str(f.attrs["critical_kind"])
+        print(f"branch {summary}: {kind}")
+        return kind
+    if proc.returncode == 2:
+        raise CaseRunError(f"capsim refused the branch's parameters (exit 2): {proc.stderr.strip()}")
+    if proc.returncode < 0 or proc.returncode > 128:
+        raise CaseRunError(
+            f"capsim was interrupted (exit {proc.returncode}); run the workflow again to resume the branch "
+            f"from its checkpoint. stderr: {proc.stderr.strip()}"
+        )
+    lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
+    reason = f"capsim exited with code {proc.returncode}: {lines[-1] if lines else 'no message on stderr'}"
+    print(f"branch {summary}: {reason}; the cases it did not write run one by one", flush=True)
+    for args, out in zip(case_args, outs):
+        if not out.is_file():
+            run_case(capsim, args, out, code_version=code_version, threads=threads)
+    write_branch_failure(summary, message=reason, code_version=code_version, kernel_args=branch_args)
+    return f"failed: {reason}"
