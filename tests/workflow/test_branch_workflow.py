@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -72,6 +74,11 @@ def test_branch_grid_writes_the_cases_rows_and_critical_ca(branch_run: Path) -> 
     assert database.law("GH_nu0.5").steady.all()
     assert np.isnan(ends.loc["GH_nu0.5", "critical_Ca_s"])
     assert ends.loc["GH_nu0.5", "kind"].startswith("none")
+    # `capsmech database show` says where each branch ends.
+    shown = subprocess.run([sys.executable, "-m", "capsmech.cli", "database", "show", str(branch_run / "db" / "tube.h5")],
+                           capture_output=True, text=True, check=True).stdout
+    assert f"a/l 0.9: {ends.loc['NH', 'critical_Ca_s']:.4g} (fold)" in shown
+    assert "nowhere inside the grid" in shown
 
 
 @pytest.mark.slow

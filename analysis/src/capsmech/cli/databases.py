@@ -38,6 +38,10 @@ def cmd_database(args: argparse.Namespace) -> int:
     for key, table in database.laws.items():
         counts = {s: int((table.status == s).sum()) for s in sorted(set(table.status))}
         print(f"  {key:<10} {len(table):4d} cases  " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+        if table.critical is not None:
+            ends = [f"a/l {a:g}: {ca:.4g} ({kind})" for a, ca, kind in
+                    zip(table.critical["a_over_l"], table.critical["Ca_s"], table.critical["kind"]) if ca == ca]
+            print(f"  {'':<10} steady branch ends at Ca_s " + ("; ".join(ends) if ends else "nowhere inside the grid"))
     return 0
 
 

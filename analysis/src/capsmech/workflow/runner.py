@@ -86,6 +86,18 @@ def kernel_code_version(capsim: str | Path) -> str:
             return decode_str(f.attrs["code_version"])
 
 
+def _raise_if_refused_or_interrupted(proc: subprocess.CompletedProcess[str], what: str) -> None:
+    """Fail the job on the exits that are not a property of the run: the kernel refused the
+    parameters (exit 2, a grid error), or a signal stopped it (run again: it resumes)."""
+    if proc.returncode == 2:
+        raise CaseRunError(f"capsim refused the parameters of {what} (exit 2): {proc.stderr.strip()}")
+    if proc.returncode < 0 or proc.returncode > 128:
+        raise CaseRunError(
+            f"capsim was interrupted (exit {proc.returncode}); run the workflow again to resume {what} "
+            f"from its checkpoint. stderr: {proc.stderr.strip()}"
+        )
+
+
 def write_failure_record(out: Path, *, exit_code: int, stderr: str, code_version: str,
                          kernel_args: Sequence[str]) -> None:
     """Write a failure record for a kernel run that exited with an error (tmp, then rename)."""
@@ -174,13 +186,7 @@ def run_case(capsim: str | Path, kernel_args: Sequence[str], out: str | Path, *,
             )
         print(f"case {out}: {status}: {message}")
         return status
-    if proc.returncode == 2:
-        raise CaseRunError(f"capsim refused the parameters (exit 2): {proc.stderr.strip()}")
-    if proc.returncode < 0 or proc.returncode > 128:
-        raise CaseRunError(
-            f"capsim was interrupted (exit {proc.returncode}); run the workflow again to resume "
-            f"from its checkpoint. stderr: {proc.stderr.strip()}"
-        )
+    _raise_if_refused_or_interrupted(proc, "the case")
     write_failure_record(out, exit_code=proc.returncode, stderr=proc.stderr,
                          code_version=code_version, kernel_args=kernel_args)
     print(f"case {out}: failed: capsim exited with code {proc.returncode}: {proc.stderr.strip()}")
@@ -316,13 +322,7 @@ def run_branch(capsim: str | Path, branch_args: Sequence[str], *, code_version: 
             kind = decode_str(f.attrs["critical_kind"])
         print(f"branch {summary}: {kind}")
         return kind
-    if proc.returncode == 2:
-        raise CaseRunError(f"capsim refused the branch's parameters (exit 2): {proc.stderr.strip()}")
-    if proc.returncode < 0 or proc.returncode > 128:
-        raise CaseRunError(
-            f"capsim was interrupted (exit {proc.returncode}); run the workflow again to resume the branch "
-            f"from its checkpoint. stderr: {proc.stderr.strip()}"
-        )
+    _raise_if_refused_or_interrupted(proc, "the branch")
     lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
     reason = f"capsim exited with code {proc.returncode}: {lines[-1] if lines else 'no message on stderr'}"
     print(f"branch {summary}: {reason}; the cases it did not write run one by one", flush=True)
