@@ -9,6 +9,7 @@ from capsmech.workflow.grid import (
     expand_branches,
     expand_cases,
     grid_json,
+    mesh_check_cases,
     validate_grid,
 )
 from capsmech.workflow.runner import source_code_version
@@ -38,6 +39,14 @@ CASES = {
     for flow in GRID_FLOWS
     for case in expand_cases(config, flow)
 }
+# The companions of shear.mesh_check (the same case on a finer mesh; their D12 goes into the
+# database as the row's mesh check): run by the case rule, inputs of the shear database.
+CASES.update(
+    {
+        companion.relative_path.removesuffix(".h5"): companion
+        for companion in mesh_check_cases(config).values()
+    }
+)
 
 # "tube/NH/a0.8" -> Branch, for a grid whose tube cases are computed by continuation
 # (tube.settings.branch): one kernel run writes every case file of a (law, a/l).

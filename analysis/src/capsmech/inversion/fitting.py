@@ -50,7 +50,7 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
-                      "G_s": "N/m", "flag": "", "reason": ""}
+                      "G_s": "N/m", "G_s_database_error": "N/m", "flag": "", "reason": ""}
 
 #: The codes of a result row's ``flag`` column (empty: fitted), and what each means.
 FLAG_CODES = {
@@ -84,7 +84,16 @@ def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
 def shear_inverter(database: ShearDatabase, law: str) -> ShearInverter:
     """The shear inverter of one law, on the database's steady rows."""
     rows = database.law(law).steady_rows()
-    return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"])
+    return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"], D12_error_rel=database_d12_error(rows))
+
+
+def database_d12_error(rows: dict[str, np.ndarray]) -> np.ndarray:
+    """The relative error of each steady shear row's D12 that the database states: its time
+    error and, where the grid had a mesh check, its estimated mesh error, in quadrature (NaN
+    where the database states neither)."""
+    time, mesh = rows["D12_time_error_rel"], rows["D12_mesh_error_rel"]
+    stated = np.isfinite(time) | np.isfinite(mesh)
+    return np.where(stated, np.hypot(np.nan_to_num(time), np.nan_to_num(mesh)), np.nan)
 
 
 def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Iterable[str] | None = None,
@@ -199,6 +208,7 @@ def fit_shear_rows(capsules: Sequence[Capsule], database: ShearDatabase, laws: I
             fit = inverters[law].fit(L1=l1, L2=l2, shear_rate=capsule["shear_rate"], mu=capsule["mu"])
             rows.append({"id": capsule.id, "law": law, "D12": (l1 - l2) / (l1 + l2), "Ca_s": fit.Ca_s,
                          "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s,
+                         "G_s_database_error": fit.G_s * fit.database_error_rel,
                          "flag": inverter_flag_code(fit.flag) if fit.flag else "", "reason": fit.flag})
     return rows
 

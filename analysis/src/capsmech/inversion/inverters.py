@@ -635,6 +635,9 @@ class ShearFit(Fit):
     Ca_s: float = float("nan")
     L3_over_a: float = float("nan")
     a: float = float("nan")
+    #: Relative error of G_s (and of Ca_s) that the database's stated D12 errors imply at this
+    #: D12 (NaN where the database states none): |d ln Ca_s / d D12| D12 e, e interpolated.
+    database_error_rel: float = float("nan")
 
 
 class ShearInverter:
@@ -646,13 +649,21 @@ class ShearInverter:
         Steady rows of the shear database (NaN rows are ignored).
     min_D12 : float
         Smaller D12 values are flagged as too imprecise (paper section 4.3: 0.35).
+    D12_error_rel : array_like, optional
+        The rows' stated relative D12 errors (time and mesh; NaN where not stated). A fit's
+        ``database_error_rel`` is the error of G_s they imply, interpolated between the rows
+        that state one (NaN outside them).
     """
 
-    def __init__(self, Ca_s: np.ndarray, D12: np.ndarray, L3_over_a: np.ndarray, min_D12: float = MIN_SHEAR_D12):
+    def __init__(self, Ca_s: np.ndarray, D12: np.ndarray, L3_over_a: np.ndarray, min_D12: float = MIN_SHEAR_D12,
+                 D12_error_rel: np.ndarray | None = None):
         ca, d12, l3 = (np.asarray(v, dtype=float) for v in (Ca_s, D12, L3_over_a))
+        err = np.full(ca.shape, np.nan) if D12_error_rel is None else np.asarray(D12_error_rel, dtype=float)
         keep = np.isfinite(ca) & np.isfinite(d12) & np.isfinite(l3)
         order = np.argsort(ca[keep])
-        ca, d12, l3 = ca[keep][order], d12[keep][order], l3[keep][order]
+        ca, d12, l3, err = ca[keep][order], d12[keep][order], l3[keep][order], err[keep][order]
+        stated = np.isfinite(err)
+        self._error_d12, self._error = d12[stated], err[stated]
         if len(ca) < 2:
             raise ValueError("shear table: fewer than 2 steady rows")
         if np.any(np.diff(d12) <= 0):
@@ -680,12 +691,22 @@ class ShearInverter:
         lo, hi = self.D12_range
         if not lo <= D12 <= hi:
             return ShearFit(flag=f"outside the database: D12 = {D12:.3f} not in the steady range [{lo:.3f}, {hi:.3f}]")
-        result = ShearFit(Ca_s=float(np.exp(self._log_ca(D12))), L3_over_a=float(self._l3(D12)))
+        result = ShearFit(Ca_s=float(np.exp(self._log_ca(D12))), L3_over_a=float(self._l3(D12)),
+                          database_error_rel=self._database_error(D12))
         if L1 is not None and L2 is not None:
             result.a = float(np.sqrt(L1 * L2 * result.L3_over_a))
             if shear_rate is not None and mu is not None:
                 result.G_s = mu * shear_rate * result.a / result.Ca_s
         return result
+
+    def _database_error(self, D12: float) -> float:
+        """The relative error of Ca_s (hence G_s) at D12 from the rows' stated D12 errors: the
+        database's D12 may be off by e D12 at this Ca_s, which moves the Ca_s read at the
+        measured D12 by |d ln Ca_s / d D12| e D12."""
+        if len(self._error) == 0 or not self._error_d12[0] <= D12 <= self._error_d12[-1]:
+            return float("nan")
+        e = float(np.interp(D12, self._error_d12, self._error))
+        return float(abs(self._log_ca.derivative()(D12)) * e * D12)
 
     def modulus(self, D12: float, a: float, shear_rate: float, mu: float) -> ShearFit:
         """G_s when the capsule radius a is known (the paper's section 4.3 example)."""

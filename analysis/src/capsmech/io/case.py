@@ -133,6 +133,9 @@ class CaseResult:
         Effects beyond the base model (``EFFECT_DEFAULTS``: pre-stress alpha, viscosity ratio
         lambda, bending stiffness kb from the attribute ``k_b``), their neutral values when the
         file does not record them.
+    time_error_rel : float
+        Shear, steady: the estimated relative change of D12 still to come after the run stopped
+        (attribute ``time_error_rel``, kernel 0.3.2 on); NaN when the file does not record it.
     """
 
     flow: str
@@ -156,6 +159,7 @@ class CaseResult:
     units: dict[str, str] = field(default_factory=dict)
     path: str = ""
     effects: dict[str, float] = field(default_factory=dict)
+    time_error_rel: float = math.nan
 
     @property
     def is_steady(self) -> bool:
@@ -522,6 +526,7 @@ def _read_open_case(f: h5py.File, where: str) -> CaseResult:
         path=where,
         effects={name: float(to_scalar(f.attrs[attr])) if attr in f.attrs else default
                  for name, default in EFFECT_DEFAULTS.items() for attr in (EFFECT_ATTRS.get(name, name),)},
+        time_error_rel=float(to_scalar(f.attrs["time_error_rel"])) if "time_error_rel" in f.attrs else math.nan,
     )
 
 

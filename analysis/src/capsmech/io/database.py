@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
+from numpy.typing import ArrayLike
 
 from capsmech.errors import DatabaseError
 from capsmech.io.case import (
@@ -68,9 +69,30 @@ RESULTS: dict[str, dict[str, tuple[str, str, str]]] = {
 PROFILES: dict[str, tuple[tuple[str, ...], str]] = {"tube": (("r", "z"), "l"), "shear": (("y", "z"), "a")}
 LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
 TEXT_COLUMNS = ("status", "message")
+#: Accuracy columns a database may hold (read as NaN where a file made before them lacks them):
+#: name -> units. Shear: the estimated relative change of D12 still to come when the run stopped
+#: (time), the D12 of the same case on the finer mesh of the grid's ``mesh_check`` and the
+#: estimated relative mesh error of D12 from the two (:func:`mesh_error_rel`).
+ACCURACY_COLUMNS: dict[str, dict[str, str]] = {
+    "tube": {},
+    "shear": {"D12_time_error_rel": "1", "D12_mesh_check": "1", "D12_mesh_error_rel": "1"},
+}
+#: Observed order of the shear D12's mesh convergence is about 2.4 (levels 2-4, validation page
+#: "shear flow"); the mesh-error estimate assumes the lower 2, which makes it larger.
+MESH_ERROR_ORDER = 2.0
 #: Optional subgroup of a tube law group computed by continuation: where its steady branch ends,
 #: per a/l (datasets a_over_l, Ca_s, kind).
 CRITICAL_GROUP = "critical"
+
+
+def mesh_error_rel(d12: ArrayLike, d12_finer: ArrayLike, levels_apart: int) -> np.ndarray:
+    """Estimated relative mesh error of D12 from the same case on a finer mesh (Richardson):
+    ``|D12_finer - D12| / D12 * r**p / (r**p - 1)`` with ``r = 2**levels_apart`` (each level
+    halves the element size) and ``p = MESH_ERROR_ORDER``; NaN where either is missing."""
+    d, f = np.asarray(d12, dtype=float), np.asarray(d12_finer, dtype=float)
+    gain = (2.0 ** levels_apart) ** MESH_ERROR_ORDER
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.abs(f - d) / np.abs(d) * gain / (gain - 1.0)
 
 
 def expected_units(flow: str) -> dict[str, str]:
@@ -78,6 +100,7 @@ def expected_units(flow: str) -> dict[str, str]:
     names, length = PROFILES[flow]
     units = {name: unit for name, (_, unit) in PARAMETERS[flow].items()}
     units.update({name: unit for name, (_, _, unit) in RESULTS[flow].items()})
+    units.update(ACCURACY_COLUMNS[flow])
     units.update({"wall_time_s": "s", "status": "", "message": ""})
     units.update({f"profile_{c}": length for c in names})
     return units
@@ -264,6 +287,10 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
     """Read and check one law group: every dataset present, with its units and shape."""
     units = expected_units(flow)
     found_units: dict[str, str] = {}
+    # Accuracy columns are optional (files made before them are read with NaN there).
+    absent = [name for name in ACCURACY_COLUMNS[flow] if name not in group]
+    for name in absent:
+        del units[name]
     for name, unit in units.items():
         if name not in group:
             raise DatabaseError(f"{where}: '/{group.name.lstrip('/')}' has no dataset '{name}'")
@@ -286,6 +313,12 @@ def _load_law(group: h5py.Group, flow: str, where: str, points: int) -> LawTable
             raise DatabaseError(f"{where}: '{group[name].name}' has shape {data.shape}, expected {shape}")
         data.setflags(write=False)
         (profiles if name.startswith("profile_") else columns)[name] = data
+    for name in ACCURACY_COLUMNS[flow]:
+        if name not in columns:
+            missing = np.full(rows, np.nan)
+            missing.setflags(write=False)
+            columns[name] = missing
+            found_units[name] = ACCURACY_COLUMNS[flow][name]
     unknown = sorted(set(status) - set(STATUSES))
     if unknown:
         raise DatabaseError(f"{where}: '{group.name}/status' holds unknown statuses {unknown}")

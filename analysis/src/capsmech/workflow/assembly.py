@@ -16,6 +16,7 @@ import numpy as np
 
 from capsmech.io.case import EFFECT_DEFAULTS, CaseResult
 from capsmech.io.database import (
+    ACCURACY_COLUMNS,
     CRITICAL_GROUP,
     FORMAT,
     FORMAT_VERSION,
@@ -26,9 +27,19 @@ from capsmech.io.database import (
     TEXT_COLUMNS,
     DatabaseError,
     expected_units,
+    mesh_error_rel,
 )
 from capsmech.version import __version__
-from capsmech.workflow.grid import Case, expand_branches, expand_cases, flow_settings, grid_json, parse_law
+from capsmech.workflow.grid import (
+    SHEAR_DEFAULT_LEVEL,
+    Case,
+    expand_branches,
+    expand_cases,
+    flow_settings,
+    grid_json,
+    mesh_check_cases,
+    parse_law,
+)
 from capsmech.workflow.runner import read_outcome
 
 
@@ -102,8 +113,30 @@ def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
         raise DatabaseError(f"{path}: not the case of the grid: " + "; ".join(mismatch))
 
 
-def _case_row(case: Case, path: Path, points: int) -> dict[str, Any]:
+def _accuracy(case: Case, result: CaseResult | None, companion: Case | None, cases_dir: Path) -> dict[str, float]:
+    """The row's accuracy columns: the kernel's estimate of the time error, and the mesh check
+    (the companion case on a finer mesh) with the mesh error it implies; NaN where unknown."""
+    values = {name: math.nan for name in ACCURACY_COLUMNS[case.flow]}
+    if case.flow != "shear" or result is None or not result.is_steady:
+        return values
+    values["D12_time_error_rel"] = result.time_error_rel
+    if companion is not None:
+        path = cases_dir / companion.relative_path
+        if not path.is_file():
+            raise DatabaseError(f"{path}: mesh-check case file missing (run the workflow to compute it)")
+        status, _, _, finer = read_outcome(path)
+        if finer is not None:
+            _check_case_matches(case, finer, path)
+        if finer is not None and status == "steady":
+            values["D12_mesh_check"] = finer.steady_value("D12")
+            levels = int(dict(companion.settings)["level"]) - int(dict(case.settings).get("level", SHEAR_DEFAULT_LEVEL))
+            values["D12_mesh_error_rel"] = float(mesh_error_rel(result.steady_value("D12"), values["D12_mesh_check"], levels))
+    return values
+
+
+def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None = None) -> dict[str, Any]:
     """Read one case file (or failure record) into a database row."""
+    path = cases_dir / case.relative_path
     if not path.is_file():
         raise DatabaseError(f"{path}: case file missing (run the workflow to compute it)")
     status, message, code_version, result = read_outcome(path)
@@ -114,6 +147,7 @@ def _case_row(case: Case, path: Path, points: int) -> dict[str, Any]:
     names, _ = PROFILES[flow]
     row.update({name: math.nan for name in RESULTS[flow]})
     row.update({f"profile_{c}": np.full(points, np.nan) for c in names})
+    row.update(_accuracy(case, result, companion, cases_dir))
     if result is None:
         return row
     _check_case_matches(case, result, path)
@@ -216,8 +250,10 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     points = int(grid.get("profile_points", 64))
     cases_dir, out = Path(cases_dir), Path(out)
     rows: dict[str, list[dict[str, Any]]] = {}
+    companions = mesh_check_cases(grid) if flow == "shear" else {}
     for case in cases:
-        rows.setdefault(case.law.key, []).append(_case_row(case, cases_dir / case.relative_path, points))
+        rows.setdefault(case.law.key, []).append(
+            _case_row(case, cases_dir, points, companions.get(case.relative_path)))
     versions = sorted({row["code_version"] for law_rows in rows.values() for row in law_rows})
     if len(versions) != 1:
         raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "

@@ -165,6 +165,9 @@ class Case:
         Capsule over tube radius [-] (tube only).
     settings : tuple of (str, Any)
         The flow's kernel settings (mesh, time limit), sorted by name.
+    variant : str
+        '' for a grid case; ``level4`` for the companion of a shear case on the finer mesh of
+        ``shear.mesh_check`` (:func:`mesh_check_cases`), not a database row of its own.
     """
 
     flow: str
@@ -172,12 +175,15 @@ class Case:
     Ca_s: float
     a_over_l: float | None
     settings: tuple[tuple[str, Any], ...]
+    variant: str = ""
 
     @property
     def case_id(self) -> str:
-        """str: file stem, ``a0.8_Ca0.01`` (tube) or ``Ca0.01`` (shear)."""
+        """str: file stem, ``a0.8_Ca0.01`` (tube) or ``Ca0.01`` (shear); a companion case adds its
+        variant (``Ca0.3_level4``)."""
         ca = f"Ca{self.Ca_s:g}"
-        return ca if self.a_over_l is None else f"{size_id(self.a_over_l)}_{ca}"
+        stem = ca if self.a_over_l is None else f"{size_id(self.a_over_l)}_{ca}"
+        return f"{stem}_{self.variant}" if self.variant else stem
 
     @property
     def relative_path(self) -> str:
@@ -276,6 +282,8 @@ def _schema_errors(grid: Mapping[str, Any]) -> list[str]:
     return [f"{_key_path(e.absolute_path)}: {e.message}" for e in errors]
 
 
+#: The kernel's shear mesh level when a grid does not set one (capsim --level).
+SHEAR_DEFAULT_LEVEL = 3
 #: Tube settings that apply to one tube model only (the kernel's option table says the same).
 TUBE_MODEL_SETTINGS = {"n_meridian": ("axi",), "level": ("3d",), "wall_h_far": ("3d",), "wall_h_centre": ("3d",)}
 
@@ -336,6 +344,10 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                     if model not in TUBE_MODEL_SETTINGS[name]:
                         problems.append(f"tube.settings.{name}: applies to tube.settings.model: "
                                         f"{' or '.join(TUBE_MODEL_SETTINGS[name])} only (this grid's model is {model})")
+            check = grid[flow].get("mesh_check") if flow == "shear" else None
+            level = int(grid[flow].get("settings", {}).get("level", SHEAR_DEFAULT_LEVEL))
+            if check and int(check["level"]) <= level:
+                problems.append(f"shear.mesh_check.level: {check['level']} is not finer than the cases' level {level}")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
@@ -385,6 +397,23 @@ def expand_cases(grid: Mapping[str, Any], flow: str) -> list[Case]:
         for a in sizes
         for ca in spec["Ca_s"]
     ]
+
+
+def mesh_check_cases(grid: Mapping[str, Any]) -> dict[str, Case]:
+    """The companion cases of ``shear.mesh_check``: for every shear case with Ca_s >= Ca_s_min,
+    the same case on the finer mesh level (variant ``level<N>``), keyed by the grid case's
+    relative path. Empty when the grid has no mesh check."""
+    check = grid.get("shear", {}).get("mesh_check")
+    if not check:
+        return {}
+    level = int(check["level"])
+    companions = {}
+    for case in expand_cases(grid, "shear"):
+        if case.Ca_s < float(check.get("Ca_s_min", 0.0)):
+            continue
+        settings = tuple(sorted({**dict(case.settings), "level": level}.items()))
+        companions[case.relative_path] = Case("shear", case.law, case.Ca_s, None, settings, variant=f"level{level}")
+    return companions
 
 
 def case_settings(grid: Mapping[str, Any], flow: str, Ca_s: float) -> tuple[tuple[str, Any], ...]:
