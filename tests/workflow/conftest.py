@@ -33,6 +33,18 @@ def run_snakemake(workdir: Path, configfile: Path = SMOKE, *extra: str,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=timeout)
 
 
+def run_grid_databases(workdir: Path, grid: dict) -> Path:
+    """Write ``grid`` as ``workdir/grid.yaml`` and run the workflow's databases there (asserting
+    it succeeds): the working directory."""
+    import yaml
+
+    config = workdir / "grid.yaml"
+    config.write_text(yaml.safe_dump(grid))
+    result = run_snakemake(workdir, config, "databases")
+    assert result.returncode == 0, result.stdout[-4000:]
+    return workdir
+
+
 @pytest.fixture(scope="session")
 def smoke_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """The smoke grid run once, uninterrupted: its working directory and wall time."""

@@ -17,14 +17,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-import yaml
 
 from capsmech.io.case import read_case
 from capsmech.io.database import RESULTS, load_database
 from capsmech.workflow.grid import GridError, expand_branches, expand_cases, validate_grid
 from capsmech.workflow.runner import FAILURE_RECORD, is_failure_record, run_branch
 
-from conftest import run_snakemake
+from conftest import run_grid_databases, run_snakemake
 
 GRID = {
     "name": "branch_test",
@@ -38,13 +37,8 @@ GRID = {
 
 @pytest.fixture(scope="module")
 def branch_run(tmp_path_factory) -> Path:
-    """The branch grid run once through the workflow: its working directory."""
-    workdir = tmp_path_factory.mktemp("branch_grid")
-    config = workdir / "grid.yaml"
-    config.write_text(yaml.safe_dump(GRID))
-    result = run_snakemake(workdir, config, "databases")
-    assert result.returncode == 0, result.stdout[-4000:]
-    return workdir
+    """The grid run once through the workflow: its working directory."""
+    return run_grid_databases(tmp_path_factory.mktemp("branch_grid"), GRID)
 
 
 @pytest.mark.slow

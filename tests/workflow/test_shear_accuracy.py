@@ -13,7 +13,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-import yaml
 
 from capsmech.inversion.fitting import database_d12_error, fit_shear_rows
 from capsmech.inversion.inverters import ShearInverter
@@ -22,7 +21,7 @@ from capsmech.io.database import ACCURACY_COLUMNS, MESH_ERROR_ORDER, load_databa
 from capsmech.io.measurements import Capsule
 from capsmech.workflow.grid import GridError, expand_cases, mesh_check_cases, validate_grid
 
-from conftest import run_snakemake
+from conftest import run_grid_databases
 
 GRID = {
     "name": "mesh_check_test",
@@ -36,12 +35,8 @@ GRID = {
 
 @pytest.fixture(scope="module")
 def checked_run(tmp_path_factory) -> Path:
-    workdir = tmp_path_factory.mktemp("mesh_check")
-    config = workdir / "grid.yaml"
-    config.write_text(yaml.safe_dump(GRID))
-    result = run_snakemake(workdir, config, "databases")
-    assert result.returncode == 0, result.stdout[-4000:]
-    return workdir
+    """The grid run once through the workflow: its working directory."""
+    return run_grid_databases(tmp_path_factory.mktemp("mesh_check"), GRID)
 
 
 def test_companion_cases_are_the_grid_cases_on_the_finer_level() -> None:
