@@ -672,6 +672,8 @@ class ShearInverter:
         self.D12_range = (float(d12[0]), float(d12[-1]))
         # Interpolate ln Ca_s and L3/a in D12: both smooth and monotone along the branch.
         self._log_ca = PchipInterpolator(d12, np.log(ca), extrapolate=False)
+        # d ln Ca_s / d D12, for the database error of each fit (built once, not per fit).
+        self._dlog_ca = self._log_ca.derivative()
         self._l3 = PchipInterpolator(d12, l3, extrapolate=False)
 
     def fit(self, D12: float | None = None, L1: float | None = None, L2: float | None = None,
@@ -706,7 +708,7 @@ class ShearInverter:
         if len(self._error) == 0 or not self._error_d12[0] <= D12 <= self._error_d12[-1]:
             return float("nan")
         e = float(np.interp(D12, self._error_d12, self._error))
-        return float(abs(self._log_ca.derivative()(D12)) * e * D12)
+        return float(abs(self._dlog_ca(D12)) * e * D12)
 
     def modulus(self, D12: float, a: float, shear_rate: float, mu: float) -> ShearFit:
         """G_s when the capsule radius a is known (the paper's section 4.3 example)."""

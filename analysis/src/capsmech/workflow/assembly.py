@@ -14,7 +14,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from capsmech.io.case import EFFECT_DEFAULTS, CaseResult
+from capsmech.io.case import EFFECT_DEFAULTS, CaseResult, decode_str
 from capsmech.io.database import (
     ACCURACY_COLUMNS,
     CRITICAL_GROUP,
@@ -201,7 +201,7 @@ def _critical_rows(grid: Mapping[str, Any], branches_dir: Path, code_version: st
                 version = f.attrs["code_version"]
         except (OSError, KeyError) as exc:
             raise DatabaseError(f"{path}: not a branch file of capsim --branch-ca ({exc})") from None
-        kind, version = (v.decode() if isinstance(v, bytes) else str(v) for v in (kind, version))
+        kind, version = decode_str(kind), decode_str(version)
         if version != code_version:
             raise DatabaseError(f"{path}: written by kernel {version}, the cases by {code_version}: "
                                 "rerun the workflow so that every case is recomputed by one kernel")
