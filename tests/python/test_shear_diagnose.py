@@ -5,6 +5,8 @@ Facts checked:
   give chi2 = 0 for that group and its G_s to 1e-9; the same capsules read with the lambda = 1
   group give a G_s that falls with D12 (an inviscid core deforms more at the same Ca_s);
 - the propagated standard error of ln G_s is that of the +-1 px noise model (Monte Carlo);
+- the batch G_s states the database's share of its error: what moving every row's D12 by its
+  stated error does to the batch G_s (it does not average out over capsules);
 - capsules outside a group's D12 range are flagged with the reason, and a candidate is
   scored only on the capsules both groups fit;
 - on the shipped kernel batches: lambda = 0.001 undeclared (shear_batch_L) is named, G_s moves
@@ -23,9 +25,18 @@ import numpy as np
 import pytest
 
 from capsmech.cli.main import main
-from capsmech.diagnosis.shear import ShearGroups, diagnose_shear, length_error, modulus, score_group, weighted_mean
+from capsmech.diagnosis.shear import (
+    ShearGroups,
+    database_error,
+    diagnose_shear,
+    length_error,
+    modulus,
+    score_group,
+    weighted_mean,
+)
 from capsmech.diagnosis.undeclared_shear import law_key, read_shear_truth
-from capsmech.inversion.fitting import shear_inverter
+from capsmech.inversion.fitting import database_d12_error, shear_inverter
+from capsmech.inversion.inverters import ShearInverter
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.io.measurements import Capsule, read_measurements
@@ -74,6 +85,34 @@ def test_exact_nodes_give_zero_chi2_and_the_modulus(groups, key):
     assert chi2 < 1e-12
     assert np.all(np.abs(score.t) < 1e-9)
     assert modulus(score.y, score.s)[0] == pytest.approx(G_S, rel=1e-9)
+
+
+def test_batch_g_s_carries_the_database_error_that_shifting_its_rows_shows(groups):
+    """Every capsule reads the same rows: moving each steady row's D12 by its stated error
+    (time and mesh, shear-paper) moves the batch G_s by the stated database share, to first
+    order (errors ~1e-3: within 5 % of itself), however many capsules there are."""
+    capsules = node_capsules(groups, "NH")
+    rows = groups._database("NH").law("NH").steady_rows()
+    error = database_d12_error(rows)
+    assert np.all(np.isfinite(error[rows["D12"] >= 0.35])) and np.nanmax(error) > 1e-4
+    score = score_group(capsules, groups.inverter("NH"), "NH")
+    g_s, _ = modulus(score.y, score.s)
+    stated = database_error(g_s, score.s, score.e)
+    shifted = ShearInverter(rows["Ca_s"], rows["D12"] * (1 + np.nan_to_num(error)), rows["L3_over_a"])
+    moved = score_group(capsules, shifted, "NH")
+    # The same weights: the database share is a shift of every capsule's ln G_s.
+    w = 1.0 / score.s ** 2
+    g_shifted = math.exp(float(np.sum(w * moved.y) / np.sum(w)))
+    assert stated > 0
+    assert stated == pytest.approx(abs(g_shifted - g_s), rel=0.05)
+    # Doubling the batch (the same capsules twice) shrinks the noise's share by sqrt(2), not
+    # the database's.
+    twice = score_group(capsules + capsules, groups.inverter("NH"), "NH")
+    assert modulus(twice.y, twice.s)[1] == pytest.approx(modulus(score.y, score.s)[1] / math.sqrt(2), rel=1e-9)
+    assert database_error(g_s, twice.s, twice.e) == pytest.approx(stated, rel=1e-12)
+    # Rows that state no error contribute none (never a made-up zero error elsewhere).
+    bare = score_group(capsules, ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"]), "NH")
+    assert np.all(np.isnan(bare.e)) and database_error(g_s, bare.s, bare.e) == 0.0
 
 
 def test_lambda_one_reads_an_inviscid_core_as_a_softening_material(groups):

@@ -41,7 +41,9 @@ A candidate is **supported** (the rule of ``capsmech.diagnose``) when
   candidate (one-sided Wilcoxon signed-rank test across capsules, p < 0.05).
 The supported candidate with the largest BIC drop is named; none supported is a valid answer.
 G_s is reported as exp(y_bar) with its standard error, scaled by sqrt(chi2/(n-1)) when that
-exceeds 1 (scatter beyond the noise model), and the drift of G_s with D12 as the p-value of
+exceeds 1 (scatter beyond the noise model), and beside it the database's share of the error
+(``database_error``: the capsules read the same rows, so the G_s errors that the rows' stated
+D12 errors imply are shared and do not average out; ``Evidence.g_s_systematic``), and the drift of G_s with D12 as the p-value of
 ``capsmech.inversion.population.law_drift`` (G_s/mean against D12).
 """
 from __future__ import annotations
@@ -79,8 +81,10 @@ def lambda_key(base_law: str, value: str = LAMBDA_VALUE) -> str:
 @dataclass
 class GroupScore:
     """One law group's fit of the batch: per capsule y = ln G_s [ln N/m], its standard error s,
-    the measured D12, a flag (empty when fitted), and the standardised inclination residual t
-    (0 where the capsule has no theta)."""
+    the measured D12, a flag (empty when fitted), the standardised inclination residual t
+    (0 where the capsule has no theta), and e, the relative error of G_s that the database's
+    stated D12 errors imply at the capsule's D12 (``ShearFit.database_error_rel``; NaN where
+    the rows state none)."""
 
     law: str
     ids: list[str]
@@ -89,6 +93,7 @@ class GroupScore:
     d12: np.ndarray
     flags: list[str]
     t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    e: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @property
     def fitted(self) -> np.ndarray:
@@ -123,6 +128,7 @@ def score_group(capsules: Sequence[Capsule], inverter: ShearInverter, law: str, 
     n = len(capsules)
     y, s, d12 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     t = np.zeros(n)
+    e = np.full(n, np.nan)
     flags = [""] * n
     for i, c in enumerate(capsules):
         L1, L2, rate, mu = c["L1"], c["L2"], c["shear_rate"], c["mu"]
@@ -132,6 +138,7 @@ def score_group(capsules: Sequence[Capsule], inverter: ShearInverter, law: str, 
             flags[i] = fit.flag
             continue
         y[i] = math.log(fit.G_s)
+        e[i] = fit.database_error_rel
         sigma = length_error(c, pixel_size, error_px)
         # A step well below the noise: the branch is smooth on that scale. One-sided at a
         # range edge (the perturbed capsule leaves the database).
@@ -155,7 +162,7 @@ def score_group(capsules: Sequence[Capsule], inverter: ShearInverter, law: str, 
             s_d12 = sigma * 2 * math.hypot(L1, L2) / (L1 + L2) ** 2
             predicted, slope = float(theta(d12[i])), float(theta.derivative()(d12[i]))
             t[i] = (c["theta"] - predicted) / math.hypot(theta_error, slope * s_d12)
-    return GroupScore(law, [c.id for c in capsules], y, s, d12, flags, t)
+    return GroupScore(law, [c.id for c in capsules], y, s, d12, flags, t, e)
 
 
 def weighted_mean(y: np.ndarray, s: np.ndarray) -> tuple[float, float, float]:
@@ -178,6 +185,17 @@ def modulus(y: np.ndarray, s: np.ndarray) -> tuple[float, float]:
     birge = math.sqrt(chi2 / (len(y) - 1)) if len(y) > 1 else 1.0
     g = math.exp(mean)
     return g, g * se * max(1.0, birge)
+
+
+def database_error(g_s: float, s: np.ndarray, e: np.ndarray) -> float:
+    """The database's share [N/m] of the error of the batch G_s ``modulus`` gives: every
+    capsule's G_s reads the same rows, so their stated errors move all capsules the same way
+    and do not average out. It is the weighted mean (weights 1/s^2, as the modulus) of the
+    capsules' relative errors e, times G_s; capsules whose rows state no error count 0."""
+    if len(s) == 0 or not math.isfinite(g_s):
+        return 0.0
+    w = 1.0 / s ** 2
+    return float(g_s * np.sum(w * np.nan_to_num(e)) / np.sum(w))
 
 
 def drift_p_value(law: str, d12: np.ndarray, y: np.ndarray) -> float:
@@ -221,6 +239,8 @@ def evaluate(base: GroupScore, candidate: GroupScore, name: str) -> ShearCandida
     result.cv_p_value = float(stats.wilcoxon(gains, alternative="greater").pvalue) if np.any(gains != 0) else 1.0
     result.supported = bool(result.cv_p_value < CV_ALPHA and result.bic_drop > MIN_BIC_DROP)
     result.g_s_before, result.g_s_after = modulus(yb, sb), modulus(yc, sc)
+    result.g_s_systematic = (database_error(result.g_s_before[0], sb, base.e[used]),
+                             database_error(result.g_s_after[0], sc, candidate.e[used]))
     d12 = base.d12[used]
     result.drift_p_before = drift_p_value(base.law, d12, yb)
     result.drift_p_after = drift_p_value(candidate.law, d12, yc)
@@ -252,8 +272,15 @@ class ShearDiagnosis:
                 f"{r.name} (BIC drop {r.bic_drop:.1f})" for r in self.rivals)
         return (f"{c.name} (group {c.law}): BIC drop {c.bic_drop:.1f}, cross-validated chi2 gain "
                 f"{c.cv_gain:.2f} +- {c.cv_gain_error:.2f} per capsule (p = {c.cv_p_value:.2g}); G_s "
-                f"{c.g_s_before[0]:.4g} +- {c.g_s_before[1]:.2g} -> {c.g_s_after[0]:.4g} +- {c.g_s_after[1]:.2g} N/m, "
+                f"{g_s_text(c.g_s_before, c.g_s_systematic[0], '+-')} -> "
+                f"{g_s_text(c.g_s_after, c.g_s_systematic[1], '+-')} N/m, "
                 f"drift p {c.drift_p_before:.2g} -> {c.drift_p_after:.2g}" + rivals)
+
+
+def g_s_text(g_s: tuple[float, float], database: float, plus_minus: str = "±") -> str:
+    """G_s ± its standard error, and the database's share (``database_error``) when stated."""
+    text = f"{g_s[0]:.4g} {plus_minus} {g_s[1]:.2g}"
+    return text + (f" (database {plus_minus} {database:.2g})" if database > 0 else "")
 
 
 class ShearGroups:
@@ -386,13 +413,15 @@ def write_report(diagnosis: ShearDiagnosis, out: str | Path, batch: str = "", fi
         lines.append(
             f"| {r.name} | {r.law} | {r.capsules} | {r.chi2_base:.1f} -> {r.chi2:.1f}{theta_part(r)} | {r.bic_drop:.1f} "
             f"| {r.cv_gain:.2f} ± {r.cv_gain_error:.2f} ({r.cv_p_value:.2g}) "
-            f"| {r.g_s_before[0]:.4g} ± {r.g_s_before[1]:.2g} | {r.g_s_after[0]:.4g} ± {r.g_s_after[1]:.2g} "
+            f"| {g_s_text(r.g_s_before, r.g_s_systematic[0])} | {g_s_text(r.g_s_after, r.g_s_systematic[1])} "
             f"| {r.drift_p_before:.2g} -> {r.drift_p_after:.2g} | {'yes' if r.supported else 'no'} |")
     lines += ["", f"Supported: the BIC drops by more than {MIN_BIC_DROP:g} (chi2_base - chi2 - ln n) and "
               f"leave-one-capsule-out cross-validation improves (one-sided Wilcoxon p < {CV_ALPHA}). chi2: "
               "scatter of ln G_s about the weighted mean, over each capsule's standard error from +-1 pixel "
               "(uniform) on L1 and L2, plus, for capsules with theta, its residuals over the angle's error. G_s: weighted mean ± standard error (scaled by sqrt(chi2/(n-1)) when "
-              "above 1). Drift p: slope of G_s/mean against D12 (capsmech.inversion.population.law_drift).", ""]
+              "above 1); in brackets the database's share, which averaging over capsules does not reduce: the "
+              "weighted mean of the relative G_s errors that its rows' stated D12 errors imply (time and mesh, "
+              "`fit-shear`'s G_s_database_error). Drift p: slope of G_s/mean against D12 (capsmech.inversion.population.law_drift).", ""]
     groups = [diagnosis.base] + [r.score for r in diagnosis.results if r.score is not None]
     flagged = [(g.law, cid, flag) for g in groups for cid, flag in zip(g.ids, g.flags) if flag]
     if flagged:
