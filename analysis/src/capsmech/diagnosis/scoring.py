@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 from scipy import stats
-from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize import minimize_scalar
 
 from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
 from capsmech.diagnosis.goodness import MODEL_FLOOR_REL, GoodnessOfFit
@@ -19,6 +19,7 @@ from capsmech.inversion.inverters import TubeInverter, profile_elongation
 from capsmech.inversion.lengths import contour_lengths
 from capsmech.inversion.population import law_drift
 from capsmech.inversion.residuals import PreparedContour
+from capsmech.inversion.shape_fit import OUTSIDE, best_profile, on_database_edge
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
@@ -120,28 +121,10 @@ class CandidateResult(Evidence):
 def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float, start: tuple[float, float],
                 sigma: float) -> tuple[float, float, float]:
     """(a/l, Ca_s, chi2): the database point whose profile best fits the contour (least
-    squares of the residual profile, Nelder-Mead in (a/l, ln Ca_s) from ``start``)."""
-
-    def chi2(p: np.ndarray) -> float:
-        meridian = inverter.profile(float(p[0]), float(np.exp(p[1])))
-        if meridian is None:
-            return 1e12
-        _, distance, _ = prepared.residual(meridian * tube_radius, points=PROFILE_POINTS)
-        return float(np.sum((distance / sigma) ** 2))
-
-    x0 = np.array([start[0], math.log(start[1])])
-    # Tolerances: 1e-3 in a/l and ln Ca_s is far below the five fits' spread; 0.05 in chi2 is
-    # far below the differences the criteria act on.
-    best = minimize(chi2, x0, method="Nelder-Mead",
-                    options={"xatol": 1e-3, "fatol": 0.05, "initial_simplex": [x0, x0 + [0.02, 0], x0 + [0, 0.1]]})
-    return float(best.x[0]), float(np.exp(best.x[1])), float(best.fun)
-
-
-def _on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = 2e-3) -> bool:
-    """Whether a contour fit ended on the edge of the database (a step of 2e-3 in a/l or
-    ln Ca_s leaves it): its minimum may lie outside, so it is no fit."""
-    return any(inverter.profile(a_over_l + da, Ca_s * math.exp(dc)) is None
-               for da, dc in ((step, 0), (-step, 0), (0, step), (0, -step)))
+    squares of the residual profile over the noise level sigma, ``best_profile`` from ``start``).
+    A tolerance of 0.05 in chi2 is far below the differences the criteria act on."""
+    return best_profile(prepared, inverter, tube_radius, start, PROFILE_POINTS,
+                        lambda distance: float(np.sum((distance / sigma) ** 2)), 0.05)
 
 
 def _nearest_row(inverter: TubeInverter, L_z: float, L_p: float) -> dict[str, float]:
@@ -248,7 +231,7 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
         contour = prepared[i] if prepared is not None else PreparedContour(capsule.contour)
         l = capsule["tube_radius"]
         a_over_l, ca, chi2[i] = contour_fit(contour, inverter, l, (row["a_over_l"], row["Ca_s"]), sigma[i])
-        if chi2[i] >= 1e12 or _on_database_edge(inverter, a_over_l, ca):
+        if chi2[i] >= OUTSIDE or on_database_edge(inverter, a_over_l, ca):
             chi2[i] = np.nan
             continue
         velocity = inverter.velocity_ratio(a_over_l, ca)

@@ -3,7 +3,11 @@ and ``capsmech fit-shear`` wrap.
 
 ``fit_tube(capsules, database, laws)`` returns one result row per (capsule, law): the five
 fits of paper section 4.2 reduced to a mean and a spread (half the range of the valid fits)
-for a/l, Ca_s, v_c/V and G_s, the number of valid fits, and a flag with its reason when the
+for a/l, Ca_s, v_c/V and G_s, the number of valid fits, where the capsule has a contour its
+misfit H/a at the central fit and the law's best shape on it (``a_over_l_shape``,
+``Ca_s_shape``, ``H_over_a_shape``: the contour fit of ``capsmech.inversion.shape_fit``, NaN
+where the law fits no lengths, the contour is asymmetric or the fit ends on the database's
+edge), and a flag with its reason when the
 capsule cannot be fitted (outside the database, no valid fit): ``flag`` is a short code
 (``FLAG_CODES``; empty when the capsule is fitted) and ``reason`` says why in words.
 ``fit_shear`` does the same from D12 (paper section 4.3). Rows are plain dicts of floats and
@@ -33,6 +37,7 @@ from capsmech.inversion.inverters import (
     profile_elongation,
 )
 from capsmech.inversion.residuals import size_residual, velocity_residual
+from capsmech.inversion.shape_fit import fit_shape
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
@@ -46,7 +51,8 @@ from capsmech.io.measurements import Capsule
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
-                     "valid_fits": "1", "H_over_a": "1", "asymmetry": "1", "size_residual": "1",
+                     "valid_fits": "1", "H_over_a": "1", "a_over_l_shape": "1",
+                     "Ca_s_shape": "1", "H_over_a_shape": "1", "asymmetry": "1", "size_residual": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
@@ -139,7 +145,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "vc_over_V": fits.mean("vc_over_V"), "G_s": fits.mean("G_s"),
                                    "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
-                                   "H_over_a": float("nan"), "asymmetry": asymmetry,
+                                   "H_over_a": float("nan"), "a_over_l_shape": float("nan"),
+                                   "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"), "asymmetry": asymmetry,
                                    "size_residual": float("nan"), "size_residual_error": float("nan"),
                                    "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
                                    "reason": ""}
@@ -154,6 +161,14 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                     residual, contour_error = size_residual(capsule.contour, central.a_over_l * l)
                     row["size_residual"] = residual
                     row["size_residual_error"] = math.hypot(contour_error, row["a_over_l_spread"] / central.a_over_l)
+            if capsule.contour is not None and fits.n_valid > 0 and not asymmetry > asymmetry_limit:
+                # The law's best shape on the contour (what population compares laws by),
+                # from the central fit, or the valid fits' mean where the central one failed.
+                start = ((central.a_over_l, central.Ca_s) if central.ok
+                         else (fits.mean("a_over_l"), fits.mean("Ca_s")))
+                shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y)
+                row["a_over_l_shape"], row["Ca_s_shape"] = shape.a_over_l, shape.Ca_s
+                row["H_over_a_shape"] = shape.H_over_a
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
                 row["vc_residual"], row["vc_residual_error"] = velocity_residual(
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))

@@ -13,28 +13,44 @@ invalid input (and, for shear rows, an imprecise D12). Such a capsule is left ou
 comparison for every law, with its reason (``PopulationVerdict.left_out``). Every other
 capsule is *used*. A law-dependent failure (``outside_database``, ``central_fit_outside``,
 ``profile_misfit``, any other flag, or no row of that law for the capsule) is evidence
-against that law: the law cannot reproduce the capsule. A ``no_velocity`` row is a fit
-(its shape counts) without a G_s. Fewer than ``MIN_CAPSULES`` (5) used capsules: no verdict.
+against that law: the law cannot reproduce the capsule (it counts as not *fitted*: no G_s;
+for the contour score, a law's contour fit supersedes ``central_fit_outside`` and
+``profile_misfit``, see below). A ``no_velocity`` row is a fit (its shape counts) without a
+G_s. Fewer than ``MIN_CAPSULES`` (5) used capsules: no verdict.
 
 Criterion: the contours
 -----------------------
-Each used capsule gets, under each law, a misfit score: its contour misfit H/a when the law
-fits it, ``FAIL_SCORE`` (1, a contour missed by a whole radius; a fitted capsule has H/a <=
-0.06) when the law cannot. Where the capsule has no contour, a fit scores 0, so that only
-"fitted or not" counts. Two laws are compared by a **paired one-sided Wilcoxon signed-rank
-test** of the score differences over the used capsules (``p_better[(a, b)]``: p-value of "a
-fits no better than b"; capsules with equal scores, e.g. fitted by neither law, carry no
-information and drop out). Why this criterion rather than a batch likelihood:
+Each used capsule gets, under each law, a misfit score: the H/a of the law's **best shape on
+the contour** (``H_over_a_shape``: the contour fit of :mod:`capsmech.inversion.shape_fit`,
+started from the length fit) when the law fits the capsule, ``FAIL_SCORE`` (1, a contour
+missed by a whole radius; a fitted capsule has H/a <= ``MAX_H_OVER_A`` = 0.06) when it cannot:
+no fit of five reproduces the lengths (``outside_database``), the contour fit ends on the
+database's edge, or its H/a is above the limit. (The length fit's own troubles,
+``central_fit_outside`` and ``profile_misfit``, are superseded by the contour fit.) Results
+written without contour fits are scored by ``H_over_a``, the misfit at the length fit, as
+before; where the capsule has no contour, a fit scores 0, so that only "fitted or not" counts.
+Two laws are compared by a **paired one-sided Wilcoxon signed-rank test** of the score
+differences over the used capsules (``p_better[(a, b)]``: p-value of "a fits no better than
+b"; capsules with equal scores, e.g. fitted by neither law, carry no information and drop
+out). Why the best shape rather than the misfit at the length fit: the lengths' 2 % error
+moves the length fit's parameters, and the profile there misses the contour by much more
+than the law's shapes do. On the shipped GH nu_s = 0.5 batch with the right law, the median
+H/a is 0.0107 at the length fit, 0.0046 for the database's profile at the true parameters
+(the kernel's exact profile there: also 0.0046; the two profiles differ by 0.0007 a: the
+database's interpolation error is negligible), 0.0047 for the contour fit: the right law's
+best shape reaches the tracing noise, a wrong law's does not (SK C = 1, same area modulus:
+0.0051, larger on every capsule), and the misfit at the length fit buried that difference
+under the lengths' error (Wilcoxon p = 0.18 over 10 pairs, now < 0.001 over 12). Why this
+criterion rather than a batch likelihood:
 
 - it counts every used capsule: a capsule one law cannot fit is the largest possible
   difference in the other law's favour, whatever the value of ``FAIL_SCORE``, because the
   test uses only the ranks of the differences;
 - it is exact without a noise model: under "the two laws fit equally well" the sign of each
   capsule's difference is a fair coin, which is all the test assumes. A likelihood would need
-  the distribution of H/a, a modified Hausdorff distance that is dominated, for the right
-  law, by the database's interpolation error (H/a 0.006-0.03 on the example batches) rather
-  than by the tracing noise (the halves differ by 0.005 a): a chi-square against the tracing
-  noise alone would call small model differences decisive;
+  the distribution of H/a (a modified Hausdorff distance, not a sum of squares) and a noise
+  level whose own error (it is estimated from the contour's two halves) and correlation
+  along the contour would have to be modelled to make its p-values right;
 - a law's median score is its typical misfit, and it is 1 when the law fits fewer than half
   of the capsules.
 
@@ -103,6 +119,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from capsmech.errors import CapsmechError
+from capsmech.io.contours import MAX_H_OVER_A
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -122,6 +139,11 @@ FAIL_SCORE = 1.0
 LAW_INDEPENDENT_FLAGS = ("asymmetric", "invalid_input", "imprecise")
 #: A fit whose shape counts but that has no G_s.
 NO_G_S_FLAGS = ("no_velocity",)
+#: Flags under which the law's contour fit (``H_over_a_shape``) is the capsule's score: the
+#: length fit's own troubles (the central fit of five outside the database, the misfit at the
+#: length fit above the limit) say nothing about the law's shapes once the contour is fitted.
+#: Any other flag (``outside_database``: no fit of five reproduces the lengths) is a failure.
+SHAPE_SCORED_FLAGS = ("", *NO_G_S_FLAGS, "central_fit_outside", "profile_misfit")
 
 
 class PopulationInputError(CapsmechError, ValueError):
@@ -370,11 +392,21 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     fitted = {law: np.zeros(len(used), dtype=bool) for law in laws}
     for k, cid in enumerate(used):
         fits = {law: row for law, row in table[cid].items() if _flag(row) in ("", *NO_G_S_FLAGS)}
+        for law in fits:
+            fitted[law][k] = True
+        shapes = {law: _number(row.get("H_over_a_shape")) for law, row in table[cid].items()}
+        if any(np.isfinite(h) for h in shapes.values()):
+            # The laws' best shapes on the contour (``capsmech.inversion.shape_fit``).
+            any_contours = True
+            for law, row in table[cid].items():
+                if _flag(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A:
+                    scores[law][k] = shapes[law]
+            continue
+        # Results without contour fits (written before them): the misfit at the length fit.
         misfit = {law: _number(row.get("H_over_a")) for law, row in fits.items()}
         contours = bool(fits) and all(np.isfinite(h) for h in misfit.values())
         any_contours = any_contours or contours
         for law in fits:
-            fitted[law][k] = True
             scores[law][k] = misfit[law] if contours else 0.0
     drifts: dict[str, LawDrift] = {}
     drift_notes: dict[str, str] = {}
@@ -529,7 +561,9 @@ def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
             "G_s": _json_number(verdict.g_s), "G_s_std": _json_number(verdict.g_s_std),
             "G_s_interval": _json_pair(verdict.g_s_interval), "reason": verdict.reason,
             "reference": verdict.reference,
-            "criterion": {"score": "contour misfit H/a of a fitted capsule, fail_score where the law cannot fit it",
+            "criterion": {"score": "H/a of the law's best shape on the capsule's contour (contour fit; in results "
+                                   "without it, the misfit at the length fit), fail_score where the law cannot "
+                                   "fit the capsule",
                           "test": "paired one-sided Wilcoxon signed-rank over the used capsules; drift: least-squares "
                                   "slope of G_s/mean(G_s) on Delta, Student t",
                           "alpha": ALPHA, "contour_level": CONTOUR_LEVEL, "fail_score": FAIL_SCORE, "min_capsules": MIN_CAPSULES,
