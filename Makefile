@@ -40,7 +40,7 @@ PY      := $(VENV)/bin/python
 # Modules in dependency order (one concept per module, file name = module name). Each module
 # may use any module before it: compiling in list order is the dependency rule. Names not
 # (yet) present in kernel/src are skipped.
-MODULE_ORDER := capsim_kinds lapack_interfaces text_format text_parse file_ops checksum command_args option_table vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
+MODULE_ORDER := capsim_kinds lapack_interfaces blas_threads text_format text_parse file_ops checksum command_args option_table vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
            elliptic_integrals ring_stokeslet ring_stresslet membrane_law membrane_forces membrane_bending axisymmetric_membrane \
            axisymmetric_bending \
             stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \

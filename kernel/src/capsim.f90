@@ -5,6 +5,7 @@ program capsim
    use, intrinsic :: iso_c_binding, only: c_int
    use file_ops, only: delete_file
    use omp_lib, only: omp_set_num_threads, omp_get_max_threads
+   use blas_threads, only: match_blas_threads
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t, parse_command_line, write_help
@@ -40,6 +41,7 @@ program capsim
    end if
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
    if (opts%threads > 0) call omp_set_num_threads(opts%threads)
+   call match_blas_threads(omp_get_max_threads())
    if (len_trim(opts%branch_ca) > 0) then
       ! A steady branch: its own case files and branch file (tube_branch).
       call run_tube_branch(opts, omp_get_max_threads(), stat, errmsg)
