@@ -5,7 +5,8 @@ and ``capsmech fit-shear`` wrap.
 fits of paper section 4.2 reduced to a mean and a spread (half the range of the valid fits)
 for a/l, Ca_s, v_c/V and G_s, the number of valid fits, where the capsule has a contour its
 misfit H/a at the central fit and the law's best shape on it (``a_over_l_shape``,
-``Ca_s_shape``, ``H_over_a_shape``: the contour fit of ``capsmech.inversion.shape_fit``, NaN
+``Ca_s_shape``, ``H_over_a_shape``, and ``G_s_shape``, ``Delta_shape`` there: the contour fit of
+``capsmech.inversion.shape_fit``, NaN
 where the law fits no lengths, the contour is asymmetric or the fit ends on the database's
 edge), and a flag with its reason when the
 capsule cannot be fitted (outside the database, no valid fit): ``flag`` is a short code
@@ -52,7 +53,7 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
                      "valid_fits": "1", "H_over_a": "1", "a_over_l_shape": "1",
-                     "Ca_s_shape": "1", "H_over_a_shape": "1", "asymmetry": "1", "size_residual": "1",
+                     "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1", "asymmetry": "1", "size_residual": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
@@ -146,7 +147,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
                                    "H_over_a": float("nan"), "a_over_l_shape": float("nan"),
-                                   "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"), "asymmetry": asymmetry,
+                                   "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"),
+                                   "G_s_shape": float("nan"), "Delta_shape": float("nan"), "asymmetry": asymmetry,
                                    "size_residual": float("nan"), "size_residual_error": float("nan"),
                                    "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
                                    "reason": ""}
@@ -169,6 +171,16 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y)
                 row["a_over_l_shape"], row["Ca_s_shape"] = shape.a_over_l, shape.Ca_s
                 row["H_over_a_shape"] = shape.H_over_a
+                if shape.ok:
+                    # G_s and Delta at the best shape: the contour pins (a/l, Ca_s) far better
+                    # than the lengths' 2 % once the law is right; population still decides
+                    # with the lengths' G_s, whose drift exposes a wrong nearby law that the
+                    # best shapes absorb (docs/validation/inversion.md).
+                    a_shape, ca_shape = shape.a_over_l, shape.Ca_s
+                    row["Delta_shape"] = profile_elongation(inverters[law].profile(a_shape, ca_shape), a_shape)
+                    if has_velocity:
+                        row["G_s_shape"] = mu * v_c / (ca_shape * inverters[law].velocity_ratio(a_shape,
+                                                                                                             ca_shape))
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
                 row["vc_residual"], row["vc_residual_error"] = velocity_residual(
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
