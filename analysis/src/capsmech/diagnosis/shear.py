@@ -213,6 +213,8 @@ class ShearCandidateResult(Evidence):
     #: The inclination's part of chi2_base and chi2 (0 without theta).
     chi2_theta_base: float = math.nan
     chi2_theta: float = math.nan
+    #: The database's share [N/m] of the error of G_s before and after (``database_error``).
+    g_s_systematic: tuple[float, float] = (0.0, 0.0)
     score: GroupScore | None = field(default=None, repr=False)
     used: np.ndarray | None = field(default=None, repr=False)
 

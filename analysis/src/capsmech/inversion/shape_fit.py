@@ -144,6 +144,8 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
         return ShapeFit(reason=f"the contour fit ends on the edge of the database (a/l = {a_fit:.3f}, "
                                f"Ca_s = {ca_fit:.3g}): its best shape lies outside what the database holds")
     meridian = inverter.profile(a_fit, ca_fit)
+    if meridian is None:   # not reached: on_database_edge checked the point's neighbours and the objective the point
+        return ShapeFit(reason=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius))
 
