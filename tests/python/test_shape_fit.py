@@ -54,7 +54,7 @@ def test_the_right_law_finds_the_capsule_and_reaches_the_noise(i):
     contour = traced_capsule("GH_nu0.5", i, seed=100 + i)
     a_true, ca_true = p.a_over_l[i], p.Ca_s[i]
     fit = fit_shape(contour, tube_inverter(database(), "GH_nu0.5"), L_PX, (a_true + 0.02, ca_true * 1.15))
-    assert fit.ok, fit.reason
+    assert fit.ok, fit.flag
     assert abs(fit.a_over_l - a_true) < 0.01 and abs(math.log(fit.Ca_s / ca_true)) < 0.1, (fit, a_true, ca_true)
     assert fit.H_over_a < 0.006
     other = fit_shape(contour, tube_inverter(database(), "SK_C1"), L_PX, (a_true, ca_true))

@@ -177,9 +177,7 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                     # with the lengths' G_s, whose drift exposes a wrong nearby law that the
                     # best shapes absorb (docs/validation/inversion.md).
                     a_shape, ca_shape = shape.a_over_l, shape.Ca_s
-                    shape_meridian = inverters[law].profile(a_shape, ca_shape)
-                    if shape_meridian is not None:
-                        row["Delta_shape"] = profile_elongation(shape_meridian, a_shape)
+                    row["Delta_shape"] = shape.Delta
                     if has_velocity:
                         row["G_s_shape"] = mu * v_c / (ca_shape * inverters[law].velocity_ratio(a_shape,
                                                                                                              ca_shape))

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from capsmech.inversion.inverters import TubeInverter
+from capsmech.inversion.inverters import Fit, TubeInverter, profile_elongation
 from capsmech.inversion.residuals import PreparedContour
 from capsmech.io.contours import profile_misfit
 
@@ -61,29 +61,26 @@ FATOL = 1e-3
 OUTSIDE = 1e12
 
 
-@dataclass(frozen=True)
-class ShapeFit:
-    """The law's database shape that best fits a contour.
+@dataclass
+class ShapeFit(Fit):
+    """The law's database shape that best fits a contour (``G_s`` is not set here: it needs
+    the capsule's velocity; ``flag`` says why there is no fit, '' when there is).
 
     Attributes
     ----------
     a_over_l, Ca_s : float
-        Fitted parameters [1] (NaN when ``reason`` is set).
+        Fitted parameters [1] (NaN when flagged).
     H_over_a : float
         Modified Hausdorff distance between the contour and the fitted profile over the fitted
-        a (NaN when ``reason`` is set).
-    reason : str
-        Why there is no fit ('' when there is).
+        a (NaN when flagged).
+    Delta : float
+        Profile elongation p / (2 pi a) of the fitted profile [1] (NaN when flagged).
     """
 
     a_over_l: float = math.nan
     Ca_s: float = math.nan
     H_over_a: float = math.nan
-    reason: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return not self.reason
+    Delta: float = math.nan
 
 
 def on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = EDGE_STEP) -> bool:
@@ -133,19 +130,20 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
     """
     a0, ca0 = (float(v) for v in start)
     if not (math.isfinite(a0) and math.isfinite(ca0) and ca0 > 0 and tube_radius > 0):
-        return ShapeFit(reason=f"no start for the contour fit (a/l = {a0}, Ca_s = {ca0})")
+        return ShapeFit(flag=f"no start for the contour fit (a/l = {a0}, Ca_s = {ca0})")
     prepared = PreparedContour(contour, axis_y)
     if inverter.profile(a0, ca0) is None:
-        return ShapeFit(reason=f"the contour fit's start a/l = {a0:.3f}, Ca_s = {ca0:.3g} is outside the database")
+        return ShapeFit(flag=f"the contour fit's start a/l = {a0:.3f}, Ca_s = {ca0:.3g} is outside the database")
     unit = 1e-3 * tube_radius
     a_fit, ca_fit, value = best_profile(prepared, inverter, tube_radius, (a0, ca0), SHAPE_POINTS,
                                         lambda distance: float(np.mean((distance / unit) ** 2)), FATOL)
     if value >= OUTSIDE or on_database_edge(inverter, a_fit, ca_fit):
-        return ShapeFit(reason=f"the contour fit ends on the edge of the database (a/l = {a_fit:.3f}, "
+        return ShapeFit(flag=f"the contour fit ends on the edge of the database (a/l = {a_fit:.3f}, "
                                f"Ca_s = {ca_fit:.3g}): its best shape lies outside what the database holds")
     meridian = inverter.profile(a_fit, ca_fit)
     if meridian is None:   # not reached: on_database_edge checked the point's neighbours and the objective the point
-        return ShapeFit(reason=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
+        return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
-    return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius))
+    return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
+                    Delta=profile_elongation(meridian, a_fit))
 
