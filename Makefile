@@ -97,8 +97,11 @@ venv: $(PY)
 
 setup: build venv
 
+# The tests run on every core (TEST_WORKERS=0 runs them in pytest's own process). loadscope keeps a
+# module's tests, and so its module-scoped fixtures (kernel runs, fitted batches), on one worker.
+TEST_WORKERS ?= auto
 test: setup
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope
 
 demo: setup
 	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5

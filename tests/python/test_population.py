@@ -281,15 +281,23 @@ def test_the_gh_example_batch_names_gh_nu05(example_fits):
     # area modulus 3 G_s, stays above it on all 12 capsules (0.0051; p = 1/4096). Scored by the
     # misfit at the length fit (0.011 against 0.018), the lengths' 2 % error hid that (p = 0.18,
     # "cannot tell"). NH (the first verdict, 0.089 N/m) fits the contours worse on all 12.
+    # Against the noise (chi2 per degree of freedom, limit 1.54): GH nu_s 0.5 0.95, SK C = 1 1.68.
     verdict = capsmech.population(example_fits["GH_nu0.5"])
     assert verdict.kind == "law" and verdict.best == "GH_nu0.5", verdict.reason
     assert verdict.candidates == ("GH_nu0.5",)
-    assert verdict.evidence["SK_C1"].status == "worse contours"
+    assert verdict.evidence["GH_nu0.5"].noise.consistent
+    assert verdict.evidence["SK_C1"].status in ("worse contours", "misfits noise")
+    assert not verdict.evidence["SK_C1"].noise.consistent
     assert verdict.p_better[("GH_nu0.5", "SK_C1")] < 0.001
-    assert verdict.evidence["NH"].status == "worse contours"
-    assert verdict.evidence["GH_nu0"].status == "fits < half"
+    assert verdict.p_better[("GH_nu0.5", "NH")] < 0.001
+    assert verdict.evidence["NH"].status in ("worse contours", "misfits noise", "drifts")
+    assert verdict.evidence["GH_nu0"].status in ("fits < half", "drifts")
+    # G_s at the best shapes (their noise tested): within 2.5 % of the truth, the interval
+    # (with the database's accuracy) holding it and narrower than 10 % of it.
+    assert verdict.estimator == "contour fits"
+    assert verdict.g_s == pytest.approx(G_S, rel=0.025)
     low, high = verdict.g_s_interval
-    assert low < G_S < high
+    assert low < G_S < high and high - low < 0.1 * G_S
     for law in verdict.candidates:
         e = verdict.evidence[law]
         assert e.g_s_interval[0] < G_S < e.g_s_interval[1]
@@ -315,11 +323,12 @@ def test_the_json_file_says_what_the_cli_prints(example_fits, law, tmp_path, cap
         row = re.search(rf"^\s*{re.escape(name)}\s+(\d+)/(\d+)\s", printed, re.M)
         assert row and (int(row.group(1)), int(row.group(2))) == (evidence["fitted"], evidence["used"])
     if data["verdict"] == "law":
-        match = re.match(r"verdict: (\S+), G_s = ([0-9.e-]+) \+- ([0-9.e-]+) N/m", line)
+        match = re.match(r"verdict: (\S+), G_s = ([0-9.e-]+) \+- ([0-9.e-]+) N/m by (contour fits|lengths)", line)
         assert match and match.group(1) == data["law"]
         assert float(match.group(2)) == pytest.approx(data["G_s"], rel=1e-3)
         assert float(match.group(3)) == pytest.approx(data["G_s_std"], rel=0.05)
         assert data["candidates"] == [data["law"]]
+        assert match.group(4) == data["G_s_estimator"]
     else:
         assert data["verdict"] == "cannot_tell" and data["law"] is None and data["G_s"] is None
         assert line.startswith("verdict: cannot tell " + " from ".join(data["candidates"]))

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from capsmech.inversion.fitting import fit_tube_rows, tube_inverter
-from capsmech.inversion.population import FAIL_SCORE, population_verdict
+from capsmech.inversion.noise import DOF
+from capsmech.inversion.population import FAIL_SCORE, population_verdict, verdict_dict
 from capsmech.inversion.shape_fit import fit_shape
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
@@ -121,6 +122,9 @@ def test_laws_of_the_same_area_modulus_are_told_apart_on_an_independent_batch(ke
     # (Not its G_s: fit-tube inverts the file's lengths, which this generator reads off the
     # noisy contour's extremes, about 5 % low in G_s; see test_independent_batches.)
     assert verdict.best in (key, None) and other not in verdict.candidates, verdict.reason
+    # The right law's best shapes are consistent with the tracing noise (measured on this
+    # generator's 30 batches of GH nu_s 0.5, SK C = 1 and NH: chi2/dof 0.8-1.3, limit 1.54).
+    assert verdict.evidence[key].noise is not None and verdict.evidence[key].noise.consistent
     # G_s at the right law's best shapes (G_s_shape): the batch mean within 2 % of the truth
     # (measured on 10 such batches: within 1.3 %), and a spread between capsules below the
     # length fits' (2-3 % against 10-25 % on this generator).
@@ -140,4 +144,83 @@ def test_the_rows_carry_the_contour_fit(tmp_path):
     for row, a_true in zip(rows, drawn.truth["a_over_l"]):
         assert row["H_over_a_shape"] < 0.006 and row["H_over_a_shape"] <= row["H_over_a"] + 1e-4
         assert abs(row["a_over_l_shape"] - a_true) < 0.01
+        # The right law's shape leaves noise: chi2 below 5 DOF (the F reference exceeds 4.2 DOF with probability 1e-3).
+        assert 0 < row["chi2_shape"] < 5 * DOF
+        # The database's accuracy (0.1 % of L_z) moves G_s by a few per cent at most.
+        assert 0 < row["G_s_database_error"] < 0.1 * row["G_s"]
     assert Path(drawn.csv).exists()
+
+
+def _noise_rows(law, chi2_per_dof, g_shape, g_lengths=None, n=12, database_error=0.0):
+    """Rows of a law whose best shapes leave chi2/dof = ``chi2_per_dof`` on every capsule, with
+    G_s at the best shape ``g_shape(i)`` and by lengths ``g_lengths(i)``."""
+    g_lengths = g_lengths or g_shape
+    return [{"id": f"c{i}", "law": law, "Delta": 1.05 + 0.01 * i, "Delta_shape": 1.05 + 0.01 * i,
+             "G_s": g_lengths(i), "G_s_shape": g_shape(i), "G_s_database_error": database_error, "flag": "",
+             "reason": "", "H_over_a": 0.01, "H_over_a_shape": 0.005, "chi2_shape": DOF * chi2_per_dof}
+            for i in range(n)]
+
+
+def _constant(i):
+    return 0.04 * (1 + 0.01 * (-1) ** i)
+
+
+def _drifting(i):
+    return 0.04 * (1 + 0.05 * i)
+
+
+def test_a_law_whose_best_shapes_miss_the_noise_is_not_the_verdict():
+    """Being the best of the database's laws is not enough: a law whose best shapes leave twice
+    the chi2 that noise makes (12 capsules: the 1 % limit is 1.54 a degree of freedom) misfits
+    the noise, and when no law is left the verdict is none, naming the closest law and by how
+    much it falls short."""
+    verdict = population_verdict(_noise_rows("A", 1.0, _constant) + _noise_rows("B", 2.0, _constant))
+    assert verdict.kind == "law" and verdict.best == "A"
+    assert verdict.evidence["A"].noise.consistent and verdict.evidence["A"].noise.limit == pytest.approx(1.54, abs=0.03)
+    assert verdict.evidence["B"].status == "misfits noise"
+    verdict = population_verdict(_noise_rows("A", 1.9, _constant) + _noise_rows("B", 2.5, _constant))
+    assert verdict.kind == "none" and verdict.best is None and math.isnan(verdict.g_s)
+    assert "the closest, A," in verdict.reason and "chi2/dof 1.90" in verdict.reason
+    data = verdict_dict(verdict)
+    assert data["verdict"] == "none" and data["laws"]["A"]["chi2_per_dof"] == pytest.approx(1.9)
+    assert data["laws"]["A"]["chi2_p"] < 0.01 and data["laws"]["A"]["chi2_capsules"] == 12
+
+
+def test_g_s_is_read_at_the_best_shapes_only_where_their_noise_was_tested():
+    """With ``chi2_shape`` in the rows, G_s and the drift are the best shapes' (here constant,
+    while the lengths' drift); without it, the lengths' (the law then drifts: no verdict)."""
+    rows = _noise_rows("A", 1.0, _constant, _drifting)
+    verdict = population_verdict(rows)
+    assert verdict.kind == "law" and verdict.estimator == "contour fits"
+    assert verdict.g_s == pytest.approx(0.04, rel=1e-3)
+    untested = [{k: v for k, v in r.items() if k != "chi2_shape"} for r in rows]
+    verdict = population_verdict(untested)
+    assert verdict.estimator == "lengths" and verdict.kind == "none"
+    assert verdict.evidence["A"].status == "drifts"
+
+
+def test_the_databases_accuracy_widens_the_g_s_interval_in_quadrature():
+    """Every capsule shares the database's error (``G_s_database_error``): its mean adds to the
+    Student-t half-width in quadrature, and is reported."""
+    plain = population_verdict(_noise_rows("A", 1.0, _constant))
+    wide = population_verdict(_noise_rows("A", 1.0, _constant, database_error=0.001))
+    half = (plain.g_s_interval[1] - plain.g_s_interval[0]) / 2
+    assert (wide.g_s_interval[1] - wide.g_s_interval[0]) / 2 == pytest.approx(math.hypot(half, 0.001))
+    assert wide.g_s_systematic == pytest.approx(0.001) and verdict_dict(wide)["G_s_systematic"] == pytest.approx(0.001)
+    assert verdict_dict(wide)["G_s_estimator"] == "contour fits"
+
+
+def test_a_law_outside_the_database_is_no_law_of_it(tmp_path):
+    """A batch of GH nu_s = 0.35 (between the database's GH groups 0.2 and 0.5), independent
+    generator: every law's best shapes miss the contours by several times the noise (measured
+    on 4 batches: chi2/dof 4.6-6.3 for the nearest, NH or GH_nu0.2; limit 1.54), so no law is
+    named, whichever G_s estimator. (Before the noise test, with the best shapes' G_s the
+    verdict was GH nu_s = 0.2 with G_s 25 % high.)"""
+    drawn = ib.draw_batch(pool(), "GH_nu0.35", tmp_path, "gh035", seed=1, n=12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rows = fit_tube_rows(read_measurements(drawn.csv, "tube"), database())
+    verdict = population_verdict(rows)
+    assert verdict.kind == "none" and verdict.best is None, verdict.reason
+    tested = [e.noise for e in verdict.evidence.values() if e.noise is not None]
+    assert tested and all(t.reduced_chi2 > 2 * t.limit for t in tested)

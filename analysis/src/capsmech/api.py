@@ -213,7 +213,7 @@ def population_table(verdict: PopulationVerdict) -> pd.DataFrame:
     """The evidence per law, best ranked first: capsules fitted of those used, median contour
     score, p-value against the reference law, mean G_s [N/m] with its spread and 95 % interval,
     drift per unit Delta with its 95 % interval and p-value, and the law's status ('verdict',
-    'candidate', 'fits < half', 'drifts', 'worse contours', 'no verdict')."""
+    'candidate', 'fits < half', 'drifts', 'misfits noise', 'worse contours', 'no verdict')."""
     from capsmech.inversion.population import POPULATION_UNITS, population_rows
 
     return _frame(population_rows(verdict), POPULATION_UNITS)
@@ -223,7 +223,7 @@ def plot_population(results: ResultsLike | Sequence[str | Path], verdict: Popula
     """G_s against the profile elongation Delta per law, with each law's drift (paper figure 10)."""
     rows = _result_rows(results)
     verdict = verdict or population_verdict(rows)
-    return plot_population_rows(rows, verdict.drifts)
+    return plot_population_rows(rows, verdict.drifts, verdict.estimator)
 
 
 #: Levels of the scalar effect candidates when not given (those of the shipped effect databases).

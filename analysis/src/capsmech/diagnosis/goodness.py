@@ -32,27 +32,28 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
+from capsmech.inversion.noise import (
+    DOF,
+    DRAWS,
+    GOODNESS_ALPHA,
+    MODEL_FLOOR_REL,
+    NOISE_DOF,
+    SEED,
+    chi2_reference,
+    chi2_test,
+)
 from capsmech.inversion.population import law_drift
 
-#: Significance of each of the three tests.
-ALPHA = 0.01
-#: Points of each capsule's residual profile (``capsmech.diagnosis.scoring.PROFILE_POINTS``),
-#: less the two parameters of its contour fit.
-DOF = 14
-#: Effectively independent points behind a capsule's noise level: the half difference of the
-#: contour's halves at 64 points along the meridian, correlated over a few pixels by the
-#: tracing; 24 is the conservative end (a smaller value widens the reference distribution).
-NOISE_DOF = 24
-#: The databases' profiles hold their lengths to 0.1 % (64 against 128 meridian elements):
-#: a shared residual smaller than this fraction of a capsule's length is model error.
-MODEL_FLOOR_REL = 1e-3
-#: Monte Carlo draws of the reference distributions.
-DRAWS = 4000
-SEED = 20261126
+__all__ = ["ALPHA", "DOF", "MODEL_FLOOR_REL", "NOISE_DOF", "GoodnessOfFit", "chi2_reference", "goodness_of_fit",
+           "sign_flip_p_value"]
+
+#: Significance of each of the three tests (the law verdict's too).
+ALPHA = GOODNESS_ALPHA
+# The noise model (DOF, NOISE_DOF, MODEL_FLOOR_REL, the reference draws) is the law verdict's
+# too: ``capsmech.inversion.noise``.
 
 
 @dataclass
@@ -112,17 +113,6 @@ class GoodnessOfFit:
                 "residual_profile_error_px": [float(v) for v in self.profile_error]}
 
 
-@lru_cache(maxsize=64)
-def chi2_reference(capsules: int, draws: int = DRAWS, seed: int = SEED) -> np.ndarray:
-    """Draws of a batch's total chi2 under noise alone: the sum over the capsules of
-    DOF F(DOF, NOISE_DOF) variates (each capsule's chi2 with its noise level estimated).
-    Cached (read-only): the draws depend on the batch's size alone."""
-    rng = np.random.default_rng(seed)
-    draws_ = DOF * rng.f(DOF, NOISE_DOF, size=(draws, capsules)).sum(axis=1)
-    draws_.setflags(write=False)
-    return draws_
-
-
 def sign_flip_p_value(residual: np.ndarray, draws: int = DRAWS, seed: int = SEED) -> float:
     """p-value of the batch's mean profile (sum of squares over the points) against random sign
     flips of whole capsule profiles (rows)."""
@@ -150,9 +140,7 @@ def goodness_of_fit(residual_px: np.ndarray, sigma_px: np.ndarray, length_px: np
     floor_px = MODEL_FLOOR_REL * length_px[keep]
     chi2 = np.sum(residual ** 2, axis=1) / (sigma_px[keep] ** 2 + floor_px ** 2)
     total = float(np.sum(chi2))
-    reference = chi2_reference(n)
-    p_chi2 = float((1 + np.sum(reference >= total)) / (1 + len(reference)))
-    limit = float(np.quantile(reference, 1 - ALPHA)) / (n * DOF)
+    p_chi2, limit = chi2_test(total, n, ALPHA)
     mean = residual.mean(axis=0)
     error = residual.std(axis=0, ddof=1) / math.sqrt(n)
     drift = math.nan

@@ -17,14 +17,15 @@ from capsmech.diagnosis.goodness import MODEL_FLOOR_REL, GoodnessOfFit
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
 from capsmech.inversion.lengths import contour_lengths
+from capsmech.inversion.noise import CHI2_POINTS, tracing_noise
 from capsmech.inversion.population import law_drift
 from capsmech.inversion.residuals import PreparedContour
 from capsmech.inversion.shape_fit import OUTSIDE, best_profile, on_database_edge
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
-#: Points of each capsule's residual profile in the score.
-PROFILE_POINTS = 16
+#: Points of each capsule's residual profile in the score (the noise model's: ``capsmech.inversion.noise``).
+PROFILE_POINTS = CHI2_POINTS
 #: Refinement of a continuous candidate's strength: evaluations of the batch (each a refit of
 #: every capsule) on each side of the best grid value, and tolerance as a fraction of a side.
 REFINE_EVALUATIONS = 6
@@ -260,8 +261,7 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
         meridian = inverter.profile(row["a_over_l"], row["Ca_s"])
         if meridian is None:
             continue
-        _, error = PreparedContour(capsule.contour).residual(meridian * capsule["tube_radius"], points=64)[1:]
-        sigma[i] = float(np.sqrt(np.mean(error ** 2)))
+        sigma[i] = tracing_noise(PreparedContour(capsule.contour), meridian * capsule["tube_radius"])
     return sigma
 
 

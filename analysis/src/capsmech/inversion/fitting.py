@@ -6,7 +6,9 @@ fits of paper section 4.2 reduced to a mean and a spread (half the range of the 
 for a/l, Ca_s, v_c/V and G_s, the number of valid fits, where the capsule has a contour its
 misfit H/a at the central fit and the law's best shape on it (``a_over_l_shape``,
 ``Ca_s_shape``, ``H_over_a_shape``, and ``G_s_shape``, ``Delta_shape`` there: the contour fit of
-``capsmech.inversion.shape_fit``, NaN
+``capsmech.inversion.shape_fit``; ``chi2_shape``, the contour's chi2 there against its own
+tracing noise, 14 degrees of freedom when the law's shape is the capsule's;
+``G_s_database_error``, what the database's own accuracy moves G_s by: NaN
 where the law fits no lengths, the contour is asymmetric or the fit ends on the database's
 edge), and a flag with its reason when the
 capsule cannot be fitted (outside the database, no valid fit): ``flag`` is a short code
@@ -37,6 +39,7 @@ from capsmech.inversion.inverters import (
     TubeTable,
     profile_elongation,
 )
+from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import fit_shape
 from capsmech.io.contours import (
@@ -53,7 +56,8 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
                      "valid_fits": "1", "H_over_a": "1", "a_over_l_shape": "1",
-                     "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1", "asymmetry": "1", "size_residual": "1",
+                     "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1",
+                     "chi2_shape": "1", "G_s_database_error": "N/m", "asymmetry": "1", "size_residual": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
@@ -148,7 +152,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
                                    "H_over_a": float("nan"), "a_over_l_shape": float("nan"),
                                    "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"),
-                                   "G_s_shape": float("nan"), "Delta_shape": float("nan"), "asymmetry": asymmetry,
+                                   "G_s_shape": float("nan"), "Delta_shape": float("nan"), "chi2_shape": float("nan"),
+                                   "G_s_database_error": float("nan"), "asymmetry": asymmetry,
                                    "size_residual": float("nan"), "size_residual_error": float("nan"),
                                    "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
                                    "reason": ""}
@@ -168,9 +173,9 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 # from the central fit, or the valid fits' mean where the central one failed.
                 start = ((central.a_over_l, central.Ca_s) if central.ok
                          else (fits.mean("a_over_l"), fits.mean("Ca_s")))
-                shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y)
+                shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y, length=capsule["L_z"])
                 row["a_over_l_shape"], row["Ca_s_shape"] = shape.a_over_l, shape.Ca_s
-                row["H_over_a_shape"] = shape.H_over_a
+                row["H_over_a_shape"], row["chi2_shape"] = shape.H_over_a, shape.chi2
                 if shape.ok:
                     # G_s and Delta at the best shape: the contour pins (a/l, Ca_s) far better
                     # than the lengths' 2 % once the law is right; population still decides
@@ -181,6 +186,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                     if has_velocity:
                         row["G_s_shape"] = mu * v_c / (ca_shape * inverters[law].velocity_ratio(a_shape,
                                                                                                              ca_shape))
+            if central.ok and has_velocity:
+                row["G_s_database_error"] = database_g_s_error(inverters[law], l_z, l_p, v_c, mu, central.G_s)
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
                 row["vc_residual"], row["vc_residual_error"] = velocity_residual(
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
@@ -202,6 +209,21 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 row["flag"], row["reason"] = "no_velocity", "no v_c or mu: G_s not computed"
             rows.append(row)
     return rows
+
+
+def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, g_s: float) -> float:
+    """How far the database's own accuracy moves a capsule's G_s [N/m]: its lengths are good to
+    ``MODEL_FLOOR_REL`` (0.1 %) of L_z (64 against 128 meridian elements), an error every capsule
+    of a batch shares. The changes of G_s when L_z, then L_p, move by that much, in quadrature
+    (NaN where either refit fails). The same measure as the diagnosis's
+    (``capsmech.diagnosis.scoring.length_g_s_with_systematic``), for both of fit-tube's G_s: the
+    contour fits match the same profiles."""
+    floor = MODEL_FLOOR_REL * L_z
+    shifts = []
+    for moved in ((L_z + floor, L_p), (L_z, L_p + floor)):
+        other = inverter.fit(*moved, v_c, mu)
+        shifts.append(other.G_s - g_s if other.ok else math.nan)
+    return math.hypot(*shifts)
 
 
 def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]) -> dict[str, TubeFits]:

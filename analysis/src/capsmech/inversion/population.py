@@ -60,11 +60,25 @@ For each law the fitted G_s are regressed on Delta (least squares, ``law_drift``
 slope of G_s/mean(G_s) per unit Delta, its 95 % interval (Student t) and the p-value of "no
 drift". A law whose G_s drifts (p < ``ALPHA``) is not the verdict.
 
+Criterion: the noise
+--------------------
+Being the best of the database's laws does not make a law the capsules' law: a batch of a law
+the database does not hold is fitted best by its nearest neighbour. So each law's best shapes
+are also tested against the tracing noise measured on the contours themselves: the total of
+the capsules' ``chi2_shape`` (16 residuals along the meridian over the contour's own noise,
+from its two halves, and the databases' accuracy; :mod:`capsmech.inversion.noise`) against its
+distribution under noise alone (14 degrees of freedom a capsule, the noise level itself
+estimated). A law whose total noise alone reaches with probability below ``GOODNESS_ALPHA``
+(0.01) *misfits noise*. Measured on the shipped batches (chi2 per degree of freedom; the
+limit at 12 and 10 capsules is 1.54 and 1.57): GH nu_s = 0.5 batch, GH_nu0.5 0.95, SK_C1 1.68,
+NH 6.9, GH_nu0.2 20 and GH_nu0 43; NH batch, NH 0.68, SK_C1 5.2, GH_nu0.5 8.4. Results
+written without ``chi2_shape`` are not tested.
+
 Verdict
 -------
 A law is *eligible* when it fits at least half of the used capsules. Each eligible law whose
-G_s does not drift is a *candidate* unless another eligible law fits the contours
-significantly better (``p_better`` < ``CONTOUR_LEVEL`` = 0.025, one-sided: the two-sided 5 %
+G_s does not drift and whose shapes do not misfit the noise is a *candidate* unless another
+eligible law fits the contours significantly better (``p_better`` < ``CONTOUR_LEVEL`` = 0.025, one-sided: the two-sided 5 %
 level in the direction of the better law; a law exactly as good as the right one thus beats
 it by chance in at most 2.5 % of batches, and is then named only if it also survives the
 drift test and every other law). Then:
@@ -76,8 +90,9 @@ drift test and every other law). Then:
   candidates' intervals when these overlap (G_s lies in it whichever candidate is right),
   else None;
 - none: ``kind = 'none'``, "no law of the database fits", with the reason (every law fits
-  fewer than half of the capsules; every eligible law drifts; or the contours favour a law
-  whose G_s drifts, so that the two tests disagree).
+  fewer than half of the capsules; every eligible law drifts; the closest law's shapes misfit
+  the noise, by how much; or the contours favour a law whose G_s drifts, so that the two tests
+  disagree).
 
 JSON (``verdict_dict``, ``write_verdict_json``; ``capsmech population --json FILE``)::
 
@@ -89,20 +104,23 @@ JSON (``verdict_dict``, ``write_verdict_json``; ``capsmech population --json FIL
      "G_s_interval": [0.0391, 0.0409] | null,   # N/m, 95 % (see above for cannot_tell)
      "reason": "...",                           # the verdict in words
      "reference": "NH" | null,                  # the law the p-values are against
-     "criterion": {"score": ..., "test": ..., "alpha": 0.05, "contour_level": 0.025,
+     "criterion": {"score": ..., "test": ..., "noise": ..., "noise_alpha": 0.01,
+                   "alpha": 0.05, "contour_level": 0.025,
                    "fail_score": 1.0,
                    "min_capsules": 5, "min_fitted_fraction": 0.5},
      "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
      "laws": {"NH": {"fitted": 10, "used": 10, "measured": 10, "score_median": 0.0121,
                      "p_vs_reference": null, "G_s_mean": 0.04, "G_s_std": 0.0013,
                      "G_s_interval": [..], "drift": 0.2, "drift_interval": [..],
-                     "drift_p": 0.40, "drift_n": 10, "status": "verdict",
+                     "drift_p": 0.40, "drift_n": 10, "chi2_per_dof": 0.68, "chi2_limit": 1.57,
+                     "chi2_p": 0.99, "chi2_capsules": 10, "status": "verdict",
                      "status_reason": "..."}, ...},
      "capsules": {"measured": 10, "used": 10,
                   "left_out": [{"id": "s003", "reason": "asymmetric contour: ..."}]}}
 
 Numbers that cannot be computed are null (never NaN). ``status`` is one of 'verdict',
-'candidate', 'fits < half', 'drifts', 'worse contours', 'no verdict' (too few capsules).
+'candidate', 'fits < half', 'drifts', 'misfits noise', 'worse contours', 'no verdict' (too few
+capsules).
 """
 from __future__ import annotations
 
@@ -119,6 +137,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from capsmech.errors import CapsmechError
+from capsmech.inversion.noise import DOF, GOODNESS_ALPHA, chi2_test
 from capsmech.io.contours import MAX_H_OVER_A
 
 if TYPE_CHECKING:
@@ -144,6 +163,10 @@ NO_G_S_FLAGS = ("no_velocity",)
 #: length fit above the limit) say nothing about the law's shapes once the contour is fitted.
 #: Any other flag (``outside_database``: no fit of five reproduces the lengths) is a failure.
 SHAPE_SCORED_FLAGS = ("", *NO_G_S_FLAGS, "central_fit_outside", "profile_misfit")
+#: The two G_s estimators (columns of G_s and Delta in fit-tube's results): at each law's best
+#: shape on the contour, used when fit-tube tested those shapes against the noise
+#: (``chi2_shape``), else at the length fit.
+ESTIMATORS = {"contour fits": ("G_s_shape", "Delta_shape"), "lengths": ("G_s", "Delta")}
 
 
 class PopulationInputError(CapsmechError, ValueError):
@@ -204,6 +227,49 @@ def law_drift(law: str, delta: ArrayLike, g_s: ArrayLike) -> LawDrift:
 
 
 @dataclass(frozen=True)
+class NoiseTest:
+    """A law's best shapes on the batch's contours against the tracing noise.
+
+    Attributes
+    ----------
+    capsules : int
+        Capsules whose contour the law's best shape was fitted to (finite ``chi2_shape``).
+    reduced_chi2 : float
+        Their total chi2 per degree of freedom (``capsmech.inversion.noise``).
+    limit : float
+        The chi2 per degree of freedom that noise alone exceeds with probability
+        ``GOODNESS_ALPHA``.
+    p_value : float
+        Probability that noise alone reaches the total.
+    """
+
+    capsules: int
+    reduced_chi2: float
+    limit: float
+    p_value: float
+
+    @property
+    def consistent(self) -> bool:
+        return self.p_value >= GOODNESS_ALPHA
+
+    def line(self) -> str:
+        return (f"chi2/dof {self.reduced_chi2:.2f} over {self.capsules} contours against the {self.limit:.2f} that "
+                f"noise reaches at p = {GOODNESS_ALPHA:g} (p = {self.p_value:.2g})")
+
+
+def noise_test(chi2: ArrayLike) -> NoiseTest | None:
+    """Test a law's per-capsule ``chi2_shape`` (NaN: not fitted, left out) against the noise;
+    None below 2 capsules."""
+    values = np.asarray(chi2, dtype=float)
+    values = values[np.isfinite(values)]
+    if len(values) < 2:
+        return None
+    total = float(values.sum())
+    p, limit = chi2_test(total, len(values), GOODNESS_ALPHA)
+    return NoiseTest(capsules=len(values), reduced_chi2=total / (len(values) * DOF), limit=limit, p_value=p)
+
+
+@dataclass(frozen=True)
 class LawEvidence:
     """What the batch says about one law.
 
@@ -226,9 +292,16 @@ class LawEvidence:
     drift : LawDrift or None
         The drift test; None when it cannot be made (``drift_note`` says why).
     status : str
-        'verdict', 'candidate', 'fits < half', 'drifts', 'worse contours' or 'no verdict'.
+        'verdict', 'candidate', 'fits < half', 'drifts', 'misfits noise', 'worse contours' or
+        'no verdict'.
     status_reason : str
         The status in words.
+    noise : NoiseTest or None
+        The law's best shapes against the tracing noise; None where not measured (results
+        without ``chi2_shape``, fewer than 2 capsules with one).
+    g_s_systematic : float
+        The part of the interval's half-width [N/m] that the database's own accuracy adds (the
+        mean of the capsules' ``G_s_database_error``; 0 where not written).
     """
 
     law: str
@@ -244,6 +317,8 @@ class LawEvidence:
     drift_note: str
     status: str
     status_reason: str
+    noise: NoiseTest | None = None
+    g_s_systematic: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -277,6 +352,11 @@ class PopulationVerdict:
         Mean G_s of the verdict's law and its spread between capsules [N/m]; NaN otherwise.
     g_s_interval : tuple of float or None
         95 % interval of G_s [N/m] (see the module for 'cannot_tell'); None when none.
+    estimator : str
+        How G_s and Delta were measured: 'contour fits' (at each law's best shape on the
+        contour) or 'lengths' (at the length fit); see ``ESTIMATORS``.
+    g_s_systematic : float
+        The database's share of the verdict's interval [N/m] (NaN without a verdict).
     """
 
     kind: str
@@ -293,6 +373,8 @@ class PopulationVerdict:
     g_s: float = math.nan
     g_s_std: float = math.nan
     g_s_interval: tuple[float, float] | None = None
+    estimator: str = "lengths"
+    g_s_systematic: float = math.nan
 
     def line(self) -> str:
         """The verdict on one line (what ``capsmech population`` prints)."""
@@ -302,7 +384,7 @@ class PopulationVerdict:
             interval = self.g_s_interval
             where = (f"95 % interval of the mean {interval[0]:.4g}-{interval[1]:.4g} N/m; "
                      if interval is not None else "")
-            return (f"verdict: {self.best}, G_s = {self.g_s:.4g} +- {self.g_s_std:.2g} N/m "
+            return (f"verdict: {self.best}, G_s = {self.g_s:.4g} +- {self.g_s_std:.2g} N/m by {self.estimator} "
                     f"({where}{self.reason})")
         if self.kind == "cannot_tell":
             names = " from ".join([", ".join(self.candidates[:-1]), self.candidates[-1]])
@@ -326,15 +408,17 @@ def _flag(row: Mapping[str, Any]) -> str:
     return str(flag)
 
 
-def _mean_interval(values: np.ndarray) -> tuple[float, float, tuple[float, float]]:
-    """(mean, std, 95 % interval of the mean), NaN where fewer than 2 values."""
+def _mean_interval(values: np.ndarray, systematic: float = 0.0) -> tuple[float, float, tuple[float, float]]:
+    """(mean, std, 95 % interval of the mean), NaN where fewer than 2 values. The interval's
+    half-width is the Student-t one and a systematic half-width (an error every value shares)
+    in quadrature."""
     if len(values) == 0:
         return math.nan, math.nan, (math.nan, math.nan)
     mean = float(values.mean())
     if len(values) < 2:
         return mean, math.nan, (math.nan, math.nan)
     std = float(values.std(ddof=1))
-    half = float(stats.t.ppf(1 - ALPHA / 2, len(values) - 1)) * std / math.sqrt(len(values))
+    half = math.hypot(float(stats.t.ppf(1 - ALPHA / 2, len(values) - 1)) * std / math.sqrt(len(values)), systematic)
     return mean, std, (mean - half, mean + half)
 
 
@@ -386,10 +470,20 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     out = set(flagged)
     used = [cid for cid in ids if cid not in out]
 
+    # G_s and Delta at each law's best shape where fit-tube tested those shapes against the
+    # noise (``chi2_shape``): without that test a nearby law's best shapes absorb what the
+    # database lacks and its G_s stops drifting (a GH nu_s = 0.35 batch was named GH nu_s = 0.2
+    # with G_s 25 % high and a 1.2 % interval); with it such a law misfits the noise.
+    estimator = ("contour fits" if any(math.isfinite(_number(row.get("chi2_shape")))
+                                       for cid in used for row in table[cid].values()) else "lengths")
+    g_key, delta_key = ESTIMATORS[estimator]
+
     # Scores and fitted G_s per law over the used capsules.
     scores = {law: np.full(len(used), FAIL_SCORE) for law in laws}
     any_contours = False
     fitted = {law: np.zeros(len(used), dtype=bool) for law in laws}
+    # Each law's best shape against the contour's tracing noise, where it was fitted.
+    chi2 = {law: np.full(len(used), np.nan) for law in laws}
     for k, cid in enumerate(used):
         fits = {law: row for law, row in table[cid].items() if _flag(row) in ("", *NO_G_S_FLAGS)}
         for law in fits:
@@ -401,6 +495,10 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
             for law, row in table[cid].items():
                 if _flag(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A:
                     scores[law][k] = shapes[law]
+                    chi2[law][k] = _number(row.get("chi2_shape"))
+                    # With the contour fits as estimator, a law fits a capsule when its best
+                    # shape does (the length fit's own troubles are superseded, as above).
+                    fitted[law][k] = fitted[law][k] or estimator == "contour fits"
             continue
         # Results without contour fits (written before them): the misfit at the length fit.
         misfit = {law: _number(row.get("H_over_a")) for law, row in fits.items()}
@@ -411,16 +509,24 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     drifts: dict[str, LawDrift] = {}
     drift_notes: dict[str, str] = {}
     g_stats = {}
+    g_systematic: dict[str, float] = {}
     for law in laws:
-        mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and _flag(table[cid][law]) == ""]
-        delta = np.array([_number(r.get("Delta")) for r in mine])
-        g = np.array([_number(r.get("G_s")) for r in mine])
-        g_stats[law] = _mean_interval(g[np.isfinite(g)])
+        if estimator == "contour fits":
+            mine = [table[cid][law] for k, cid in enumerate(used) if math.isfinite(chi2[law][k])]
+        else:
+            mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and _flag(table[cid][law]) == ""]
+        delta = np.array([_number(r.get(delta_key)) for r in mine])
+        g = np.array([_number(r.get(g_key)) for r in mine])
+        # The database's own accuracy, shared by every capsule (fit-tube's G_s_database_error).
+        shared = np.array([_number(r.get("G_s_database_error")) for r in mine])[np.isfinite(g)]
+        g_systematic[law] = float(np.mean(shared[np.isfinite(shared)])) if np.any(np.isfinite(shared)) else 0.0
+        g_stats[law] = _mean_interval(g[np.isfinite(g)], g_systematic[law])
         try:
             drifts[law] = law_drift(law, delta, g)
         except ValueError as exc:
             drift_notes[law] = str(exc)
 
+    noise = {law: noise_test(chi2[law]) for law in laws}
     n = len(used)
     p_better = {(a, b): paired_p(scores[a], scores[b]) for a in laws for b in laws if a != b} if n else {}
     medians = {law: float(np.median(scores[law])) if n else math.nan for law in laws}
@@ -437,6 +543,9 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
             status[law] = ("fits < half", f"fits {count[law]} of {n} capsules, fewer than half")
         elif law in drifts and drifts[law].drifts:
             status[law] = ("drifts", f"G_s drifts with Delta (p = {drifts[law].p_value:.2g})")
+        elif (test := noise[law]) is not None and not test.consistent:
+            status[law] = ("misfits noise", "its best shapes miss the contours by more than the tracing noise: "
+                           + test.line())
         else:
             rivals = [(p_better[(other, law)], other) for other in eligible if other != law]
             beaten = min(rivals) if rivals else (1.0, "")
@@ -464,6 +573,8 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
         against = "; ".join(f"{law}: {status[law][1]}" for law in others)
         drift = f"G_s does not drift (p = {drifts[best].p_value:.2g})" if best in drifts else "drift not measured"
         shape = f"median H/a {medians[best]:.4f}" if any_contours else "no contours (fitted or not counted)"
+        if (test := noise[best]) is not None:
+            shape += f", its shapes consistent with the tracing noise ({test.line()})"
         reason = (f"fits {count[best]} of {n} capsules, {shape}, {drift}"
                   + (f"; {against}" if against else ""))
     elif candidates:
@@ -483,8 +594,18 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
                   + (f" (the most, {most}, fits {count[most]})" if most else ""))
     else:
         outshone = [law for law in eligible if status[law][0] == "worse contours"]
+        misfits = [law for law in eligible if status[law][0] == "misfits noise"]
         details = "; ".join(f"{law}: {status[law][1]}" for law in eligible)
-        if outshone:
+        if misfits:
+            # The closest: the smallest chi2 per degree of freedom among the laws that pass
+            # every other test; by how much it falls short, and what the others did.
+            tests = {law: test for law in misfits if (test := noise[law]) is not None}
+            closest = min(tests, key=lambda law: tests[law].reduced_chi2)
+            rest = "; ".join(f"{law}: {status[law][1]}" for law in eligible if law != closest)
+            reason = (f"no law of the database fits: the closest, {closest}, misses the contours by more than the "
+                      f"tracing noise ({tests[closest].line()})"
+                      + (f"; {rest}" if rest else ""))
+        elif outshone:
             reason = (f"no law of the database fits: the laws whose G_s does not drift fit the contours worse than "
                       f"a law whose G_s drifts ({details}): the tests disagree")
         else:
@@ -501,26 +622,29 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
             p_vs_reference=p_better.get((reference, law), math.nan) if reference else math.nan,
             g_s_mean=mean, g_s_std=std, g_s_interval=g_interval, drift=drifts.get(law),
             drift_note=drift_notes.get(law, ""),
-            status="verdict" if law == best else status[law][0], status_reason=status[law][1])
+            status="verdict" if law == best else status[law][0], status_reason=status[law][1], noise=noise[law],
+            g_s_systematic=g_systematic[law])
     return PopulationVerdict(kind=kind, best=best, candidates=tuple(candidates) if kind != "none" else (),
                              reason=reason, evidence=evidence, drifts=drifts, p_better=p_better, reference=reference,
                              measured=len(ids), used=n, left_out=left_out, g_s=g_s, g_s_std=g_s_std,
-                             g_s_interval=interval)
+                             g_s_interval=interval, estimator=estimator,
+                             g_s_systematic=g_systematic[best] if best is not None else math.nan)
 
 
 #: Columns of the population table (``population_rows``, ``write_population``) and their units.
 POPULATION_UNITS = {"law": "", "fitted": "1", "used": "1", "score_median": "1", "p_vs_reference": "1",
                     "G_s_mean": "N/m", "G_s_std": "N/m", "G_s_low": "N/m", "G_s_high": "N/m",
                     "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta", "drift_p": "1",
-                    "status": ""}
+                    "chi2_per_dof": "1", "chi2_limit": "1", "chi2_p": "1", "status": ""}
 
 
 def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
     """One row per law, best ranked first (columns of ``POPULATION_UNITS``): capsules fitted of
     those used, median misfit score, p-value against the reference law, mean G_s with its
-    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value, and
-    the law's status ('verdict', 'candidate', 'fits < half', 'drifts', 'worse contours',
-    'no verdict')."""
+    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value, the
+    best shapes' chi2 per degree of freedom against the noise with its limit and p-value, and
+    the law's status ('verdict', 'candidate', 'fits < half', 'drifts', 'misfits noise',
+    'worse contours', 'no verdict')."""
     rows = []
     for law, e in verdict.evidence.items():
         d = e.drift
@@ -529,7 +653,9 @@ def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
                      "G_s_low": e.g_s_interval[0], "G_s_high": e.g_s_interval[1],
                      "drift": d.slope if d else math.nan, "drift_ci_low": d.ci_low if d else math.nan,
                      "drift_ci_high": d.ci_high if d else math.nan, "drift_p": d.p_value if d else math.nan,
-                     "status": e.status})
+                     "chi2_per_dof": e.noise.reduced_chi2 if e.noise else math.nan,
+                     "chi2_limit": e.noise.limit if e.noise else math.nan,
+                     "chi2_p": e.noise.p_value if e.noise else math.nan, "status": e.status})
     return rows
 
 
@@ -551,21 +677,29 @@ def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
         laws[law] = {"fitted": e.fitted, "used": e.used, "measured": e.measured,
                      "score_median": _json_number(e.score_median), "p_vs_reference": _json_number(e.p_vs_reference),
                      "G_s_mean": _json_number(e.g_s_mean), "G_s_std": _json_number(e.g_s_std),
-                     "G_s_interval": _json_pair(e.g_s_interval),
+                     "G_s_interval": _json_pair(e.g_s_interval), "G_s_systematic": _json_number(e.g_s_systematic),
                      "drift": _json_number(d.slope) if d else None,
                      "drift_interval": _json_pair((d.ci_low, d.ci_high)) if d else None,
                      "drift_p": _json_number(d.p_value) if d else None, "drift_n": d.n if d else None,
+                     "chi2_per_dof": _json_number(e.noise.reduced_chi2) if e.noise else None,
+                     "chi2_limit": _json_number(e.noise.limit) if e.noise else None,
+                     "chi2_p": _json_number(e.noise.p_value) if e.noise else None,
+                     "chi2_capsules": e.noise.capsules if e.noise else None,
                      "status": e.status, "status_reason": e.status_reason + (f" ({e.drift_note})" if e.drift_note
                                                                             and d is None else "")}
     return {"verdict": verdict.kind, "law": verdict.best, "candidates": list(verdict.candidates),
             "G_s": _json_number(verdict.g_s), "G_s_std": _json_number(verdict.g_s_std),
-            "G_s_interval": _json_pair(verdict.g_s_interval), "reason": verdict.reason,
+            "G_s_interval": _json_pair(verdict.g_s_interval), "G_s_estimator": verdict.estimator,
+            "G_s_systematic": _json_number(verdict.g_s_systematic), "reason": verdict.reason,
             "reference": verdict.reference,
             "criterion": {"score": "H/a of the law's best shape on the capsule's contour (contour fit; in results "
                                    "without it, the misfit at the length fit), fail_score where the law cannot "
                                    "fit the capsule",
                           "test": "paired one-sided Wilcoxon signed-rank over the used capsules; drift: least-squares "
                                   "slope of G_s/mean(G_s) on Delta, Student t",
+                          "noise": "total chi2 of the law's best shapes (chi2_shape) against the tracing noise, "
+                                   f"{DOF} degrees of freedom a capsule, noise level estimated (F reference)",
+                          "noise_alpha": GOODNESS_ALPHA,
                           "alpha": ALPHA, "contour_level": CONTOUR_LEVEL, "fail_score": FAIL_SCORE, "min_capsules": MIN_CAPSULES,
                           "min_fitted_fraction": MIN_FITTED_FRACTION},
             "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
@@ -596,20 +730,25 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
     return list(read_results_csv(path, required=()))
 
 
-def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift]) -> Figure:
-    """Figure 10 of the paper: G_s against Delta per law, error bars = spread of the five fits,
+def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift],
+                    estimator: str = "lengths") -> Figure:
+    """Figure 10 of the paper: G_s against Delta per law (by ``estimator``), error bars = spread
+    of the five fits (lengths),
     with each law's regression line. Returns the Figure (no pyplot state: safe in scripts and
     notebooks alike; ``capsmech.plotting.save_figure`` writes it)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 4.2), layout="constrained")
     ax = fig.subplots()
-    rows = [r for r in rows if not _flag(r)]
+    g_key, delta_key = ESTIMATORS[estimator]
+    rows = [r for r in rows if (math.isfinite(_number(r.get("chi2_shape"))) if estimator == "contour fits"
+                                else not _flag(r))]
     for law in drifts:
         mine = [r for r in rows if r["law"] == law]
-        delta = np.array([_number(r["Delta"]) for r in mine])
-        g = np.array([_number(r["G_s"]) for r in mine])
-        err = np.array([_number(r.get("G_s_spread", "nan")) for r in mine])
+        delta = np.array([_number(r.get(delta_key)) for r in mine])
+        g = np.array([_number(r.get(g_key)) for r in mine])
+        # The five fits' spread belongs to the lengths; a contour fit has no such spread.
+        err = np.array([_number(r.get("G_s_spread", "nan")) if estimator == "lengths" else math.nan for r in mine])
         keep = np.isfinite(delta) & np.isfinite(g)
         delta, g, err = delta[keep], g[keep], err[keep]
         line = ax.errorbar(delta, g, yerr=np.where(np.isfinite(err), err, 0), fmt="o", ms=4, capsize=2,

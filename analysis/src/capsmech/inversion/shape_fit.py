@@ -46,6 +46,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from capsmech.inversion.inverters import Fit, TubeInverter, profile_elongation
+from capsmech.inversion.noise import contour_chi2
 from capsmech.inversion.residuals import PreparedContour
 from capsmech.io.contours import profile_misfit
 
@@ -75,12 +76,17 @@ class ShapeFit(Fit):
         a (NaN when flagged).
     Delta : float
         Profile elongation p / (2 pi a) of the fitted profile [1] (NaN when flagged).
+    chi2 : float
+        The contour's chi2 at the fitted profile against its own tracing noise and the
+        databases' accuracy (``capsmech.inversion.noise.contour_chi2``; ``DOF`` = 14 degrees of
+        freedom when the law's shape is the capsule's; NaN when flagged).
     """
 
     a_over_l: float = math.nan
     Ca_s: float = math.nan
     H_over_a: float = math.nan
     Delta: float = math.nan
+    chi2: float = math.nan
 
 
 def on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = EDGE_STEP) -> bool:
@@ -112,7 +118,7 @@ def best_profile(prepared: PreparedContour, inverter: TubeInverter, tube_radius:
 
 
 def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
-              start: tuple[float, float], axis_y: float | None = None) -> ShapeFit:
+              start: tuple[float, float], axis_y: float | None = None, length: float | None = None) -> ShapeFit:
     """Fit the law's database profile to a contour (see the module).
 
     Parameters
@@ -127,6 +133,9 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
         Where the search starts (the length fit).
     axis_y : float, optional
         The contour's axis (by default its axis of best mirror symmetry).
+    length : float, optional
+        The capsule's length L_z in the contour's units, for the databases' accuracy in the
+        chi2 (by default the contour's extent along the axis).
     """
     a0, ca0 = (float(v) for v in start)
     if not (math.isfinite(a0) and math.isfinite(ca0) and ca0 > 0 and tube_radius > 0):
@@ -144,6 +153,8 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
     if meridian is None:   # not reached: on_database_edge checked the point's neighbours and the objective the point
         return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
+    chi2, _ = contour_chi2(prepared, meridian * tube_radius,
+                           float(np.ptp(contour[:, 0])) if length is None else length)
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
-                    Delta=profile_elongation(meridian, a_fit))
+                    Delta=profile_elongation(meridian, a_fit), chi2=chi2)
 
