@@ -15,7 +15,8 @@ import pytest
 
 import capsmech
 from capsmech.cli.main import main
-from capsmech.inversion.population import law_drift, plot_population, population_verdict, verdict_dict
+from capsmech.inversion.population import law_drift, population_verdict
+from capsmech.inversion.population_report import plot_population, verdict_dict
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "data" / "examples"
@@ -79,7 +80,7 @@ def test_population_table_round_trips_through_hdf5_and_csv(tmp_path):
     import h5py
 
     from capsmech.inversion.fitting import write_results
-    from capsmech.inversion.population import POPULATION_UNITS, population_rows, read_results
+    from capsmech.inversion.population_report import POPULATION_UNITS, population_rows, read_results
 
     rng = np.random.default_rng(7)
     rows = rows_from("NH", *batch(rng, 0.0)) + rows_from("GH_nu0.5", *batch(rng, -2.0))

@@ -17,7 +17,8 @@ import pytest
 
 from capsmech.inversion.fitting import fit_tube_rows, tube_inverter
 from capsmech.inversion.noise import DOF
-from capsmech.inversion.population import FAIL_SCORE, population_verdict, verdict_dict
+from capsmech.inversion.population import FAIL_SCORE, population_verdict
+from capsmech.inversion.population_report import verdict_dict
 from capsmech.inversion.shape_fit import fit_shape
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database

@@ -28,7 +28,7 @@ from capsmech.inversion.fitting import (
     fit_tube_rows,
 )
 from capsmech.inversion.population import PopulationVerdict, population_verdict
-from capsmech.inversion.population import plot_population as plot_population_rows
+from capsmech.inversion.population_report import plot_population as plot_population_rows
 from capsmech.io.database import Database, DatabaseError, ShearDatabase, TubeDatabase, load_database
 from capsmech.io.measurements import Capsule, read_measurements
 
@@ -158,7 +158,7 @@ def fit_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
 
 def read_results(path: str | Path) -> pd.DataFrame:
     """A results file written by ``capsmech fit-tube`` (CSV with ``name [unit]`` headers)."""
-    from capsmech.inversion.population import read_results as read_rows
+    from capsmech.inversion.population_report import read_results as read_rows
 
     rows = read_rows(path)
     frame = pd.DataFrame(rows)
@@ -204,7 +204,7 @@ def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict
         ``evidence`` per law (capsules fitted, median contour score, p-value against the
         reference law, G_s, drift), the capsules ``left_out`` and why;
         ``population_table(verdict)`` gives the evidence as a DataFrame and
-        ``capsmech.inversion.population.verdict_dict`` as JSON-ready data.
+        ``capsmech.inversion.population_report.verdict_dict`` as JSON-ready data.
     """
     return population_verdict(_result_rows(results))
 
@@ -214,7 +214,7 @@ def population_table(verdict: PopulationVerdict) -> pd.DataFrame:
     score, p-value against the reference law, mean G_s [N/m] with its spread and 95 % interval,
     drift per unit Delta with its 95 % interval and p-value, and the law's status ('verdict',
     'candidate', 'fits < half', 'drifts', 'misfits noise', 'worse contours', 'no verdict')."""
-    from capsmech.inversion.population import POPULATION_UNITS, population_rows
+    from capsmech.inversion.population_report import POPULATION_UNITS, population_rows
 
     return _frame(population_rows(verdict), POPULATION_UNITS)
 

@@ -1,6 +1,6 @@
 """Figures a user asks for, as matplotlib Figures (no pyplot state, no file needed): a case's
 history and profile (``plot_case``); the population's G_s against Delta is
-``capsmech.inversion.population.plot_population``. ``save_figure`` writes any of them."""
+``capsmech.inversion.population_report.plot_population``. ``save_figure`` writes any of them."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -9,7 +9,8 @@ from typing import Any
 from capsmech.api import plot_population, population, population_table, read_results
 from capsmech.cli.common import FIGURE_SUFFIXES, TABLE_SUFFIXES, check_output, format_table, records
 from capsmech.inversion.fitting import write_results
-from capsmech.inversion.population import FAIL_SCORE, write_verdict_json
+from capsmech.inversion.population import FAIL_SCORE
+from capsmech.inversion.population_report import write_verdict_json
 from capsmech.io.results import read_results_csv
 from capsmech.plotting import save_figure
 

@@ -94,7 +94,8 @@ drift test and every other law). Then:
   the noise, by how much; or the contours favour a law whose G_s drifts, so that the two tests
   disagree).
 
-JSON (``verdict_dict``, ``write_verdict_json``; ``capsmech population --json FILE``)::
+JSON (``capsmech.inversion.population_report``: ``verdict_dict``, ``write_verdict_json``;
+``capsmech population --json FILE``)::
 
     {"verdict": "law" | "none" | "cannot_tell",
      "law": "NH" | null,                       # the law when verdict == "law"
@@ -124,13 +125,10 @@ capsules).
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -139,9 +137,6 @@ from scipy import stats
 from capsmech.errors import CapsmechError
 from capsmech.inversion.noise import DOF, GOODNESS_ALPHA, chi2_test
 from capsmech.io.contours import MAX_H_OVER_A
-
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
 
 #: Significance level of the drift test and of the contour comparison (two-sided).
 ALPHA = 0.05
@@ -394,14 +389,16 @@ class PopulationVerdict:
         return f"verdict: none ({self.reason})"
 
 
-def _number(value: Any) -> float:
+def number_of(value: Any) -> float:
+    """A result cell as a float (NaN where it is not a number)."""
     try:
         return float(value)
     except (TypeError, ValueError):
         return math.nan
 
 
-def _flag(row: Mapping[str, Any]) -> str:
+def flag_of(row: Mapping[str, Any]) -> str:
+    """A result row's flag ('' where it has none)."""
     flag = row.get("flag")
     if flag is None or (isinstance(flag, float) and math.isnan(flag)):
         return ""
@@ -456,8 +453,8 @@ def _group(rows: Iterable[Mapping[str, Any]]) -> tuple[list[str], list[str], dic
 def _left_out(by_law: Mapping[str, Mapping[str, Any]]) -> tuple[str, str] | None:
     """(flag code, reason) of a capsule's law-independent flag, None when it has none."""
     for row in by_law.values():
-        if _flag(row) in LAW_INDEPENDENT_FLAGS:
-            return _flag(row), str(row.get("reason") or "") or f"{_flag(row)} (the same for every law)"
+        if flag_of(row) in LAW_INDEPENDENT_FLAGS:
+            return flag_of(row), str(row.get("reason") or "") or f"{flag_of(row)} (the same for every law)"
     return None
 
 
@@ -474,7 +471,7 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     # noise (``chi2_shape``): without that test a nearby law's best shapes absorb what the
     # database lacks and its G_s stops drifting (a GH nu_s = 0.35 batch was named GH nu_s = 0.2
     # with G_s 25 % high and a 1.2 % interval); with it such a law misfits the noise.
-    estimator = ("contour fits" if any(math.isfinite(_number(row.get("chi2_shape")))
+    estimator = ("contour fits" if any(math.isfinite(number_of(row.get("chi2_shape")))
                                        for cid in used for row in table[cid].values()) else "lengths")
     g_key, delta_key = ESTIMATORS[estimator]
 
@@ -485,23 +482,23 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     # Each law's best shape against the contour's tracing noise, where it was fitted.
     chi2 = {law: np.full(len(used), np.nan) for law in laws}
     for k, cid in enumerate(used):
-        fits = {law: row for law, row in table[cid].items() if _flag(row) in ("", *NO_G_S_FLAGS)}
+        fits = {law: row for law, row in table[cid].items() if flag_of(row) in ("", *NO_G_S_FLAGS)}
         for law in fits:
             fitted[law][k] = True
-        shapes = {law: _number(row.get("H_over_a_shape")) for law, row in table[cid].items()}
+        shapes = {law: number_of(row.get("H_over_a_shape")) for law, row in table[cid].items()}
         if any(np.isfinite(h) for h in shapes.values()):
             # The laws' best shapes on the contour (``capsmech.inversion.shape_fit``).
             any_contours = True
             for law, row in table[cid].items():
-                if _flag(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A:
+                if flag_of(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A:
                     scores[law][k] = shapes[law]
-                    chi2[law][k] = _number(row.get("chi2_shape"))
+                    chi2[law][k] = number_of(row.get("chi2_shape"))
                     # With the contour fits as estimator, a law fits a capsule when its best
                     # shape does (the length fit's own troubles are superseded, as above).
                     fitted[law][k] = fitted[law][k] or estimator == "contour fits"
             continue
         # Results without contour fits (written before them): the misfit at the length fit.
-        misfit = {law: _number(row.get("H_over_a")) for law, row in fits.items()}
+        misfit = {law: number_of(row.get("H_over_a")) for law, row in fits.items()}
         contours = bool(fits) and all(np.isfinite(h) for h in misfit.values())
         any_contours = any_contours or contours
         for law in fits:
@@ -514,11 +511,11 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
         if estimator == "contour fits":
             mine = [table[cid][law] for k, cid in enumerate(used) if math.isfinite(chi2[law][k])]
         else:
-            mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and _flag(table[cid][law]) == ""]
-        delta = np.array([_number(r.get(delta_key)) for r in mine])
-        g = np.array([_number(r.get(g_key)) for r in mine])
+            mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and flag_of(table[cid][law]) == ""]
+        delta = np.array([number_of(r.get(delta_key)) for r in mine])
+        g = np.array([number_of(r.get(g_key)) for r in mine])
         # The database's own accuracy, shared by every capsule (fit-tube's G_s_database_error).
-        shared = np.array([_number(r.get("G_s_database_error")) for r in mine])[np.isfinite(g)]
+        shared = np.array([number_of(r.get("G_s_database_error")) for r in mine])[np.isfinite(g)]
         g_systematic[law] = float(np.mean(shared[np.isfinite(shared)])) if np.any(np.isfinite(shared)) else 0.0
         g_stats[law] = _mean_interval(g[np.isfinite(g)], g_systematic[law])
         try:
@@ -629,135 +626,3 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
                              measured=len(ids), used=n, left_out=left_out, g_s=g_s, g_s_std=g_s_std,
                              g_s_interval=interval, estimator=estimator,
                              g_s_systematic=g_systematic[best] if best is not None else math.nan)
-
-
-#: Columns of the population table (``population_rows``, ``write_population``) and their units.
-POPULATION_UNITS = {"law": "", "fitted": "1", "used": "1", "score_median": "1", "p_vs_reference": "1",
-                    "G_s_mean": "N/m", "G_s_std": "N/m", "G_s_low": "N/m", "G_s_high": "N/m",
-                    "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta", "drift_p": "1",
-                    "chi2_per_dof": "1", "chi2_limit": "1", "chi2_p": "1", "status": ""}
-
-
-def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
-    """One row per law, best ranked first (columns of ``POPULATION_UNITS``): capsules fitted of
-    those used, median misfit score, p-value against the reference law, mean G_s with its
-    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value, the
-    best shapes' chi2 per degree of freedom against the noise with its limit and p-value, and
-    the law's status ('verdict', 'candidate', 'fits < half', 'drifts', 'misfits noise',
-    'worse contours', 'no verdict')."""
-    rows = []
-    for law, e in verdict.evidence.items():
-        d = e.drift
-        rows.append({"law": law, "fitted": float(e.fitted), "used": float(e.used), "score_median": e.score_median,
-                     "p_vs_reference": e.p_vs_reference, "G_s_mean": e.g_s_mean, "G_s_std": e.g_s_std,
-                     "G_s_low": e.g_s_interval[0], "G_s_high": e.g_s_interval[1],
-                     "drift": d.slope if d else math.nan, "drift_ci_low": d.ci_low if d else math.nan,
-                     "drift_ci_high": d.ci_high if d else math.nan, "drift_p": d.p_value if d else math.nan,
-                     "chi2_per_dof": e.noise.reduced_chi2 if e.noise else math.nan,
-                     "chi2_limit": e.noise.limit if e.noise else math.nan,
-                     "chi2_p": e.noise.p_value if e.noise else math.nan, "status": e.status})
-    return rows
-
-
-def _json_number(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
-
-
-def _json_pair(pair: tuple[float, float] | None) -> list[float] | None:
-    if pair is None or not all(math.isfinite(v) for v in pair):
-        return None
-    return [float(pair[0]), float(pair[1])]
-
-
-def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
-    """The verdict as plain JSON-ready data (schema in the module docstring; null, never NaN)."""
-    laws = {}
-    for law, e in verdict.evidence.items():
-        d = e.drift
-        laws[law] = {"fitted": e.fitted, "used": e.used, "measured": e.measured,
-                     "score_median": _json_number(e.score_median), "p_vs_reference": _json_number(e.p_vs_reference),
-                     "G_s_mean": _json_number(e.g_s_mean), "G_s_std": _json_number(e.g_s_std),
-                     "G_s_interval": _json_pair(e.g_s_interval), "G_s_systematic": _json_number(e.g_s_systematic),
-                     "drift": _json_number(d.slope) if d else None,
-                     "drift_interval": _json_pair((d.ci_low, d.ci_high)) if d else None,
-                     "drift_p": _json_number(d.p_value) if d else None, "drift_n": d.n if d else None,
-                     "chi2_per_dof": _json_number(e.noise.reduced_chi2) if e.noise else None,
-                     "chi2_limit": _json_number(e.noise.limit) if e.noise else None,
-                     "chi2_p": _json_number(e.noise.p_value) if e.noise else None,
-                     "chi2_capsules": e.noise.capsules if e.noise else None,
-                     "status": e.status, "status_reason": e.status_reason + (f" ({e.drift_note})" if e.drift_note
-                                                                            and d is None else "")}
-    return {"verdict": verdict.kind, "law": verdict.best, "candidates": list(verdict.candidates),
-            "G_s": _json_number(verdict.g_s), "G_s_std": _json_number(verdict.g_s_std),
-            "G_s_interval": _json_pair(verdict.g_s_interval), "G_s_estimator": verdict.estimator,
-            "G_s_systematic": _json_number(verdict.g_s_systematic), "reason": verdict.reason,
-            "reference": verdict.reference,
-            "criterion": {"score": "H/a of the law's best shape on the capsule's contour (contour fit; in results "
-                                   "without it, the misfit at the length fit), fail_score where the law cannot "
-                                   "fit the capsule",
-                          "test": "paired one-sided Wilcoxon signed-rank over the used capsules; drift: least-squares "
-                                  "slope of G_s/mean(G_s) on Delta, Student t",
-                          "noise": "total chi2 of the law's best shapes (chi2_shape) against the tracing noise, "
-                                   f"{DOF} degrees of freedom a capsule, noise level estimated (F reference)",
-                          "noise_alpha": GOODNESS_ALPHA,
-                          "alpha": ALPHA, "contour_level": CONTOUR_LEVEL, "fail_score": FAIL_SCORE, "min_capsules": MIN_CAPSULES,
-                          "min_fitted_fraction": MIN_FITTED_FRACTION},
-            "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
-            "laws": laws,
-            "capsules": {"measured": verdict.measured, "used": verdict.used,
-                         "left_out": [{"id": cid, "reason": why} for cid, why in verdict.left_out]}}
-
-
-def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:
-    """Write ``verdict_dict(verdict)`` to ``path`` whole or not at all (temporary file renamed)."""
-    path = Path(path)
-    text = json.dumps(verdict_dict(verdict), indent=2, allow_nan=False) + "\n"
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def read_results(path: str | Path) -> list[dict[str, Any]]:
-    """Read a results CSV (header cells 'name [unit]'), checked by
-    ``capsmech.io.results.read_results_csv`` (a ``ResultsFileError`` names file, line and field)."""
-    from capsmech.io.results import read_results_csv
-
-    return list(read_results_csv(path, required=()))
-
-
-def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift],
-                    estimator: str = "lengths") -> Figure:
-    """Figure 10 of the paper: G_s against Delta per law (by ``estimator``), error bars = spread
-    of the five fits (lengths),
-    with each law's regression line. Returns the Figure (no pyplot state: safe in scripts and
-    notebooks alike; ``capsmech.plotting.save_figure`` writes it)."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6, 4.2), layout="constrained")
-    ax = fig.subplots()
-    g_key, delta_key = ESTIMATORS[estimator]
-    rows = [r for r in rows if (math.isfinite(_number(r.get("chi2_shape"))) if estimator == "contour fits"
-                                else not _flag(r))]
-    for law in drifts:
-        mine = [r for r in rows if r["law"] == law]
-        delta = np.array([_number(r.get(delta_key)) for r in mine])
-        g = np.array([_number(r.get(g_key)) for r in mine])
-        # The five fits' spread belongs to the lengths; a contour fit has no such spread.
-        err = np.array([_number(r.get("G_s_spread", "nan")) if estimator == "lengths" else math.nan for r in mine])
-        keep = np.isfinite(delta) & np.isfinite(g)
-        delta, g, err = delta[keep], g[keep], err[keep]
-        line = ax.errorbar(delta, g, yerr=np.where(np.isfinite(err), err, 0), fmt="o", ms=4, capsize=2,
-                           label=f"{law}: drift {drifts[law].slope:+.2f}/unit Δ (p = {drifts[law].p_value:.2g})")
-        x = np.linspace(delta.min(), delta.max(), 2)
-        d = drifts[law]
-        intercept = d.mean * (1 - d.slope * delta.mean())
-        ax.plot(x, intercept + d.slope * d.mean * x, color=line[0].get_color(), lw=1)
-    ax.set_xlabel("mean profile elongation Δ = p / 2πa")
-    ax.set_ylabel("G_s [N/m]")
-    ax.legend(fontsize=8)
-    return fig
