@@ -177,13 +177,36 @@ def g_s_interval_coverage(name: str = "interval_coverage_g_s.csv") -> str:
                       "median width"], rows)
 
 
+def population_coverage(name: str = "population_coverage.csv") -> str:
+    """The law verdict and its G_s interval on batches of the independent generator (issue 19,
+    items 1 and 4), from the rows its run wrote (``docs/validation/runs/population_coverage.csv``,
+    by ``tests/python/population_coverage.py``)."""
+    sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))
+    from population_coverage import summarise
+
+    rows = []
+    for e in summarise(RUNS / name):
+        chi2 = (f"{e['chi2_range'][0]:.2f}–{e['chi2_range'][1]:.2f} (limit {e['chi2_limit']:.2f})"
+                if e["chi2_range"] else "—")
+        named = e["covered"][1] > 0
+        rows.append([e["membrane"], str(e["batches"]), str(e["right_law"]), str(e["cannot_tell"]), str(e["none"]),
+                     f"**{e['wrong_law']}**" if e["wrong_law"] else "0",
+                     _coverage_cell(e["covered"]) if named else "—",
+                     f"{100 * e['median_error']:+.1f} %" if named else "—",
+                     f"{100 * e['median_half_width']:.1f} %" if named else "—", chi2])
+    return _markdown(["membrane (batches of 12)", "batches", "right law", "cannot tell", "none", "wrong law",
+                      "G_s interval holds the truth", "median error of G_s", "median half-width",
+                      "true law's χ²/dof"], rows)
+
+
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,
                                         "interval-coverage": interval_coverage,
                                         "interval-coverage-statistical-only":
                                             lambda: interval_coverage("interval_coverage_statistical_only.csv"),
-                                        "g-s-interval-coverage": g_s_interval_coverage}
+                                        "g-s-interval-coverage": g_s_interval_coverage,
+                                        "population-coverage": population_coverage}
 
 
 def main(argv: list[str]) -> int:
