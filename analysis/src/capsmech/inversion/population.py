@@ -37,8 +37,10 @@ out). Where ``fit-tube`` measured each best shape's chi2 against the contour's n
 minimises, each capsule over its own noise (H/a, a Hausdorff distance, stays the reported
 score). On 50 SK C = 1 batches of the independent generator, the H/a test let GH nu_s 0.5
 through twice, when SK's G_s drifted by chance (p 0.037) and GH's H/a lost only at p ~ 0.03;
-on the chi2 (GH 1.26 and 1.44 a degree of freedom against SK's 0.82 and 1.07) SK wins. Why the best shape rather than the misfit at the length fit: the lengths' 2 % error
-moves the length fit's parameters, and the profile there misses the contour by much more
+on the chi2 (GH 1.26 and 1.44 a degree of freedom against SK's 0.82 and 1.07) SK wins.
+
+Why the best shape rather than the misfit at the length fit: the lengths' 2 % error moves the
+length fit's parameters, and the profile there misses the contour by much more
 than the law's shapes do. On the shipped GH nu_s = 0.5 batch with the right law, the median
 H/a is 0.0107 at the length fit, 0.0046 for the database's profile at the true parameters
 (the kernel's exact profile there: also 0.0046; the two profiles differ by 0.0007 a: the
@@ -83,10 +85,10 @@ Verdict
 -------
 A law is *eligible* when it fits at least half of the used capsules. Each eligible law whose
 G_s does not drift and whose shapes do not misfit the noise is a *candidate* unless another
-eligible law fits the contours significantly better (``p_better`` < ``CONTOUR_LEVEL`` = 0.025, one-sided: the two-sided 5 %
-level in the direction of the better law; a law exactly as good as the right one thus beats
-it by chance in at most 2.5 % of batches, and is then named only if it also survives the
-drift test and every other law). Then:
+eligible law fits the contours significantly better (``p_better`` < ``CONTOUR_LEVEL`` =
+0.025, one-sided: the two-sided 5 % level in the direction of the better law; a law exactly
+as good as the right one thus beats it by chance in at most 2.5 % of batches, and is then
+named only if it also survives the drift test and every other law). Then:
 
 - one candidate: ``kind = 'law'``, that law, with G_s the mean over the capsules it fits and
   the 95 % interval of that mean (Student t; ``G_s_std`` is the spread between capsules);
@@ -498,12 +500,15 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
             # The laws' best shapes on the contour (``capsmech.inversion.shape_fit``).
             any_contours = True
             for law, row in table[cid].items():
-                if flag_of(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A:
+                scored = flag_of(row) in SHAPE_SCORED_FLAGS and shapes[law] <= MAX_H_OVER_A
+                if scored:
                     scores[law][k] = shapes[law]
                     chi2[law][k] = number_of(row.get("chi2_shape"))
-                    # With the contour fits as estimator, a law fits a capsule when its best
-                    # shape does (the length fit's own troubles are superseded, as above).
-                    fitted[law][k] = fitted[law][k] or estimator == "contour fits"
+                # With the contour fits as estimator, a law fits a capsule when its best shape
+                # does: the length fit's own troubles are superseded (as above), and a length fit
+                # whose contour fit fails gives no G_s.
+                if estimator == "contour fits":
+                    fitted[law][k] = scored
             continue
         # Results without contour fits (written before them): the misfit at the length fit.
         misfit = {law: number_of(row.get("H_over_a")) for law, row in fits.items()}
