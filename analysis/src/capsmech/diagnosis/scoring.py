@@ -14,7 +14,7 @@ from scipy.optimize import minimize_scalar
 
 from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
 from capsmech.diagnosis.goodness import MODEL_FLOOR_REL, GoodnessOfFit
-from capsmech.inversion.fitting import tube_inverter
+from capsmech.inversion.fitting import database_g_s_shifts, tube_inverter
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
 from capsmech.inversion.lengths import contour_lengths
 from capsmech.inversion.noise import CHI2_POINTS, tracing_noise
@@ -195,11 +195,10 @@ def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInvert
         if not (fit.ok and math.isfinite(fit.G_s)):
             continue
         values.append(fit.G_s)
-        floor = MODEL_FLOOR_REL * L_z
-        for shifts, moved in ((shift_z, (L_z + floor, L_p)), (shift_p, (L_z, L_p + floor))):
-            other = inverter.fit(*moved, capsule["v_c"], capsule["mu"])
-            if other.ok and math.isfinite(other.G_s):
-                shifts.append(other.G_s - fit.G_s)
+        for shifts, shift in zip((shift_z, shift_p),
+                                 database_g_s_shifts(inverter, L_z, L_p, capsule["v_c"], capsule["mu"], fit.G_s)):
+            if math.isfinite(shift):
+                shifts.append(shift)
     g = np.array(values)
     if len(g) < 2:
         return (math.nan, math.nan, len(g)), math.nan

@@ -178,9 +178,10 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 row["H_over_a_shape"], row["chi2_shape"] = shape.H_over_a, shape.chi2
                 if shape.ok:
                     # G_s and Delta at the best shape: the contour pins (a/l, Ca_s) far better
-                    # than the lengths' 2 % once the law is right; population still decides
-                    # with the lengths' G_s, whose drift exposes a wrong nearby law that the
-                    # best shapes absorb (docs/validation/inversion.md).
+                    # than the lengths' 2 % once the law is right. population reads them where
+                    # chi2_shape lets it test the shapes against the noise (without that test a
+                    # wrong nearby law's best shapes absorb what it lacks and its G_s stops
+                    # drifting: docs/validation/inversion.md).
                     a_shape, ca_shape = shape.a_over_l, shape.Ca_s
                     row["Delta_shape"] = shape.Delta
                     if has_velocity:
@@ -211,19 +212,25 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
     return rows
 
 
-def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, g_s: float) -> float:
-    """How far the database's own accuracy moves a capsule's G_s [N/m]: its lengths are good to
-    ``MODEL_FLOOR_REL`` (0.1 %) of L_z (64 against 128 meridian elements), an error every capsule
-    of a batch shares. The changes of G_s when L_z, then L_p, move by that much, in quadrature
-    (NaN where either refit fails). The same measure as the diagnosis's
-    (``capsmech.diagnosis.scoring.length_g_s_with_systematic``), for both of fit-tube's G_s: the
-    contour fits match the same profiles."""
+def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float,
+                        g_s: float) -> tuple[float, float]:
+    """The changes of a capsule's G_s [N/m] when the database's L_z, then its L_p, are off by
+    its accuracy: ``MODEL_FLOOR_REL`` (0.1 %) of L_z (64 against 128 meridian elements), an
+    error every capsule of a batch shares (NaN where the refit fails). Lengths in l."""
     floor = MODEL_FLOOR_REL * L_z
     shifts = []
     for moved in ((L_z + floor, L_p), (L_z, L_p + floor)):
         other = inverter.fit(*moved, v_c, mu)
-        shifts.append(other.G_s - g_s if other.ok else math.nan)
-    return math.hypot(*shifts)
+        shifts.append(other.G_s - g_s if other.ok and math.isfinite(other.G_s) else math.nan)
+    return shifts[0], shifts[1]
+
+
+def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, g_s: float) -> float:
+    """How far the database's own accuracy moves a capsule's G_s [N/m]: the two
+    ``database_g_s_shifts`` in quadrature (the diagnosis's measure,
+    ``capsmech.diagnosis.scoring.length_g_s_with_systematic``, per capsule), for both of
+    fit-tube's G_s: the contour fits match the same profiles."""
+    return math.hypot(*database_g_s_shifts(inverter, L_z, L_p, v_c, mu, g_s))
 
 
 def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]) -> dict[str, TubeFits]:
