@@ -7,7 +7,9 @@ The time-stepping side runs a sample of the same cases (--sample a/l values x a 
 thread each, one after another. Run after `make build`; prints figures only (the machines are
 shared: compare the two columns of one run, not runs of different days).
 
-    python bench/bench_tube_continuation.py [--law NH] [--workers 2] [--n-meridian 64]
+    python bench/bench_tube_continuation.py [--law NH] [--workers 2] [--n-meridian 64] [--capsim PATH]
+
+--capsim runs another build (e.g. an older kernel kept aside) against the same grid.
 """
 from __future__ import annotations
 
@@ -57,21 +59,21 @@ def cpu_seconds(argv: list[str]) -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run_branch(law: str, a_over_l: float, cas: list[float], n_meridian: int, root: Path) -> tuple[float, Path]:
+def run_branch(capsim: Path, law: str, a_over_l: float, cas: list[float], n_meridian: int, root: Path) -> tuple[float, Path]:
     """CPU time [s] of one branch (one thread) and its directory."""
     directory = root / f"branch_{a_over_l:g}"
     directory.mkdir()
-    cpu = cpu_seconds([str(CAPSIM), "--flow", "tube", *LAW_FLAGS[law], "--a-over-l", repr(a_over_l),
+    cpu = cpu_seconds([str(capsim), "--flow", "tube", *LAW_FLAGS[law], "--a-over-l", repr(a_over_l),
                        "--n-meridian", str(n_meridian), "--threads", "1", "--quiet",
                        "--branch-ca", ",".join(f"{c:g}" for c in cas), "--branch-summary", str(directory / "branch.h5"),
                        "--out", str(directory / "Ca{ca}.h5")])
     return cpu, directory
 
 
-def run_single(law: str, a_over_l: float, ca: float, n_meridian: int, root: Path) -> tuple[float, dict]:
+def run_single(capsim: Path, law: str, a_over_l: float, ca: float, n_meridian: int, root: Path) -> tuple[float, dict]:
     """CPU time [s] of one time-stepped case and its results."""
     out = root / f"single_{a_over_l:g}_{ca:g}.h5"
-    cpu = cpu_seconds([str(CAPSIM), "--flow", "tube", *LAW_FLAGS[law], "--a-over-l", repr(a_over_l), "--ca", repr(ca),
+    cpu = cpu_seconds([str(capsim), "--flow", "tube", *LAW_FLAGS[law], "--a-over-l", repr(a_over_l), "--ca", repr(ca),
                        "--n-meridian", str(n_meridian), "--threads", "1", "--quiet", "--out", str(out)])
     return cpu, read(out)
 
@@ -84,9 +86,10 @@ def main() -> int:
     parser.add_argument("--a-values", default="", help="a/l of the branches (default: the paper grid's)")
     parser.add_argument("--sample-a", default="0.7,0.9,1.1", help="a/l of the time-stepped sample")
     parser.add_argument("--sample-ca", default="0.02,0.07,0.15", help="Ca_s of the time-stepped sample")
+    parser.add_argument("--capsim", type=Path, default=CAPSIM, help="the kernel to run (default bin/capsim)")
     args = parser.parse_args()
-    if not CAPSIM.exists():
-        print(f"{CAPSIM} is missing: run `make build` first", file=sys.stderr)
+    if not args.capsim.exists():
+        print(f"{args.capsim} is missing: run `make build` first", file=sys.stderr)
         return 2
     a_values, ca_values = paper_grid()
     if args.a_values:
@@ -98,7 +101,7 @@ def main() -> int:
         root = Path(tmp)
         start = time.perf_counter()
         with ThreadPoolExecutor(args.workers) as pool:
-            branches = list(pool.map(lambda a: run_branch(args.law, a, ca_values, args.n_meridian, root), a_values))
+            branches = list(pool.map(lambda a: run_branch(args.capsim, args.law, a, ca_values, args.n_meridian, root), a_values))
         group_wall = time.perf_counter() - start
         branch_cpu = sum(t for t, _ in branches)
         print(f"\ncontinuation: law group in {group_wall:.1f} s wall on {args.workers} workers "
@@ -123,7 +126,7 @@ def main() -> int:
         single_total = 0.0
         worst = 0.0
         for a_over_l, ca in sample:
-            wall, single = run_single(args.law, a_over_l, ca, args.n_meridian, root)
+            wall, single = run_single(args.capsim, args.law, a_over_l, ca, args.n_meridian, root)
             single_total += wall
             branch_case = read(root / f"branch_{a_over_l:g}" / f"Ca{ca:g}.h5")
             how = "continued" if "by continuation" in branch_case["message"] else "stepped"

@@ -47,7 +47,11 @@ module axisymmetric_continuation
    !> by less than 1e-6 relative there.
    real(dp), parameter :: corrector_tol = 1.0e-7_dp
    !> Corrector: most iterations, and the residual ratio below which the chord (old LU) goes on.
-   integer, parameter :: max_corrector_iterations = 25, max_fresh_jacobians = 4
+   !> A corrector that needs more than max_fresh_jacobians new Jacobians is given up: a case the
+   !> branch cannot reach is time-stepped (tube_branch), which costs 2-5 CPU s at 64 elements
+   !> (kernel 0.3.3), and near a fold the attempts with 4 cost more than that (NH a/l 0.8, from
+   !> Ca_s 0.01: 430 velocities and 64 Jacobians, 7.7 CPU s, for a step the branch never made).
+   integer, parameter :: max_corrector_iterations = 25, max_fresh_jacobians = 3
    real(dp), parameter :: chord_rate = 0.5_dp
    !> A predicted shape whose residual (largest node velocity, V) exceeds this is not corrected:
    !> the step is shortened at once. Measured along NH a/l 0.75 (Ca_s 0.02-0.18, 64 elements),
@@ -57,8 +61,13 @@ module axisymmetric_continuation
    !> Relative step in Ca_s of the difference u_p = du/dp (u is affine in 1/Ca_s: the step
    !> only sets the rounding, 1e-6 relative).
    real(dp), parameter :: p_step = 1.0e-6_dp
-   !> Smallest p-fixed step (continue_to_ca) before the fold search takes over.
-   real(dp), parameter :: min_p_step = 0.01_dp
+   !> Smallest p-fixed step (continue_to_ca) before the case is left to time stepping and,
+   !> where that elongates, to the fold search (tube_branch). 5 % in Ca_s: the halvings below
+   !> it cost more than the time-stepped case. NH branches of the paper grid (64 elements,
+   !> kernel 0.3.3), a/l 0.7, 0.75, 0.8, 1: 32, 31, 26, 21 CPU s with 5 %, 38, 35, 25, 22 with
+   !> 2 %; with 1 % and 4 fresh Jacobians (and dt 0.1) 0.75, 0.8, 1 took 41, 41, 40. The cases
+   !> and folds are the same to 1e-4 relative.
+   real(dp), parameter :: min_p_step = 0.05_dp
    !> Fold search: first, smallest and largest arclength step (in (x [l], ln Ca_s)), and how many.
    real(dp), parameter :: first_arclength_step = 0.02_dp, min_arclength_step = 1.0e-4_dp, max_arclength_step = 0.2_dp
    integer, parameter :: max_arclength_steps = 60
@@ -155,7 +164,7 @@ contains
    !> failed step halved, each success followed by a step 1.5 times longer, down to min_p_step.
    !> The target lies above the point, or just below it where a fold search stepped past it.
    !> converged: the model and the point are at ca_target; otherwise at the last point
-   !> reached, where search_fold takes over.
+   !> reached, where search_fold can take over.
    subroutine continue_to_ca(self, point, opts, ca_target, converged)
       class(axisymmetric_operator_t), intent(inout) :: self
       type(branch_point_t), intent(inout) :: point

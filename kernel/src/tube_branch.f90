@@ -60,8 +60,8 @@ contains
       type(fold_search_t) :: found
       type(run_options_t) :: case_opts
       type(case_summary_t) :: summary
-      real(dp), allocatable :: values(:), branch_log(:, :), state(:), saved_rz(:, :)
-      real(dp) :: critical_log_ca, wall_before, ca_from, t_unused
+      real(dp), allocatable :: values(:), branch_log(:, :), state(:), saved_rz(:, :), stuck_rz(:, :)
+      real(dp) :: critical_log_ca, wall_before, ca_from, t_unused, stuck_ca
       integer :: k, k_done, phase, outcome, n_log, n_nodes, velocities0, jacobians0
       integer(8) :: clock_start, clock_case, clock_now, clock_rate
       character(len=:), allocatable :: signature, note, ended_text
@@ -124,12 +124,6 @@ contains
             jacobians0 = point%n_jacobians
             call continue_to_ca(model, point, opts, values(k), converged)
             found = fold_search_t()
-            do while (.not. converged)
-               call search_fold(model, point, opts, values(k), meridian_stretch_limit, stable_rate_limit, found)
-               if (found%outcome /= end_none) exit
-               call log_point(source_arclength)
-               call continue_to_ca(model, point, opts, values(k), converged)
-            end do
             if (converged .and. point%stretch > meridian_stretch_limit) then
                found%outcome = end_mesh_limit
                found%critical_log_ca = point%log_ca
@@ -150,24 +144,51 @@ contains
                if (stat /= 0) return
             else
                ! The branch cannot vouch for this case: time stepping decides it, as a single
-               ! run would. After a fold (or the mesh limit) it must elongate to confirm the
-               ! branch's end; where it is steady instead, the fold belongs to another part of
-               ! the discrete branch (the rear of a nearly rigid capsule buckles near Ca_s 0.014
-               ! at a/l = 0.9, 32 elements), and the branch starts again from that case.
+               ! run would. Where it is steady (and the corrector confirms it), the branch starts
+               ! again from that case: the corrector's failure belonged to another part of the
+               ! discrete branch (the rear of a nearly rigid capsule buckles just above Ca_s 0.01,
+               ! a fold at 0.0118-0.0120 for NH a/l 0.8-1 at 64 elements, while the case at 0.02
+               ! is steady). Otherwise the fold search from where the corrector stopped says where
+               ! the branch goes: to its end (a fold, or the mesh's limit), which an elongating
+               ! case confirms, or on to this case, from which a steady one the corrector could
+               ! not confirm is continued. Searching only then saves the search wherever the case
+               ! restarts the branch (8-11 CPU s after Ca_s 0.01 at NH a/l 0.8 and 1).
                if (.not. opts%quiet) write (*, '(a)') 'capsim: continuation to Ca_s = '//num(values(k))// &
-                  ' stopped at Ca_s = '//num(exp(point%log_ca))//': '//search_text(found)//'; time stepping decides'
+                  ' stopped at Ca_s = '//num(exp(point%log_ca))//'; time stepping decides'
+               stuck_ca = model%ca
+               allocate (stuck_rz, source=model%positions)
                phase = phase_stepping
-               model%positions = saved_rz
-               model%ca = ca_from
                call time_stepped_case(case_opts, model, point, phase, stat, errmsg, stepped_status)
                if (stat /= 0) return
-               if (phase == phase_on_branch) call log_point(source_time_stepping)
-               if ((found%outcome == end_fold .or. found%outcome == end_mesh_limit) .and. &
-                   trim(stepped_status) == 'continuous_elongation') then
-                  outcome = found%outcome
-                  critical_log_ca = found%critical_log_ca
-                  phase = phase_ended
-                  confirmed = .true.
+               if (phase == phase_on_branch) then
+                  call log_point(source_time_stepping)
+               else if (found%outcome == end_none) then
+                  if (trim(stepped_status) == 'steady') then
+                     ! The corrector left model and point at the time-stepped shape.
+                     model%positions = stuck_rz
+                     model%ca = stuck_ca
+                     call start_branch_point(model, point)
+                  end if
+                  call locate_branch_end()
+                  if (trim(stepped_status) == 'continuous_elongation') then
+                     if (found%outcome == end_fold .or. found%outcome == end_mesh_limit) then
+                        outcome = found%outcome
+                        critical_log_ca = found%critical_log_ca
+                        phase = phase_ended
+                        confirmed = .true.
+                     end if
+                     if (.not. opts%quiet) write (*, '(a)') 'capsim: the steady branch from Ca_s = '// &
+                        num(ca_from)//' ends: '//search_text(found)
+                  else if (trim(stepped_status) == 'steady' .and. converged .and. &
+                           point%growth_rate < stable_rate_limit .and. point%stretch <= meridian_stretch_limit) then
+                     phase = phase_on_branch
+                     call log_point(source_requested)
+                  end if
+               end if
+               deallocate (stuck_rz)
+               if (phase /= phase_on_branch) then
+                  model%positions = saved_rz
+                  model%ca = ca_from
                end if
             end if
             deallocate (saved_rz)
@@ -198,6 +219,19 @@ contains
       stat = 0
 
    contains
+
+      !> Pseudo-arclength steps (search_fold) from where the corrector stopped, landing on the
+      !> case's Ca_s (continue_to_ca) whenever they pass it, until the branch ends or reaches
+      !> the case after all (converged; then nothing is confirmed): found holds how.
+      subroutine locate_branch_end()
+         converged = .false.
+         do while (.not. converged)
+            call search_fold(model, point, opts, values(k), meridian_stretch_limit, stable_rate_limit, found)
+            if (found%outcome /= end_none) exit
+            call log_point(source_arclength)
+            call continue_to_ca(model, point, opts, values(k), converged)
+         end do
+      end subroutine locate_branch_end
 
       function checkpoint_path() result(path)
          character(len=:), allocatable :: path

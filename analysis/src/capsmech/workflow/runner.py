@@ -67,6 +67,19 @@ def source_code_version(repo: str | Path) -> str:
     return match.group(1)
 
 
+#: Earlier kernels whose results of a flow a kernel version reproduces unchanged, by (version,
+#: flow): a database of that flow made by one of them is still this kernel's (the shipped
+#: databases' check, tests/workflow/test_shipped_databases.py). Kernel 0.3.3 changed the
+#: axisymmetric tube's implicit steps and branches, not the shear flow's code.
+RESULTS_UNCHANGED_SINCE: dict[tuple[str, str], tuple[str, ...]] = {("0.3.3", "shear"): ("0.3.2",)}
+
+
+def reproduces_results(kernel_version: str, made_by: str, flow: str) -> bool:
+    """Whether kernel ``kernel_version`` reproduces the ``flow`` results of kernel ``made_by``
+    (the same version, or one listed in :data:`RESULTS_UNCHANGED_SINCE`)."""
+    return made_by == kernel_version or made_by in RESULTS_UNCHANGED_SINCE.get((kernel_version, flow), ())
+
+
 def kernel_code_version(capsim: str | Path) -> str:
     """Return the ``code_version`` the built kernel writes, from a tiny throw-away run.
 
