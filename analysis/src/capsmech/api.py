@@ -401,8 +401,8 @@ class Extraction:
 
 #: Columns of ``Extraction.capsules`` and their units (lengths as the measurement CSV has them).
 EXTRACTION_UNITS = {"id": "", "good_frames": "1", "frames": "1", "L_z": "um", "L_z_spread": "um", "L_p": "um",
-                    "L_p_spread": "um", "v_c": "mm/s", "v_c_se": "mm/s", "tube_radius": "um", "flag": "",
-                    "reason": ""}
+                    "L_p_spread": "um", "v_c": "mm/s", "v_c_se": "mm/s", "tube_radius": "um", "contour_noise": "um",
+                    "flag": "", "reason": ""}
 
 
 def _quantity(value: float | str | None, name: str, units: dict[str, float], default_unit: str) -> float | None:
@@ -530,7 +530,8 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
                      "L_z": cap.L_z_px * pixel_um, "L_z_spread": cap.L_z_spread_px * pixel_um,
                      "L_p": cap.L_p_px * pixel_um, "L_p_spread": cap.L_p_spread_px * pixel_um,
                      "v_c": cap.v_c_px_s * pixel_um * 1e-3, "v_c_se": cap.v_c_se_px_s * pixel_um * 1e-3,
-                     "tube_radius": channel.walls.radius_px * pixel_um, "flag": flag, "reason": cap.problem})
+                     "tube_radius": channel.walls.radius_px * pixel_um,
+                     "contour_noise": cap.contour_noise_px * pixel_um, "flag": flag, "reason": cap.problem})
     frame_rows = [{"index": r.index, "label": r.label, "time_s": r.time_s, "passage": r.passage, "flag": r.flag,
                    "objects": r.objects, "kind": r.kind, "contour_at": r.contour_at, "extent_px": r.extent_px,
                    "outer_extent_px": r.outer_extent_px, "L_z_px": r.L_z_px, "L_p_px": r.L_p_px,

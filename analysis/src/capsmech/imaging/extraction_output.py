@@ -3,9 +3,11 @@
 Every file is written to a temporary name and renamed, so it is whole or absent.
 
 - Measurement CSV (the tube format of ``capsmech.io.measurements``, read by ``fit-tube``):
-  ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px]``;
+  ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px],contour_noise [px]``;
   comment lines above the header give, per capsule, its frames, the spread of the lengths
-  over them and the standard error of v_c.
+  over them and the standard error of v_c; ``contour_noise`` is one frame's tracing noise,
+  from the spread of the capsule's contours over its good frames
+  (``capsmech.imaging.tracking.contour_noise``).
 - Contour files (``<csv stem>_contours/<id>.txt``, named in the CSV relative to its
   directory): the mid-line contour of the capsule's representative frame, ``X\tY`` then two
   tab-separated columns in pixels, image coordinates of the frame as analysed (mirrored when
@@ -96,7 +98,7 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "pixel_size [um]"]
     if mu_pa_s is not None:
         header.append("mu [Pa s]")
-    header.append("contour [px]")
+    header += ["contour [px]", "contour_noise [px]"]
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
         contour_path = contour_dir / f"{cap_id}.txt"
@@ -108,7 +110,7 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
                _g(cap.v_c_px_s * pixel_size_um * 1e-3), _g(walls.radius_px * pixel_size_um), _g(pixel_size_um)]
         if mu_pa_s is not None:
             row.append(_g(mu_pa_s))
-        row.append(contour_path.relative_to(path.parent).as_posix())
+        row += [contour_path.relative_to(path.parent).as_posix(), _g(cap.contour_noise_px)]
         writer.writerow(row)
     return _write_text(path, lines.getvalue()), contour_files
 

@@ -46,6 +46,7 @@ class CapsuleMeasurement:
     v_c_px_s: float = math.nan
     v_c_se_px_s: float = math.nan
     representative: int = -1
+    contour_noise_px: float = math.nan
     problem: str = ""
     trace: TracedObject | None = field(default=None, repr=False)
 
@@ -150,7 +151,9 @@ def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
     observation of its track when its own flag (``TracedObject.flag``: border, focus, axis,
     symmetry) is empty, whatever the other objects of the frame show. Lengths are the medians
     over the good observations, with their standard deviations; v_c is the least-squares slope
-    of the contour's centroid against the frames' times (gaps honoured), with its standard error.
+    of the contour's centroid against the frames' times (gaps honoured), with its standard error;
+    ``contour_noise_px`` the tracing noise of one frame's contour, from the spread of the good
+    frames' contours (:func:`contour_noise`).
     """
     capsules = []
     for track, observed in sorted(_observations(results).items()):
@@ -175,8 +178,47 @@ def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
         misfit = np.abs(lz - cap.L_z_px) / max(cap.L_z_px, 1) + np.abs(lp - cap.L_p_px) / max(cap.L_z_px, 1)
         best = int(np.argmin(misfit))
         cap.representative, cap.trace = good[best][0].index, good[best][1]
+        cap.contour_noise_px = contour_noise([t.contour for _, t in good])
         capsules.append(cap)
     return capsules
+
+
+def _distances_to(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Each point's distance to a closed polygon (its nearest segment)."""
+    a = polygon
+    b = np.roll(polygon, -1, axis=0)
+    ab = b - a
+    length2 = np.maximum(np.sum(ab ** 2, axis=1), 1e-12)
+    ap = points[:, None, :] - a[None, :, :]
+    t = np.clip(np.sum(ap * ab[None], axis=2) / length2[None], 0.0, 1.0)
+    nearest = a[None] + t[..., None] * ab[None]
+    return np.sqrt(np.min(np.sum((points[:, None, :] - nearest) ** 2, axis=2), axis=1))
+
+
+def contour_noise(contours: Sequence[np.ndarray], points: int = 64) -> float:
+    """A single frame's contour noise [px], from the spread of one capsule's contours over its
+    good frames (NaN with fewer than three).
+
+    In a steady passage the frames show one shape, moved along the channel: the contours,
+    their centroids put on one another, differ by the tracing alone. Each contour's normal
+    distance to the next one's (``points`` points evenly spaced along it) is the difference of
+    two independent tracings, so its rms over the points and the pairs, over sqrt(2), is one
+    tracing's noise. Unlike the two halves' difference (``capsmech.inversion.noise``), it also
+    sees the errors the halves share, e.g. an outline that breathes with the pixel grid.
+    """
+    usable = [np.asarray(c, dtype=float) for c in contours if c is not None and len(c) >= 8]
+    if len(usable) < 3:
+        return math.nan
+    centred = [c - c.mean(axis=0) for c in usable]
+    squares = []
+    for one, other in zip(centred[:-1], centred[1:]):
+        step = np.linalg.norm(np.diff(np.vstack([one, one[:1]]), axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(step)])
+        at = np.linspace(0.0, arc[-1], points, endpoint=False)
+        closed = np.vstack([one, one[:1]])
+        sample = np.column_stack([np.interp(at, arc, closed[:, 0]), np.interp(at, arc, closed[:, 1])])
+        squares.append(_distances_to(sample, other) ** 2)
+    return float(np.sqrt(np.mean(np.concatenate(squares)) / 2.0))
 
 
 def flow_steps(results: Sequence[FrameResult], max_step_px: float, max_cross_px: float,

@@ -173,7 +173,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 # from the central fit, or the valid fits' mean where the central one failed.
                 start = ((central.a_over_l, central.Ca_s) if central.ok
                          else (fits.mean("a_over_l"), fits.mean("Ca_s")))
-                shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y, length=capsule["L_z"])
+                shape = fit_shape(capsule.contour, inverters[law], l, start, axis_y, length=capsule["L_z"],
+                                  frames_noise=capsule["contour_noise"])
                 row["a_over_l_shape"], row["Ca_s_shape"] = shape.a_over_l, shape.Ca_s
                 row["H_over_a_shape"], row["chi2_shape"] = shape.H_over_a, shape.chi2
                 if shape.ok:

@@ -8,7 +8,8 @@ Shared by the law verdict (``fit-tube``'s ``chi2_shape``, tested by
 - the residual profile: ``CHI2_POINTS`` signed normal distances along the meridian between the
   contour's halves (folded about its axis, their mean) and the model's profile;
 - each point's variance: sigma^2, the tracing noise measured on the contour itself (the rms over
-  the meridian of its two halves' half difference, at ``NOISE_POINTS`` points), plus the square
+  the meridian of its two halves' half difference, at ``NOISE_POINTS`` points; or, where larger,
+  the noise measured across the video frames, ``capsmech extract``'s ``contour_noise``), plus the square
   of the databases' own accuracy, ``MODEL_FLOOR_REL`` of the capsule's length (64 against 128
   meridian elements): a capsule is not called misfitted for what the databases cannot resolve;
 - with the fit's two parameters removed, ``DOF`` degrees of freedom; and since sigma is itself
@@ -55,11 +56,16 @@ def tracing_noise(prepared: PreparedContour, meridian: np.ndarray) -> float:
     return float(np.sqrt(np.mean(error ** 2)))
 
 
-def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float) -> tuple[float, float]:
+def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
+                 frames_noise: float = math.nan) -> tuple[float, float]:
     """(chi2, sigma) of a contour against a profile (r, z), both in the contour's units: the sum
     over ``CHI2_POINTS`` of the squared residual over sigma^2 + (``MODEL_FLOOR_REL`` length)^2,
-    sigma measured on the contour (``tracing_noise``). NaN where sigma is not positive."""
+    sigma measured on the contour (``tracing_noise``) or, where larger, ``frames_noise``: the
+    tracing noise measured across the video frames (the halves' difference cannot see what
+    both halves share). NaN where sigma is not positive."""
     sigma = tracing_noise(prepared, meridian)
+    if math.isfinite(frames_noise) and frames_noise > sigma:
+        sigma = frames_noise
     floor = MODEL_FLOOR_REL * length
     variance = sigma ** 2 + floor ** 2
     if not (math.isfinite(variance) and variance > 0):

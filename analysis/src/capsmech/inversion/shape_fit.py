@@ -118,7 +118,8 @@ def best_profile(prepared: PreparedContour, inverter: TubeInverter, tube_radius:
 
 
 def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
-              start: tuple[float, float], axis_y: float | None = None, length: float | None = None) -> ShapeFit:
+              start: tuple[float, float], axis_y: float | None = None, length: float | None = None,
+              frames_noise: float = math.nan) -> ShapeFit:
     """Fit the law's database profile to a contour (see the module).
 
     Parameters
@@ -136,6 +137,9 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
     length : float, optional
         The capsule's length L_z in the contour's units, for the databases' accuracy in the
         chi2 (by default the contour's extent along the axis).
+    frames_noise : float, optional
+        The contour's tracing noise measured across video frames, in its units (the chi2's
+        noise is the larger of it and the halves' noise).
     """
     a0, ca0 = (float(v) for v in start)
     if not (math.isfinite(a0) and math.isfinite(ca0) and ca0 > 0 and tube_radius > 0):
@@ -154,7 +158,7 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
         return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
     chi2, _ = contour_chi2(prepared, meridian * tube_radius,
-                           float(np.ptp(contour[:, 0])) if length is None else length)
+                           float(np.ptp(contour[:, 0])) if length is None else length, frames_noise)
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
                     Delta=profile_elongation(meridian, a_fit), chi2=chi2)
 

@@ -23,7 +23,10 @@ A contour file is what ImageJ's "Save XY Coordinates" writes: two columns x y (t
 or comma separated, one optional header line), the capsule's mid-line in a plane through
 the tube axis, x along the axis with the flow in +x (see ``capsmech.io.contours``). With a
 contour, ``fit-tube`` measures the misfit H/a of the fitted profile and the contour's
-asymmetry, and flags the capsule when either is too large.
+asymmetry, and flags the capsule when either is too large. Optional ``contour_noise`` (a
+length): one contour's tracing noise measured across the video frames (``capsmech extract``
+writes it); the contour's chi2 then takes the larger of it and the noise of the contour's two
+halves (``capsmech.inversion.noise``).
 
 Shear (``fit-shear``)::
 
@@ -101,7 +104,7 @@ ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
 #: Column -> (kind, required) per flow.
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
                 "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
-                "pixel_size": ("length", False), "contour": ("length", False)}
+                "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
                  "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False)}
 UNITS: dict[str, Mapping[str, float | None]] = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
