@@ -30,9 +30,9 @@ SHAPE_MEASURES = ("L_z", "L_p", "v_c")
 
 
 def run_branch(capsim: Path, directory: Path, law: str, a_over_l: str, ca_list: list[str], *,
-               quiet: bool = True) -> subprocess.CompletedProcess:
+               quiet: bool = True, n_meridian: str = N_MERIDIAN) -> subprocess.CompletedProcess:
     directory.mkdir(parents=True, exist_ok=True)
-    args = [str(capsim), "--flow", "tube", *LAWS[law], "--a-over-l", a_over_l, "--n-meridian", N_MERIDIAN,
+    args = [str(capsim), "--flow", "tube", *LAWS[law], "--a-over-l", a_over_l, "--n-meridian", n_meridian,
             "--threads", "1", "--branch-ca", ",".join(ca_list), "--branch-summary", str(directory / "branch.h5"),
             "--out", str(directory / "Ca{ca}.h5")]
     return subprocess.run(args + (["--quiet"] if quiet else []), check=True, timeout=600, capture_output=True,
@@ -98,6 +98,29 @@ def test_fold_lies_between_steady_and_elongating_time_stepped_runs(capsim, branc
     assert beyond.status == "continuous_elongation" and "fold" in beyond.message
     with h5py.File(directory / "Ca0.2.h5") as f:
         assert float(f.attrs["branch_critical_Ca_s"]) == critical
+
+
+@pytest.mark.slow
+def test_steady_case_the_corrector_cannot_confirm_is_reached_by_the_search(capsim, tmp_path):
+    """NH a/l 0.85 at 64 elements (the paper grid's mesh): p-fixed steps do not reach 0.12 from
+    0.1, and the corrector does not confirm 0.12's time-stepped shape; the arclength search from
+    0.1 reaches it, the branch goes on from there, and its fold (0.1337 on the whole grid) is
+    found once 0.15 elongates. Kernel 0.3.3's first reordering lost this branch's fold (caught
+    by bench/bench_tube_continuation.py: every later case time-stepped, no critical Ca_s)."""
+    directory = tmp_path / "NH_0.85"
+    run_branch(capsim, directory, "NH", "0.85", ["0.09", "0.1", "0.12", "0.15", "0.2"], n_meridian="64")
+    with h5py.File(directory / "branch.h5") as f:
+        ca = list(f["branch/Ca_s"][:])
+        source = list(f["branch/source"][:])
+        critical = float(f.attrs["critical_Ca_s"])
+        kind = f.attrs["critical_kind"]
+    # 0.09 time-stepped, 0.1 continued, an arclength point past 0.12, then 0.12 landed on.
+    assert source == [0, 1, 2, 1] and ca[3] == pytest.approx(0.12)
+    assert (kind.decode() if isinstance(kind, bytes) else kind) == "fold"
+    assert 0.12 < critical < 0.15
+    assert read_case(directory / "Ca0.12.h5").status == "steady"
+    assert read_case(directory / "Ca0.15.h5").status == "continuous_elongation"
+    assert read_case(directory / "Ca0.2.h5").status == "continuous_elongation"
 
 
 @pytest.mark.slow
