@@ -179,8 +179,7 @@ contains
                      end if
                      if (.not. opts%quiet) write (*, '(a)') 'capsim: the steady branch from Ca_s = '// &
                         num(ca_from)//' ends: '//search_text(found)
-                  else if (trim(stepped_status) == 'steady' .and. converged .and. &
-                           point%growth_rate < stable_rate_limit .and. point%stretch <= meridian_stretch_limit) then
+                  else if (trim(stepped_status) == 'steady' .and. converged .and. carries_branch(point)) then
                      phase = phase_on_branch
                      call log_point(source_requested)
                   end if
@@ -303,7 +302,7 @@ contains
       model%ca = case_opts%ca
       call start_branch_point(model, point)
       call continue_to_ca(model, point, case_opts, case_opts%ca, converged)
-      if (converged .and. point%growth_rate < stable_rate_limit .and. point%stretch <= meridian_stretch_limit) then
+      if (converged .and. carries_branch(point)) then
          phase = phase_on_branch
       end if
    end subroutine time_stepped_case
@@ -394,6 +393,13 @@ contains
       end if
       if (stat == 0) call replace_file(path//'.tmp', path, stat, errmsg)
    end subroutine write_branch_file
+
+   !> Whether the branch can go on from a converged point: linearly stable, and within what
+   !> the mesh resolves.
+   pure logical function carries_branch(point)
+      type(branch_point_t), intent(in) :: point
+      carries_branch = point%growth_rate < stable_rate_limit .and. point%stretch <= meridian_stretch_limit
+   end function carries_branch
 
    !> What a fold search found, for progress lines.
    function search_text(found) result(text)

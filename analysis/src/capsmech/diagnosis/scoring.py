@@ -251,7 +251,7 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
     """Each capsule's tracing-noise level: the rms over the meridian of the half difference of
     its contour's two halves (the standard error of the mean residual at a point), measured
     against its length-based fit; or, where larger, the noise measured across the video
-    frames (the measurement's ``contour_noise``), as in ``capsmech.inversion.noise.contour_chi2``."""
+    frames (the measurement's ``contour_noise``; ``capsmech.inversion.noise.tracing_noise``)."""
     inverter = _law_inverter(database, law)
     rows = _central_fits(capsules, inverter)
     sigma = np.full(len(capsules), np.nan)
@@ -261,9 +261,8 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
         meridian = inverter.profile(row["a_over_l"], row["Ca_s"])
         if meridian is None:
             continue
-        sigma[i] = tracing_noise(PreparedContour(capsule.contour), meridian * capsule["tube_radius"])
-        if capsule["contour_noise"] > sigma[i]:
-            sigma[i] = capsule["contour_noise"]
+        sigma[i] = tracing_noise(PreparedContour(capsule.contour), meridian * capsule["tube_radius"],
+                                 capsule["contour_noise"])
     return sigma
 
 

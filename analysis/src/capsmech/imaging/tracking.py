@@ -25,6 +25,7 @@ import numpy as np
 
 from capsmech.imaging.measurement import DEFAULT_SETTINGS, ExtractionSettings, FrameResult
 from capsmech.imaging.objects import TracedObject
+from capsmech.io.contours import resample_curve
 
 
 @dataclass
@@ -212,12 +213,7 @@ def contour_noise(contours: Sequence[np.ndarray], points: int = 64) -> float:
     centred = [c - c.mean(axis=0) for c in usable]
     squares = []
     for one, other in zip(centred[:-1], centred[1:]):
-        step = np.linalg.norm(np.diff(np.vstack([one, one[:1]]), axis=0), axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(step)])
-        at = np.linspace(0.0, arc[-1], points, endpoint=False)
-        closed = np.vstack([one, one[:1]])
-        sample = np.column_stack([np.interp(at, arc, closed[:, 0]), np.interp(at, arc, closed[:, 1])])
-        squares.append(_distances_to(sample, other) ** 2)
+        squares.append(_distances_to(resample_curve(one, points, closed=True), other) ** 2)
     return float(np.sqrt(np.mean(np.concatenate(squares)) / 2.0))
 
 

@@ -48,24 +48,24 @@ DRAWS = 4000
 SEED = 20261126
 
 
-def tracing_noise(prepared: PreparedContour, meridian: np.ndarray) -> float:
+def tracing_noise(prepared: PreparedContour, meridian: np.ndarray, frames_noise: float = math.nan) -> float:
     """The contour's tracing-noise level sigma [contour units] against a profile (r, z) in its
     units: the rms over the meridian of the half difference of its two halves (the standard
-    error of their mean at a point)."""
+    error of their mean at a point), or, where larger, ``frames_noise``: the tracing noise
+    measured across the video frames (``capsmech extract``'s ``contour_noise``), which also sees
+    what both halves share."""
     _, _, error = prepared.residual(meridian, points=NOISE_POINTS)
-    return float(np.sqrt(np.mean(error ** 2)))
+    sigma = float(np.sqrt(np.mean(error ** 2)))
+    return frames_noise if math.isfinite(frames_noise) and frames_noise > sigma else sigma
 
 
 def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
                  frames_noise: float = math.nan) -> tuple[float, float]:
     """(chi2, sigma) of a contour against a profile (r, z), both in the contour's units: the sum
     over ``CHI2_POINTS`` of the squared residual over sigma^2 + (``MODEL_FLOOR_REL`` length)^2,
-    sigma measured on the contour (``tracing_noise``) or, where larger, ``frames_noise``: the
-    tracing noise measured across the video frames (the halves' difference cannot see what
-    both halves share). NaN where sigma is not positive."""
-    sigma = tracing_noise(prepared, meridian)
-    if math.isfinite(frames_noise) and frames_noise > sigma:
-        sigma = frames_noise
+    sigma measured on the contour, or across the video frames where larger (``tracing_noise``).
+    NaN where sigma is not positive."""
+    sigma = tracing_noise(prepared, meridian, frames_noise)
     floor = MODEL_FLOOR_REL * length
     variance = sigma ** 2 + floor ** 2
     if not (math.isfinite(variance) and variance > 0):
