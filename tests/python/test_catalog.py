@@ -104,7 +104,8 @@ def test_database_shows_its_identity_and_a_short_repr(name: str) -> None:
 
 def test_paper_accuracy_is_the_grids() -> None:
     assert load_database("tube-paper").accuracy == (
-        "64 meridian elements: L_z within 0.1 %, L_p within 0.6 %, v_c within 0.03 % of 128 elements")
+        "64 meridian elements against 128: L_z within 0.1 %, L_p 0.002 l, v_c 0.02 % on smooth profiles; "
+        "at a sharp parachute edge L_z 1.1 %, L_p 6.5 % (up to 0.1 l), v_c 0.5 % (capsmech.inversion.sharp_edge)")
     assert "level 3" in load_database("shear-paper").accuracy
 
 

@@ -180,14 +180,14 @@ def length_g_s(capsules: Sequence[Capsule], inverter: TubeInverter) -> tuple[flo
 def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInverter
                                ) -> tuple[tuple[float, float, int], float]:
     """``length_g_s`` and its systematic half-width [N/m]: how far the databases' own accuracy
-    moves the mean. Their lengths are good to ``MODEL_FLOOR_REL`` of L_z, an error shared by
-    every capsule that no number of capsules averages away: the mean's shift when L_z, and then
-    L_p, are moved by that much, added in quadrature (NaN with no G_s). Measured on the
+    moves the mean. Their lengths are good to ``MODEL_FLOOR_REL`` of L_z on smooth shapes, less
+    at a sharp parachute edge (``capsmech.inversion.sharp_edge``), an error shared by every
+    capsule that no number of capsules averages away: the mean's shift when L_z, then L_p, then
+    v_c/V are moved by that much, added in quadrature (NaN with no G_s). Measured on the
     independent generator's control capsules (96 meridian elements, their true lengths): the
     mean G_s 0.8 % low; this half-width is about 2.5 %."""
     values: list[float] = []
-    shift_z: list[float] = []
-    shift_p: list[float] = []
+    shifts: tuple[list[float], ...] = ([], [], [])
     for capsule in capsules:
         l = capsule["tube_radius"]
         L_z, L_p = (length / l for length in capsule_lengths(capsule))
@@ -195,14 +195,13 @@ def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInvert
         if not (fit.ok and math.isfinite(fit.G_s)):
             continue
         values.append(fit.G_s)
-        for shifts, shift in zip((shift_z, shift_p),
-                                 database_g_s_shifts(inverter, L_z, L_p, capsule["v_c"], capsule["mu"], fit.G_s)):
+        for kept, shift in zip(shifts, database_g_s_shifts(inverter, L_z, L_p, capsule["v_c"], capsule["mu"], fit.G_s)):
             if math.isfinite(shift):
-                shifts.append(shift)
+                kept.append(shift)
     g = np.array(values)
     if len(g) < 2:
         return (math.nan, math.nan, len(g)), math.nan
-    systematic = math.hypot(float(np.mean(shift_z)) if shift_z else 0.0, float(np.mean(shift_p)) if shift_p else 0.0)
+    systematic = math.hypot(*(float(np.mean(kept)) if kept else 0.0 for kept in shifts))
     return (float(g.mean()), float(g.std(ddof=1)), len(g)), systematic
 
 

@@ -42,6 +42,7 @@ from capsmech.inversion.inverters import (
 from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import fit_shape
+from capsmech.inversion.sharp_edge import interpolated_accuracy
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
@@ -214,20 +215,29 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
 
 
 def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float,
-                        g_s: float) -> tuple[float, float]:
-    """The changes of a capsule's G_s [N/m] when the database's L_z, then its L_p, are off by
-    its accuracy: ``MODEL_FLOOR_REL`` (0.1 %) of L_z (64 against 128 meridian elements), an
-    error every capsule of a batch shares (NaN where the refit fails). Lengths in l."""
-    floor = MODEL_FLOOR_REL * L_z
+                        g_s: float) -> tuple[float, float, float]:
+    """The changes of a capsule's G_s [N/m] when the database's L_z, then its L_p, then its
+    v_c/V are off by their accuracy, an error every capsule of a batch shares (NaN where the
+    refit fails). Lengths in l. The accuracy is that of the rows the capsule's fit is
+    interpolated between (``capsmech.inversion.sharp_edge.interpolated_accuracy``): 0.1 % of
+    L_z on smooth shapes (64 against 128 meridian elements), up to 1.1 % of L_z, 6.5 % of L_p
+    and 0.5 % of v_c/V where the parachute's edge is a corner."""
+    fit = inverter.fit(L_z, L_p, v_c, mu)
+    rows = inverter.triangle_turns(fit.a_over_l, fit.Ca_s) if fit.ok and hasattr(inverter, "triangle_turns") else None
+    # Outside the triangles (or without profiles): the databases' stated accuracy.
+    z_rel, p_abs, vc_rel = (interpolated_accuracy(*rows, L_p) if rows is not None
+                            else (MODEL_FLOOR_REL, MODEL_FLOOR_REL * L_z, 0.0))
     shifts = []
-    for moved in ((L_z + floor, L_p), (L_z, L_p + floor)):
+    for moved in ((L_z * (1 + z_rel), L_p), (L_z, L_p + max(p_abs, MODEL_FLOOR_REL * L_z))):
         other = inverter.fit(*moved, v_c, mu)
         shifts.append(other.G_s - g_s if other.ok and math.isfinite(other.G_s) else math.nan)
-    return shifts[0], shifts[1]
+    # G_s = mu v_c / (Ca_s v_c/V): an error of v_c/V moves it by the same fraction.
+    shifts.append(g_s * vc_rel)
+    return shifts[0], shifts[1], shifts[2]
 
 
 def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, g_s: float) -> float:
-    """How far the database's own accuracy moves a capsule's G_s [N/m]: the two
+    """How far the database's own accuracy moves a capsule's G_s [N/m]: the three
     ``database_g_s_shifts`` in quadrature (the diagnosis's measure,
     ``capsmech.diagnosis.scoring.length_g_s_with_systematic``, per capsule), for both of
     fit-tube's G_s: the contour fits match the same profiles."""

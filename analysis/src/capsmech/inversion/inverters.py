@@ -32,6 +32,8 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator, PchipInterpolator
 from scipy.spatial import Delaunay, cKDTree
 
+from capsmech.inversion.sharp_edge import largest_turn
+
 #: Neighbours of the diffuse approximation (paper section 4.2).
 N_NEIGHBOURS = 14
 #: Shear: D12 below this is too imprecise to fit (paper section 4.3).
@@ -199,6 +201,8 @@ class TubeInverter:
         self._p_tree = cKDTree(self._p_scaled)
         self._hull = Delaunay(self._p / self._p_scale)
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
+        #: The largest turn of each row's profile (triangle_turns), measured when first asked.
+        self._turns: np.ndarray | None = None
 
     def _local_forward_map(self, q_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Weighted quadratic fit of q(p) over the neighbours of q_star: (coefficients, centre, p0)."""
@@ -453,19 +457,40 @@ class TubeInverter:
             return None
         return scaled * self._p_scale
 
-    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
-        """Meridian (points, 2) of (r, z) [l] at (a/l, Ca_s): the database profiles blended with
-        the barycentric weights of the Delaunay triangle holding the point (None without profiles)."""
-        if self.table.profile_r is None or self.table.profile_z is None:
-            return None
+    def _triangle(self, a_over_l: float, Ca_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The rows at the vertices of the Delaunay triangle holding (a/l, Ca_s) and the point's
+        barycentric weights there (None outside the database)."""
         x = np.array([a_over_l, np.log(Ca_s)]) / self._p_scale
         simplex = int(self._hull.find_simplex(x))
         if simplex < 0:
             return None
         transform = self._hull.transform[simplex]
         b = transform[:2] @ (x - transform[2])
-        weights = np.append(b, 1 - b.sum())
-        vertices = self._hull.simplices[simplex]
+        return self._hull.simplices[simplex], np.append(b, 1 - b.sum())
+
+    def triangle_turns(self, a_over_l: float, Ca_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The largest turns [degrees] of the database profiles at the vertices of the triangle
+        holding (a/l, Ca_s) (``capsmech.inversion.sharp_edge.largest_turn``), the vertices'
+        Ca_s, and the point's barycentric weights there: what the accuracy of a value
+        interpolated there depends on (None outside the database or without profiles)."""
+        if self.table.profile_r is None or self.table.profile_z is None:
+            return None
+        triangle = self._triangle(a_over_l, Ca_s)
+        if triangle is None:
+            return None
+        if self._turns is None:
+            self._turns = np.array([largest_turn(r, z) for r, z in zip(self.table.profile_r, self.table.profile_z)])
+        return self._turns[triangle[0]], self.table.Ca_s[triangle[0]], triangle[1]
+
+    def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
+        """Meridian (points, 2) of (r, z) [l] at (a/l, Ca_s): the database profiles blended with
+        the barycentric weights of the Delaunay triangle holding the point (None without profiles)."""
+        if self.table.profile_r is None or self.table.profile_z is None:
+            return None
+        triangle = self._triangle(a_over_l, Ca_s)
+        if triangle is None:
+            return None
+        vertices, weights = triangle
         r = weights @ self.table.profile_r[vertices]
         z = weights @ self.table.profile_z[vertices]
         return np.column_stack([r, z])

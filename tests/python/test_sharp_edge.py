@@ -1,0 +1,124 @@
+"""The sharp parachute edge and the databases' accuracy there (capsmech.inversion.sharp_edge).
+
+At large Ca_s the rear rim of a membrane without bending stiffness is a corner of the kernel's
+meridian, and the tube databases (64 elements) are less accurate there than they state for
+smooth shapes. The reference here is data the Python code under test did not make: the same
+cases run by the kernel on a meridian twice as fine (128 elements, from the sphere, kernel
+0.3.3, 2026-11-26; scripts/tube_mesh_accuracy.py measures more of them). A capsule whose true
+shape is the finer one is fitted against the shipped database; its G_s error must lie within
+the database error that fit-tube reports.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+import capsmech
+from capsmech.inversion import sharp_edge
+from capsmech.inversion.fitting import database_g_s_error, tube_inverter
+from capsmech.inversion.sharp_edge import (
+    ACCURACY_BY_TURN,
+    BUCKLING_ROW,
+    interpolated_accuracy,
+    largest_turn,
+    row_accuracy,
+)
+
+#: law, a/l, Ca_s, then L_z [l], L_p [l], v_c/V of the case on 128 meridian elements, and whether
+#: the row was among those that set ACCURACY_BY_TURN ("in") or not ("out"; "near": not, and
+#: where the 64-element database is good, the region of the NH example batch). The rows at a/l 1.1
+#: are on the database's edge: their finer lengths fall outside it and are not fitted.
+FINER = """\
+SK_C1    0.9  1.0  2.589719 0.689451 1.292342 in
+GH_nu0.5 0.9  1.5  2.758145 1.252523 1.216384 in
+GH_nu0.5 0.9  0.3  2.190283 0.421042 1.262244 out
+SK_C1    1.0  0.8  3.045712 0.739376 1.242461 out
+GH_nu0.2 0.9  0.8  2.721792 1.237355 1.208143 out
+NH       1.0  0.08 2.745343 0.379663 1.234759 out
+GH_nu0   0.85 0.2  2.055399 0.564112 1.262854 out
+GH_nu0.5 1.05 0.5  3.110410 0.805512 1.182407 out
+SK_C1    0.8  2.0  2.331761 0.784516 1.352628 out
+NH       1.0  0.06 2.452263 0.237578 1.200972 near
+NH       0.95 0.07 2.256129 0.258339 1.224039 near
+NH       1.05 0.05 2.642976 0.196878 1.178179 near
+NH       0.9  0.09 2.125529 0.302982 1.257554 near"""
+MU, V = 1.0, 1e-3   # [Pa s], [m/s]: G_s = mu V / Ca_s
+
+
+@pytest.fixture(scope="module")
+def database():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return capsmech.load_database("tube-paper")
+
+
+def test_largest_turn_of_known_polylines():
+    # A right-angled corner between two straight lines, whatever the points on either side.
+    r = np.concatenate([np.linspace(0, 1, 7), np.ones(5)])
+    z = np.concatenate([np.zeros(7), np.linspace(0.2, 1, 5)])
+    assert largest_turn(r, z) == pytest.approx(90.0)
+    assert largest_turn(r[::-1], z[::-1]) == pytest.approx(90.0)
+    # A circle of n points turns by 360/n degrees at each: two segments, twice that.
+    n = 128
+    t = np.linspace(0, 2 * np.pi, n + 1)
+    assert largest_turn(np.cos(t), np.sin(t)) == pytest.approx(2 * 360 / n)
+    assert math.isnan(largest_turn(np.array([0.0, 1.0]), np.array([0.0, 0.0])))
+
+
+def test_the_databases_profiles_have_the_kernels_corner(database):
+    # On the kernel's own meridian (64 elements) SK C = 1 at a/l 0.9 turns by 132 degrees at one
+    # node at Ca_s 1 (a corner, meridional tension about zero there) and by at most 15 degrees
+    # at Ca_s 0.02: the resampled profiles of the database tell the two apart.
+    table = tube_inverter(database, "SK_C1").table
+    for ca, low, high in ((1.0, 90.0, 180.0), (0.02, 0.0, 30.0)):
+        i = int(np.flatnonzero(np.isclose(table.a_over_l, 0.9) & np.isclose(table.Ca_s, ca))[0])
+        assert low <= largest_turn(table.profile_r[i], table.profile_z[i]) < high
+
+
+def test_accuracy_interpolates_the_rows_and_is_the_databases_statement_on_smooth_rows():
+    smooth, corner = ACCURACY_BY_TURN[0][1], ACCURACY_BY_TURN[-1][1]
+    assert smooth.L_z_rel == pytest.approx(1e-3)        # the databases' own 0.1 %
+    assert row_accuracy(math.nan) == smooth
+    assert row_accuracy(120.0, 0.5) == corner
+    assert row_accuracy(10.0, 0.01) == BUCKLING_ROW     # the rear's buckling, whatever the turn
+    one = interpolated_accuracy(np.array([10.0, 120.0, 20.0]), np.array([0.1, 0.5, 0.1]), np.array([0.0, 1.0, 0.0]), 1.0)
+    assert one == pytest.approx((corner.L_z_rel, corner.L_p(1.0), corner.v_c_rel))
+    halfway = interpolated_accuracy(np.array([10.0, 120.0]), np.array([0.1, 0.5]), np.array([0.5, 0.5]), 0.3)
+    assert halfway[1] == pytest.approx(0.5 * (smooth.L_p(0.3) + corner.L_p(0.3)))
+
+
+def _fitted(database, line):
+    law, a, ca, lz, lp, vcv, tag = line.split()
+    ca, lz, lp, vcv = float(ca), float(lz), float(lp), float(vcv)
+    inverter = tube_inverter(database, law)
+    fit = inverter.fit(lz, lp, vcv * V, MU)
+    error = database_g_s_error(inverter, lz, lp, vcv * V, MU, fit.G_s)
+    return inverter, (lz, lp, vcv), fit, error, MU * V / ca, tag
+
+
+def test_the_database_error_covers_a_finer_meridian(database, monkeypatch):
+    # Measured: at a sharp edge G_s off by +0.1 to +10.5 % (the 64-element database reads G_s
+    # high on deep parachutes); the reported database error 6.2-19 %, covering all 9, the 7 rows
+    # that did not set the accuracy classes among them. The databases' former statement (0.1 %
+    # of L_z for every row) gave 0.5-1.2 % there and covered 1 of 9. Near the NH example batch
+    # G_s is off by 0.1-0.7 %: the error reported is 2.2-2.8 % (the former 0.8-0.9 %).
+    covered_by_former = 0
+    for line in FINER.splitlines():
+        inverter, lengths, fit, error, truth, tag = _fitted(database, line)
+        assert fit.ok, line
+        off = abs(fit.G_s - truth)
+        assert off <= error, (line, off / truth, error / truth)
+        if tag == "near":
+            assert error < 0.03 * truth, line
+            continue
+        # With every row of the smooth class (the former statement), the same capsule:
+        monkeypatch.setattr(sharp_edge, "ACCURACY_BY_TURN", ((math.inf, ACCURACY_BY_TURN[0][1]),))
+        monkeypatch.setattr(sharp_edge, "BUCKLING_CA_S", 0.0)
+        former = database_g_s_error(inverter, lengths[0], lengths[1], lengths[2] * V, MU, fit.G_s)
+        monkeypatch.undo()
+        assert former < 0.015 * truth and error > 4 * former
+        covered_by_former += off <= former
+    assert covered_by_former <= 2
