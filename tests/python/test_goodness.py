@@ -99,3 +99,19 @@ def test_capsules_without_a_fit_are_left_out_and_two_are_needed():
     sigma[:-1] = np.nan
     with pytest.raises(ValueError, match="at least 2"):
         goodness_of_fit(residual, sigma, LENGTH_PX)
+
+
+def test_a_point_by_point_floor_forgives_a_misfit_behind_the_rim_only():
+    """A -3 px misfit at two points just behind a parachute's rim (what a 64-element database
+    leaves on a deep parachute with a corner, docs/validation/databases.md) on 0.3 px noise: a
+    misfit with the 0.2 px floor everywhere; consistent with the rim's floor at those points
+    (7 px, 6.5 % of L_p there), and still caught when the misfit sits in front of the rim."""
+    rng = np.random.default_rng(8)
+    residual, sigma = noise_only(rng, sigma_px=0.3)
+    rim = np.zeros(POINTS)
+    rim[11:13] = -3.0
+    floor = np.full((CAPSULES, POINTS), 0.2)
+    floor[:, 10:] = 7.0
+    assert not goodness_of_fit(residual + rim, sigma, LENGTH_PX).consistent
+    assert goodness_of_fit(residual + rim, sigma, LENGTH_PX, floor_px=floor).consistent
+    assert not goodness_of_fit(residual + np.roll(rim, -8), sigma, LENGTH_PX, floor_px=floor).consistent

@@ -213,7 +213,8 @@ def batch_fit(capsules: Sequence[Capsule], score: BatchScore) -> GoodnessOfFit |
     with np.errstate(invalid="ignore", divide="ignore"):
         sigma_px = np.sqrt(np.sum(score.residual ** 2, axis=1) / score.chi2)
     try:
-        return goodness_of_fit(score.residual, sigma_px, lengths, score.g_s, score.delta)
+        return goodness_of_fit(score.residual, sigma_px, lengths, score.g_s, score.delta,
+                               score.floor if score.floor.shape == score.residual.shape else None)
     except ValueError:
         return None
 

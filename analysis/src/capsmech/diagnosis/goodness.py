@@ -11,7 +11,9 @@ three ways, each at ``ALPHA``:
 - **size** (chi2 against the measured noise): each capsule's chi2 sums ``PROFILE_POINTS``
   squared residuals, each divided by the capsule's own noise level sigma_i (measured from its
   contour's two halves, ``capsmech.diagnosis.scoring.noise_levels``) combined with the
-  databases' own accuracy (``MODEL_FLOOR_REL`` of the capsule's length). With the fit's
+  databases' own accuracy at the point (``MODEL_FLOOR_REL`` of the capsule's length; from a
+  sharp parachute edge to the rear pole the rim's accuracy,
+  ``capsmech.inversion.sharp_edge.profile_floor``). With the fit's
   parameters (a/l, Ca_s) removed it has ``DOF`` degrees of freedom, and since sigma_i is
   itself an estimate (from ``NOISE_DOF`` effectively independent points), chi2_i / DOF follows
   an F(DOF, NOISE_DOF) distribution when the model is right, not a chi2: the batch's total is
@@ -19,9 +21,9 @@ three ways, each at ``ALPHA``:
 - **structure** (a pattern shared by the capsules): the batch's mean residual profile (px)
   against the sign-flip distribution of the capsules' profiles (under noise alone each
   capsule's profile is as likely with either sign; a missing effect moves every capsule the
-  same way). It counts only when the mean profile's rms also exceeds the databases' own
-  accuracy (``MODEL_FLOOR_REL`` of the capsule's length): a pattern smaller than that is the
-  model's discretisation, not a missing effect.
+  same way). It counts only when the mean profile also exceeds the databases' own accuracy
+  (its rms in units of each point's floor above 1): a pattern smaller than that is the model's
+  discretisation, not a missing effect.
 - **drift**: G_s still varying with the elongation Delta (``capsmech.inversion.population.law_drift``).
 
 A batch that fails any of them is **unexplained**: the report names the candidate that came
@@ -124,21 +126,27 @@ def sign_flip_p_value(residual: np.ndarray, draws: int = DRAWS, seed: int = SEED
 
 
 def goodness_of_fit(residual_px: np.ndarray, sigma_px: np.ndarray, length_px: np.ndarray,
-                    g_s: np.ndarray | None = None, delta: np.ndarray | None = None) -> GoodnessOfFit:
+                    g_s: np.ndarray | None = None, delta: np.ndarray | None = None,
+                    floor_px: np.ndarray | None = None) -> GoodnessOfFit:
     """Test a batch's fit against the tracing noise (see the module). Per capsule: the residual
     profile [px] (``PROFILE_POINTS`` points), the tracing-noise level sigma [px] of one point,
     the length L_z [px]; G_s and Delta for the drift. Each point's variance is sigma^2 plus the
     square of the databases' own accuracy (``MODEL_FLOOR_REL`` L_z): a batch is not declared
     unexplained for what the databases themselves cannot resolve (measured: a batch of the
     right law, simulated on a finer mesh than the databases', left chi2/dof 1.46-1.54 against
-    noise alone and 0.93-0.99 with the floor). Capsules without a fit (NaN) are left out."""
+    noise alone and 0.93-0.99 with the floor). ``floor_px`` (capsules, points), where given,
+    replaces that floor point by point (``capsmech.inversion.sharp_edge.profile_floor``: more
+    behind a sharp parachute edge). Capsules without a fit (NaN) are left out."""
     keep = np.all(np.isfinite(residual_px), axis=1) & np.isfinite(sigma_px) & (sigma_px > 0)
     n = int(keep.sum())
     if n < 2:
         raise ValueError(f"goodness of fit needs at least 2 fitted capsules, got {n}")
     residual = residual_px[keep]
-    floor_px = MODEL_FLOOR_REL * length_px[keep]
-    chi2 = np.sum(residual ** 2, axis=1) / (sigma_px[keep] ** 2 + floor_px ** 2)
+    if floor_px is None:
+        floor = np.repeat((MODEL_FLOOR_REL * length_px[keep])[:, None], residual.shape[1], axis=1)
+    else:
+        floor = floor_px[keep]
+    chi2 = np.sum(residual ** 2 / (sigma_px[keep, None] ** 2 + floor ** 2), axis=1)
     total = float(np.sum(chi2))
     p_chi2, limit = chi2_test(total, n, ALPHA)
     mean = residual.mean(axis=0)
@@ -148,6 +156,11 @@ def goodness_of_fit(residual_px: np.ndarray, sigma_px: np.ndarray, length_px: np
         ok = keep & np.isfinite(g_s) & np.isfinite(delta)
         if ok.sum() >= 3 and np.ptp(delta[ok]) > 0:
             drift = law_drift("batch", delta[ok], g_s[ok]).p_value
+    # The shared pattern is weighed against the floor point by point: its rms in units of each
+    # point's floor (the capsules' median there) against 1, reported as the rms against the
+    # floor that ratio implies (with one floor everywhere, that floor itself).
+    rms = float(np.sqrt(np.mean(mean ** 2)))
+    ratio = float(np.sqrt(np.mean((mean / np.median(floor, axis=0)) ** 2)))
+    effective_floor = rms / ratio if ratio > 0 else float(np.median(floor))
     return GoodnessOfFit(n, total, n * DOF, total / (n * DOF), limit, p_chi2, mean, error,
-                         float(np.sqrt(np.mean(mean ** 2))), float(np.median(floor_px)), sign_flip_p_value(residual),
-                         drift)
+                         rms, effective_floor, sign_flip_p_value(residual), drift)

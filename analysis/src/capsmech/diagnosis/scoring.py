@@ -21,6 +21,7 @@ from capsmech.inversion.noise import CHI2_POINTS, tracing_noise
 from capsmech.inversion.population import law_drift
 from capsmech.inversion.residuals import PreparedContour
 from capsmech.inversion.shape_fit import OUTSIDE, best_profile, on_database_edge
+from capsmech.inversion.sharp_edge import profile_floor
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
 
@@ -50,6 +51,9 @@ class BatchScore:
     a_over_l: np.ndarray = field(default_factory=lambda: np.empty(0))
     Ca_s: np.ndarray = field(default_factory=lambda: np.empty(0))
     residual: np.ndarray = field(default_factory=lambda: np.empty((0, PROFILE_POINTS)))
+    #: The databases' accuracy [px] at the residual's points (``profile_floor`` of the fitted
+    #: profile: 0.1 % of L_z, more behind a sharp parachute edge); empty when not computed.
+    floor: np.ndarray = field(default_factory=lambda: np.empty((0, PROFILE_POINTS)))
 
 
 @dataclass
@@ -224,6 +228,7 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     fitted_a, fitted_ca = np.full(n, np.nan), np.full(n, np.nan)
     residual = np.full((n, PROFILE_POINTS), np.nan)
+    floor = np.full((n, PROFILE_POINTS), np.nan)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
         if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
             continue
@@ -241,8 +246,9 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
             delta[i] = profile_elongation(meridian, a_over_l)
             pixel = capsule["pixel_size"] if math.isfinite(capsule["pixel_size"]) else 1.0
             residual[i] = contour.residual(meridian * l, points=PROFILE_POINTS)[1] / pixel
+            floor[i] = profile_floor(meridian * l, capsule["L_z"], PROFILE_POINTS, l) / pixel
         fitted_a[i], fitted_ca[i] = a_over_l, ca
-    return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual)
+    return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual, floor)
 
 
 def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet,

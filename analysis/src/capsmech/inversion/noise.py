@@ -11,7 +11,9 @@ Shared by the law verdict (``fit-tube``'s ``chi2_shape``, tested by
   the meridian of its two halves' half difference, at ``NOISE_POINTS`` points; or, where larger,
   the noise measured across the video frames, ``capsmech extract``'s ``contour_noise``), plus the square
   of the databases' own accuracy, ``MODEL_FLOOR_REL`` of the capsule's length (64 against 128
-  meridian elements): a capsule is not called misfitted for what the databases cannot resolve;
+  meridian elements), more at the two points next to a sharp parachute edge
+  (``capsmech.inversion.sharp_edge.profile_floor``): a capsule is not called misfitted for what
+  the databases cannot resolve;
 - with the fit's two parameters removed, ``DOF`` degrees of freedom; and since sigma is itself
   estimated (from ``NOISE_DOF`` effectively independent points), chi2 / DOF follows an
   F(DOF, NOISE_DOF) distribution when the model is right, not a chi2. A batch's total is
@@ -26,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from capsmech.inversion.residuals import PreparedContour
+from capsmech.inversion.sharp_edge import SMOOTH_FLOOR_REL, profile_floor
 
 #: Points of a capsule's residual profile in its chi2.
 CHI2_POINTS = 16
@@ -37,9 +40,10 @@ NOISE_POINTS = 64
 #: contour's halves at 64 points along the meridian, correlated over a few pixels by the
 #: tracing; 24 is the conservative end (a smaller value widens the reference distribution).
 NOISE_DOF = 24
-#: The databases' profiles hold their lengths to 0.1 % (64 against 128 meridian elements):
-#: a residual smaller than this fraction of a capsule's length is model error.
-MODEL_FLOOR_REL = 1e-3
+#: The databases' profiles hold their lengths to 0.1 % (64 against 128 meridian elements) where
+#: they are smooth: a residual smaller than this fraction of a capsule's length is model error.
+#: Next to a sharp parachute edge they hold less (``capsmech.inversion.sharp_edge.profile_floor``).
+MODEL_FLOOR_REL = SMOOTH_FLOOR_REL
 #: Significance of a test against the noise (a batch whose chi2 noise alone reaches with a
 #: smaller probability is not explained by the model).
 GOODNESS_ALPHA = 0.01
@@ -60,18 +64,19 @@ def tracing_noise(prepared: PreparedContour, meridian: np.ndarray, frames_noise:
 
 
 def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
-                 frames_noise: float = math.nan) -> tuple[float, float]:
+                 frames_noise: float = math.nan, tube_radius: float = math.nan) -> tuple[float, float]:
     """(chi2, sigma) of a contour against a profile (r, z), both in the contour's units: the sum
-    over ``CHI2_POINTS`` of the squared residual over sigma^2 + (``MODEL_FLOOR_REL`` length)^2,
-    sigma measured on the contour, or across the video frames where larger (``tracing_noise``).
-    NaN where sigma is not positive."""
+    over ``CHI2_POINTS`` of the squared residual over sigma^2 plus the square of the database's
+    accuracy at the point (``profile_floor``: ``MODEL_FLOOR_REL`` of ``length``, more next to a
+    sharp parachute edge; ``tube_radius`` in the contour's units), sigma measured on the contour,
+    or across the video frames where larger (``tracing_noise``). NaN where sigma is not positive."""
     sigma = tracing_noise(prepared, meridian, frames_noise)
-    floor = MODEL_FLOOR_REL * length
+    floor = profile_floor(meridian, length, CHI2_POINTS, tube_radius)
     variance = sigma ** 2 + floor ** 2
-    if not (math.isfinite(variance) and variance > 0):
+    if not (np.all(np.isfinite(variance)) and np.all(variance > 0)):
         return math.nan, sigma
     _, distance, _ = prepared.residual(meridian, points=CHI2_POINTS)
-    return float(np.sum(distance ** 2) / variance), sigma
+    return float(np.sum(distance ** 2 / variance)), sigma
 
 
 @lru_cache(maxsize=64)

@@ -158,7 +158,7 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
         return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
     chi2, _ = contour_chi2(prepared, meridian * tube_radius,
-                           float(np.ptp(contour[:, 0])) if length is None else length, frames_noise)
+                           float(np.ptp(contour[:, 0])) if length is None else length, frames_noise, tube_radius)
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
                     Delta=profile_elongation(meridian, a_fit), chi2=chi2)
 

@@ -27,24 +27,36 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def largest_turn(r: np.ndarray, z: np.ndarray) -> float:
+def sharpest_turn(r: np.ndarray, z: np.ndarray) -> tuple[float, float]:
     """The largest change of direction [degrees] of the polyline (r, z) across two of its
-    segments (NaN for fewer than three segments or non-finite points). On the databases'
-    profiles (128 points) smooth shapes turn by less than 30 degrees (two segments of ~0.04 l
-    at curvatures up to ~3/l) and corners by 90-155."""
+    segments, and where it is: the arclength of the point between them, as a fraction of
+    the polyline's length ((NaN, NaN) for fewer than three segments or non-finite points)."""
     r, z = np.asarray(r, dtype=float), np.asarray(z, dtype=float)
     if r.size < 4 or not (np.all(np.isfinite(r)) and np.all(np.isfinite(z))):
-        return float("nan")
+        return float("nan"), float("nan")
     dr, dz = np.diff(r), np.diff(z)
-    keep = np.hypot(dr, dz) > 0
-    dr, dz = dr[keep], dz[keep]
+    step = np.hypot(dr, dz)
+    keep = step > 0
+    dr, dz, step = dr[keep], dz[keep], step[keep]
     if dr.size < 3:
-        return float("nan")
+        return float("nan"), float("nan")
     # The angle between segment i and segment i + 2, through atan2 of cross and dot products
     # (exact at any angle, unlike an arccos of the dot product).
     cross = dr[:-2] * dz[2:] - dz[:-2] * dr[2:]
     dot = dr[:-2] * dr[2:] + dz[:-2] * dz[2:]
-    return float(np.degrees(np.max(np.abs(np.arctan2(cross, dot)))))
+    turns = np.abs(np.arctan2(cross, dot))
+    i = int(np.argmax(turns))
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    # Segments i and i + 2 enclose segment i + 1: the corner is about its middle.
+    return float(np.degrees(turns[i])), float(0.5 * (s[i + 1] + s[i + 2]) / s[-1])
+
+
+def largest_turn(r: np.ndarray, z: np.ndarray) -> float:
+    """The largest change of direction [degrees] of the polyline (r, z) across two of its
+    segments (``sharpest_turn``). On the databases' profiles (128 points) smooth shapes turn
+    by less than 30 degrees (two segments of ~0.04 l at curvatures up to ~3/l) and corners by
+    90-155."""
+    return sharpest_turn(r, z)[0]
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,10 @@ class LengthAccuracy:
         return max(self.L_p_abs, self.L_p_rel * abs(L_p))
 
 
+#: The databases' accuracy on smooth profiles, relative to the capsule's length L_z (64 against
+#: 128 meridian elements): ``capsmech.inversion.noise.MODEL_FLOOR_REL``.
+SMOOTH_FLOOR_REL = 1e-3
+
 #: The databases' accuracy by the largest turn of a row's profile [degrees]: (upper bound of
 #: the class, accuracy). Measured with scripts/tube_mesh_accuracy.py (2026-11-26, kernel
 #: 0.3.3): the shipped tube-paper database against the same cases on 128 elements from the
@@ -73,7 +89,7 @@ class LengthAccuracy:
 #: corner) L_z 1.1 %, v_c 0.51 %, and L_p up to 0.0078 l where L_p < 0.5 l, 3.3-6.5 % of L_p
 #: on deeper parachutes (Ca_s 0.3-1.5, a/l 0.9-1.1: up to 0.10 l).
 ACCURACY_BY_TURN: tuple[tuple[float, LengthAccuracy], ...] = (
-    (30.0, LengthAccuracy(L_z_rel=1e-3, L_p_abs=2e-3, L_p_rel=0.0, v_c_rel=2e-4)),
+    (30.0, LengthAccuracy(L_z_rel=SMOOTH_FLOOR_REL, L_p_abs=2e-3, L_p_rel=0.0, v_c_rel=2e-4)),
     (90.0, LengthAccuracy(L_z_rel=3.5e-3, L_p_abs=6.5e-3, L_p_rel=0.0, v_c_rel=1e-3)),
     (math.inf, LengthAccuracy(L_z_rel=0.011, L_p_abs=0.008, L_p_rel=0.065, v_c_rel=5e-3)),
 )
@@ -105,3 +121,40 @@ def interpolated_accuracy(turns: np.ndarray, Ca_s: np.ndarray, weights: np.ndarr
     w = np.abs(np.asarray(weights, dtype=float))
     return (float(w @ [r.L_z_rel for r in rows]), float(w @ [r.L_p(L_p) for r in rows]),
             float(w @ [r.v_c_rel for r in rows]))
+
+
+def parachute_depth(meridian: np.ndarray) -> float:
+    """L_p of a meridian (r, z) from the front pole to the rear pole, in its units: from the rear
+    pole to the rear-most point along the axis (0 for a convex rear)."""
+    z = np.asarray(meridian, dtype=float)[:, 1]
+    rearward = -1.0 if z[0] > z[-1] else 1.0     # the direction from the front pole to the rear
+    return float(np.max(rearward * z) - rearward * z[-1])
+
+
+def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius: float = math.nan) -> np.ndarray:
+    """The databases' accuracy [the meridian's units] at each of ``points`` points placed at
+    equal arclength along a database profile (r, z) from the front pole to the rear pole, as a
+    residual profile places them: ``SMOOTH_FLOOR_REL`` of the capsule's ``length`` everywhere
+    (the smooth shapes' accuracy), and from the profile's sharpest turn (the parachute's rim) to
+    the rear pole the L_p accuracy of the turn's class (``row_accuracy``; its absolute part
+    needs ``tube_radius``): the rim's position along the meridian is what the databases hold
+    least well, and the parachute's cavity behind it moves with it.
+
+    Measured (2026-11-26): capsules of the right law whose shape is the 128-element kernel's,
+    traced with 0.45 px noise at a 100 px tube radius and fitted on the 64-element database,
+    leave -3 px at the first two points behind the rim of a deep parachute with a corner (GH
+    nu_s 0.5 and 0.2, a/l 0.9, Ca_s 1.5 and 0.8; up to 1.1 px further back) and stay within
+    the tracing noise in front of it: chi2/DOF 10-15 with the smooth floor alone, 0.7-3.0 with
+    this one (docs/validation/databases.md)."""
+    floor = np.full(points, SMOOTH_FLOOR_REL * length)
+    meridian = np.asarray(meridian, dtype=float)
+    turn, where = sharpest_turn(meridian[:, 0], meridian[:, 1])
+    if not math.isfinite(turn):
+        return floor
+    accuracy = row_accuracy(turn)
+    rim = accuracy.L_p_rel * parachute_depth(meridian)
+    if math.isfinite(tube_radius):
+        rim = max(rim, accuracy.L_p_abs * tube_radius)
+    behind = np.arange(points) >= math.floor(where * (points - 1))
+    floor[behind] = np.maximum(floor[behind], rim)
+    return floor
