@@ -164,3 +164,32 @@ def test_a_capsule_of_the_right_law_with_a_sharp_edge_reaches_the_noise(database
         assert np.median(_contour_fits(database, name, law, seeds=[0])) > 8.0
         monkeypatch.undo()
         assert np.min(_contour_fits(database, name, "SK_C1")) > 10.0
+
+
+def test_a_strengths_systematic_weighs_the_rims_floor_by_where_the_effect_shows():
+    """The databases' accuracy moves a diagnosed strength by (floor along the signature) over
+    the signature: with one floor everywhere, floor / rms(signature) as before; with the rim's
+    floor behind the rim, more where the effect's signature sits there, and as before where the
+    signature sits in front of it."""
+    from capsmech.diagnosis.scoring import BatchScore, _systematic_half_width
+    from capsmech.io.measurements import Capsule
+
+    points, n = 16, 4
+    values = np.array([0.0, 1.0])
+    capsules = [Capsule(f"c{i}", {"L_z": 200e-6, "pixel_size": 1e-6}, i + 2) for i in range(n)]
+    usable, on_grid = np.ones(n, bool), np.ones(2, bool)
+    smooth = np.full((n, points), 0.2)                 # 0.1 % of a 200 px capsule
+    rim = smooth.copy()
+    rim[:, 10:] = 7.0
+
+    def systematic(signature, floor):
+        scores = [BatchScore(np.ones(n), np.ones(n), np.ones(n), residual=np.zeros((n, points)), floor=floor),
+                  BatchScore(np.ones(n), np.ones(n), np.ones(n), residual=np.tile(signature, (n, 1)), floor=floor)]
+        return _systematic_half_width(capsules, values, scores, usable, on_grid, 0.5)
+
+    front, behind = np.zeros(points), np.zeros(points)
+    front[2:6], behind[11:15] = 1.0, 1.0
+    rms = math.sqrt(4 / points)
+    assert systematic(front, smooth) == pytest.approx(0.2 / rms)
+    assert systematic(front, rim) == pytest.approx(0.2 / rms)
+    assert systematic(behind, rim) == pytest.approx(7.0 / rms)

@@ -439,11 +439,15 @@ def _half_change(ends: Sequence[float]) -> float:
 
 def _systematic_half_width(capsules: Sequence[Capsule], values: np.ndarray, scores: Sequence[BatchScore],
                            usable: np.ndarray, on_grid: np.ndarray, theta: float) -> float:
-    """How far the databases' own accuracy (``MODEL_FLOOR_REL`` of the capsules' median length
-    [px]) moves the strength: that error over the candidate's signature, the rms over the usable
-    capsules and profile points of d(residual)/d(strength) [px per unit] between the grid values
-    around ``theta`` (grid values, not the refinement's: their spacing keeps the contour fits'
-    own tolerance out of the slope). 0 when it cannot be measured (no pixel size, one value)."""
+    """How far the databases' own accuracy moves the strength: that error over the candidate's
+    signature, the rms over the usable capsules and profile points of d(residual)/d(strength)
+    [px per unit] between the grid values around ``theta`` (grid values, not the refinement's:
+    their spacing keeps the contour fits' own tolerance out of the slope). The error is an
+    error pattern along the signature with the databases' accuracy at each point
+    (``BatchScore.floor``: ``MODEL_FLOOR_REL`` of the capsule's length, more behind a sharp
+    parachute edge), i.e. the floor averaged with the signature's squares as weights; without
+    floors, ``MODEL_FLOOR_REL`` of the capsules' median length [px]. 0 when it cannot be
+    measured (no pixel size, one value)."""
     grid = np.flatnonzero(on_grid)
     below, above = grid[values[grid] <= theta], grid[values[grid] > theta]
     low = int(below[-1]) if len(below) else int(grid[0])
@@ -457,7 +461,13 @@ def _systematic_half_width(capsules: Sequence[Capsule], values: np.ndarray, scor
     lengths = [c["L_z"] / c["pixel_size"] for c, keep in zip(capsules, usable) if keep and math.isfinite(c["pixel_size"])]
     if not lengths or not math.isfinite(signature) or signature <= 0:
         return 0.0
-    return MODEL_FLOOR_REL * float(np.median(lengths)) / signature
+    floor = MODEL_FLOOR_REL * float(np.median(lengths))
+    floors = scores[high].floor
+    if floors.shape == scores[high].residual.shape:
+        weight = np.where(np.isfinite(slope) & np.isfinite(floors[usable]), slope ** 2, 0.0)
+        if weight.sum() > 0:
+            floor = float(np.sum(weight * np.nan_to_num(floors[usable])) / weight.sum())
+    return floor / signature
 
 
 def rivals_of(chosen, results: Sequence, drop: Callable[[Any], float] = lambda r: r.bic_drop) -> list:
