@@ -48,6 +48,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 POOL = ROOT / "tests" / "data" / "independent_pool" / "pool.npz"
+#: Deep parachutes (``DEEP_*``): where the rear rim is a corner and the 64-element databases are
+#: least accurate (docs/validation/databases.md). Made by ``python
+#: tests/python/independent_batches.py pool tests/data/independent_pool/deep_pool.npz --deep``.
+DEEP_POOL = ROOT / "tests" / "data" / "independent_pool" / "deep_pool.npz"
 
 #: Membranes of the pool: the law key (as the databases name them) -> the kernel's options.
 POOL_KEYS: dict[str, list[str]] = {
@@ -66,6 +70,10 @@ POOL_CAPSULES = 24
 N_MERIDIAN = 96
 A_OVER_L = (0.86, 0.99)
 CA_S = (0.022, 0.07)
+DEEP_KEYS = ["GH_nu0.5", "SK_C1"]
+DEEP_CAPSULES, DEEP_SEED = 12, 2612
+DEEP_A_OVER_L = (0.8, 0.95)
+DEEP_CA_S = (0.2, 1.0)
 
 G_S = 0.025            # N/m
 MU = 0.6               # Pa s
@@ -77,13 +85,14 @@ NOISE_RHO = 0.5
 VELOCITY_NOISE = 0.015
 
 
-def latin_hypercube(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def latin_hypercube(n: int, seed: int, a_range: tuple[float, float] = A_OVER_L,
+                    ca_range: tuple[float, float] = CA_S) -> tuple[np.ndarray, np.ndarray]:
     """(a/l, Ca_s) of n capsules: one per row and column of an n x n grid of the region."""
     rng = np.random.default_rng(seed)
     u = (rng.permutation(n) + rng.uniform(size=n)) / n
     v = (rng.permutation(n) + rng.uniform(size=n)) / n
-    a = A_OVER_L[0] + u * (A_OVER_L[1] - A_OVER_L[0])
-    ca = np.exp(np.log(CA_S[0]) + v * np.log(CA_S[1] / CA_S[0]))
+    a = a_range[0] + u * (a_range[1] - a_range[0])
+    ca = np.exp(np.log(ca_range[0]) + v * np.log(ca_range[1] / ca_range[0]))
     return a, ca
 
 
@@ -95,28 +104,32 @@ def simulate(capsim: Path, key: str, a_over_l: float, ca: float, folder: Path) -
                    check=True, timeout=3600)
     with h5py.File(out) as f:
         status = f.attrs["status"].decode() if isinstance(f.attrs["status"], bytes) else str(f.attrs["status"])
+        steady = "steady" in f
         result = {"status": status, "r": f["profile/r"][:], "z": f["profile/z"][:],
-                  "L_z": float(f["steady/L_z"][()]), "L_p": float(f["steady/L_p"][()]),
-                  "vc_over_V": float(f["steady/v_c"][()])}
+                  **{name: float(f["steady/" + key][()]) if steady else math.nan
+                     for name, key in (("L_z", "L_z"), ("L_p", "L_p"), ("vc_over_V", "v_c"))}}
     out.unlink()
     return result
 
 
-def make_pool(capsim: Path, out: Path, workers: int, n: int = POOL_CAPSULES, seed: int = 2611) -> Path:
+def make_pool(capsim: Path, out: Path, workers: int, n: int = POOL_CAPSULES, seed: int = 2611,
+              keys: list[str] | None = None, a_range: tuple[float, float] = A_OVER_L,
+              ca_range: tuple[float, float] = CA_S) -> Path:
     """Run every (key, capsule) of the pool with the kernel and save it (numpy .npz)."""
-    a, ca = latin_hypercube(n, seed)
-    jobs = [(key, i) for key in POOL_KEYS for i in range(n)]
+    keys = list(POOL_KEYS) if keys is None else keys
+    a, ca = latin_hypercube(n, seed, a_range, ca_range)
+    jobs = [(key, i) for key in keys for i in range(n)]
     with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(workers) as pool:
         results = list(pool.map(lambda job: simulate(capsim, job[0], float(a[job[1]]), float(ca[job[1]]), Path(tmp)),
                                 jobs))
     points = N_MERIDIAN + 1
-    shape = (len(POOL_KEYS), n)
-    arrays = {"keys": np.array(list(POOL_KEYS)), "a_over_l": a, "Ca_s": ca,
+    shape = (len(keys), n)
+    arrays = {"keys": np.array(keys), "a_over_l": a, "Ca_s": ca,
               "status": np.empty(shape, dtype="U32"), "r": np.full(shape + (points,), np.nan),
               "z": np.full(shape + (points,), np.nan), "L_z": np.full(shape, np.nan), "L_p": np.full(shape, np.nan),
               "vc_over_V": np.full(shape, np.nan)}
     for (key, i), res in zip(jobs, results):
-        k = list(POOL_KEYS).index(key)
+        k = keys.index(key)
         arrays["status"][k, i] = res["status"]
         for name in ("L_z", "L_p", "vc_over_V"):
             arrays[name][k, i] = res[name]
@@ -291,8 +304,12 @@ def main(argv: list[str] | None = None) -> int:
     make.add_argument("--capsim", type=Path, default=ROOT / "bin" / "capsim")
     make.add_argument("--workers", type=int, default=2)
     make.add_argument("--capsules", type=int, default=POOL_CAPSULES)
+    make.add_argument("--deep", action="store_true", help="the deep parachutes' pool (DEEP_*) instead")
     args = parser.parse_args(argv)
-    make_pool(args.capsim, args.out, args.workers, args.capsules)
+    if args.deep:
+        make_pool(args.capsim, args.out, args.workers, DEEP_CAPSULES, DEEP_SEED, DEEP_KEYS, DEEP_A_OVER_L, DEEP_CA_S)
+    else:
+        make_pool(args.capsim, args.out, args.workers, args.capsules)
     return 0
 
 

@@ -16,7 +16,8 @@ from capsmech.plotting import save_figure
 
 #: Columns printed and their units (--out writes every column of the table, separately).
 PRINTED = {"law": "", "fitted": "", "H_median": "1", "p_contours": "1", "G_s_mean": "N/m", "G_s_std": "N/m",
-           "G_s_95": "N/m", "drift": "1/Delta", "drift_95": "1/Delta", "drift_p": "1", "chi2_dof": "1", "status": ""}
+           "G_s_95": "N/m", "drift": "1/Delta", "drift_95": "1/Delta", "drift_p": "1", "drift_database": "1/Delta",
+           "chi2_dof": "1", "status": ""}
 
 
 def _interval(low: float, high: float) -> str:
@@ -29,7 +30,7 @@ def _printed(table: list[dict[str, Any]]) -> list[dict[str, Any]]:
              "p_contours": r["p_vs_reference"], "G_s_mean": r["G_s_mean"], "G_s_std": r["G_s_std"],
              "G_s_95": _interval(r["G_s_low"], r["G_s_high"]), "drift": r["drift"],
              "drift_95": _interval(r["drift_ci_low"], r["drift_ci_high"]), "drift_p": r["drift_p"],
-             "chi2_dof": r["chi2_per_dof"], "status": r["status"]} for r in table]
+             "drift_database": r["drift_database"], "chi2_dof": r["chi2_per_dof"], "status": r["status"]} for r in table]
 
 
 def _rows(paths: list[str]) -> list[dict[str, Any]]:
@@ -66,7 +67,7 @@ def cmd_population(args: argparse.Namespace) -> int:
           f"for a capsule the law cannot fit; p_contours: paired signed-rank p that {verdict.reference} fits the "
           f"contours no better (one-sided); G_s by {verdict.estimator}; G_s_95: 95 % interval of the mean G_s (with "
           "the database's accuracy); drift: slope of G_s/mean per unit Delta, with its 95 % interval and the p-value "
-          "of no drift; chi2_dof: the best shapes' chi2 per degree of freedom against the tracing noise (misfits "
+          "of no drift beyond drift_database, the steepest slope the database's own error can make; chi2_dof: the best shapes' chi2 per degree of freedom against the tracing noise (misfits "
           "noise above the limit that noise reaches at p = 0.01, 1.5-1.7 for 10-12 capsules)")
     print(verdict.line())
     if args.plot:

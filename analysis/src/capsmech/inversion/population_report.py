@@ -35,13 +35,14 @@ if TYPE_CHECKING:
 POPULATION_UNITS = {"law": "", "fitted": "1", "used": "1", "score_median": "1", "p_vs_reference": "1",
                     "G_s_mean": "N/m", "G_s_std": "N/m", "G_s_low": "N/m", "G_s_high": "N/m",
                     "drift": "1/Delta", "drift_ci_low": "1/Delta", "drift_ci_high": "1/Delta", "drift_p": "1",
-                    "chi2_per_dof": "1", "chi2_limit": "1", "chi2_p": "1", "status": ""}
+                    "drift_database": "1/Delta", "chi2_per_dof": "1", "chi2_limit": "1", "chi2_p": "1", "status": ""}
 
 
 def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
     """One row per law, best ranked first (columns of ``POPULATION_UNITS``): capsules fitted of
     those used, median misfit score, p-value against the reference law, mean G_s with its
-    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value, the
+    spread and 95 % interval, the drift per unit Delta with its 95 % interval and p-value (and
+    the steepest drift the database's own error can make, ``drift_database``), the
     best shapes' chi2 per degree of freedom against the noise with its limit and p-value, and
     the law's status ('verdict', 'candidate', 'fits < half', 'drifts', 'misfits noise',
     'worse contours', 'no verdict')."""
@@ -53,6 +54,7 @@ def population_rows(verdict: PopulationVerdict) -> list[dict[str, Any]]:
                      "G_s_low": e.g_s_interval[0], "G_s_high": e.g_s_interval[1],
                      "drift": d.slope if d else math.nan, "drift_ci_low": d.ci_low if d else math.nan,
                      "drift_ci_high": d.ci_high if d else math.nan, "drift_p": d.p_value if d else math.nan,
+                     "drift_database": d.database_slope if d else math.nan,
                      "chi2_per_dof": e.noise.reduced_chi2 if e.noise else math.nan,
                      "chi2_limit": e.noise.limit if e.noise else math.nan,
                      "chi2_p": e.noise.p_value if e.noise else math.nan, "status": e.status})
@@ -81,6 +83,7 @@ def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
                      "drift": _jsonnumber_of(d.slope) if d else None,
                      "drift_interval": _json_pair((d.ci_low, d.ci_high)) if d else None,
                      "drift_p": _jsonnumber_of(d.p_value) if d else None, "drift_n": d.n if d else None,
+                     "drift_database": _jsonnumber_of(d.database_slope) if d else None,
                      "chi2_per_dof": _jsonnumber_of(e.noise.reduced_chi2) if e.noise else None,
                      "chi2_limit": _jsonnumber_of(e.noise.limit) if e.noise else None,
                      "chi2_p": _jsonnumber_of(e.noise.p_value) if e.noise else None,
@@ -96,7 +99,8 @@ def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
                                    "without it, the misfit at the length fit), fail_score where the law cannot "
                                    "fit the capsule",
                           "test": "paired one-sided Wilcoxon signed-rank over the used capsules; drift: least-squares "
-                                  "slope of G_s/mean(G_s) on Delta, Student t",
+                                  "slope of G_s/mean(G_s) on Delta, Student t on the slope beyond drift_database "
+                                  "(the steepest slope the database's own error can make)",
                           "noise": "total chi2 of the law's best shapes (chi2_shape) against the tracing noise, "
                                    f"{DOF} degrees of freedom a capsule, noise level estimated (F reference)",
                           "noise_alpha": GOODNESS_ALPHA,
