@@ -3,7 +3,7 @@ accuracy.
 
 At large Ca_s the rear rim of a capsule whose membrane has no bending stiffness becomes a
 corner (the paper's figure 2c: "a sharp parachute edge at high flow strength"). In the kernel's
-meridian (64 P1 elements) the corner is one node at which the meridian turns by 90-135 degrees
+meridian (64 P1 elements) the corner is one node at which the meridian turns by 100-155 degrees
 and the meridional tension is about zero; the corner stays at a material node and, as Ca_s
 grows, moves to the next one in a jump. Two consequences, measured (docs/validation/databases.md):
 L_p there is less accurate than on smooth shapes, and the discrete problem can have two stable
@@ -11,9 +11,11 @@ shapes whose corners sit at neighbouring nodes.
 
 Measured against 128 elements (``ACCURACY_BY_TURN``), the databases hold their stated accuracy
 (0.1 %) on smooth profiles only: at a corner L_z is good to 1.1 %, L_p to 6.5 % (0.1 l on a
-deep parachute) and v_c/V to 0.5 %. ``interpolated_accuracy`` gives the
-accuracy of a fit among rows of these classes; the fits' database error
-(``capsmech.inversion.fitting.database_g_s_shifts``) uses it.
+deep parachute) and v_c/V to 0.5 %. ``interpolated_accuracy`` gives the accuracy of a fit
+among rows of these classes, for the fits' database error
+(``capsmech.inversion.fitting.database_g_s_shifts``); ``profile_floor`` the accuracy point by
+point along a profile, for the contour's chi2 (``capsmech.inversion.noise.contour_chi2``, the
+diagnosis's goodness of fit).
 
 The database keeps no meridian nodes, only the profile resampled to 128 points, so the corner
 is measured on that: the largest change of direction across two resampled segments (a corner
