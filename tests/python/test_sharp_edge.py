@@ -98,7 +98,7 @@ def _fitted(database, line):
     ca, lz, lp, vcv = float(ca), float(lz), float(lp), float(vcv)
     inverter = tube_inverter(database, law)
     fit = inverter.fit(lz, lp, vcv * V, MU)
-    error = database_g_s_error(inverter, lz, lp, vcv * V, MU, fit.G_s)
+    error = database_g_s_error(inverter, lz, lp, vcv * V, MU, fit)
     return inverter, (lz, lp, vcv), fit, error, MU * V / ca, tag
 
 
@@ -120,7 +120,7 @@ def test_the_database_error_covers_a_finer_meridian(database, monkeypatch):
         # With every row of the smooth class (the former statement), the same capsule:
         monkeypatch.setattr(sharp_edge, "ACCURACY_BY_TURN", ((math.inf, ACCURACY_BY_TURN[0][1]),))
         monkeypatch.setattr(sharp_edge, "BUCKLING_CA_S", 0.0)
-        former = database_g_s_error(inverter, lengths[0], lengths[1], lengths[2] * V, MU, fit.G_s)
+        former = database_g_s_error(inverter, lengths[0], lengths[1], lengths[2] * V, MU, fit)
         monkeypatch.undo()
         assert former < 0.015 * truth and error > 4 * former
         covered_by_former += off <= former

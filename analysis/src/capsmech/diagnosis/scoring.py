@@ -199,7 +199,7 @@ def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInvert
         if not (fit.ok and math.isfinite(fit.G_s)):
             continue
         values.append(fit.G_s)
-        for kept, shift in zip(shifts, database_g_s_shifts(inverter, L_z, L_p, capsule["v_c"], capsule["mu"], fit.G_s)):
+        for kept, shift in zip(shifts, database_g_s_shifts(inverter, L_z, L_p, capsule["v_c"], capsule["mu"], fit)):
             if math.isfinite(shift):
                 kept.append(shift)
     g = np.array(values)

@@ -34,6 +34,7 @@ from capsmech.inversion.inverters import (
     FIVE_FITS,
     FiveFits,
     ShearInverter,
+    TubeFit,
     TubeFits,
     TubeInverter,
     TubeTable,
@@ -42,7 +43,7 @@ from capsmech.inversion.inverters import (
 from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import fit_shape
-from capsmech.inversion.sharp_edge import interpolated_accuracy
+from capsmech.inversion.sharp_edge import interpolated_accuracy, smooth_accuracy
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
@@ -190,7 +191,7 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                         row["G_s_shape"] = mu * v_c / (ca_shape * inverters[law].velocity_ratio(a_shape,
                                                                                                              ca_shape))
             if central.ok and has_velocity:
-                row["G_s_database_error"] = database_g_s_error(inverters[law], l_z, l_p, v_c, mu, central.G_s)
+                row["G_s_database_error"] = database_g_s_error(inverters[law], l_z, l_p, v_c, mu, central)
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
                 row["vc_residual"], row["vc_residual_error"] = velocity_residual(
                     v_c / capsule["V"], fits.mean("vc_over_V"), fits.spread("vc_over_V"))
@@ -215,18 +216,19 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
 
 
 def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float,
-                        g_s: float) -> tuple[float, float, float]:
-    """The changes of a capsule's G_s [N/m] when the database's L_z, then its L_p, then its
-    v_c/V are off by their accuracy, an error every capsule of a batch shares (NaN where the
-    refit fails). Lengths in l. The accuracy is that of the rows the capsule's fit is
+                        fit: TubeFit) -> tuple[float, float, float]:
+    """The changes of a capsule's G_s [N/m] (that of ``fit``, the inverter's fit of these
+    lengths) when the database's L_z, then its L_p, then its v_c/V are off by their accuracy,
+    an error every capsule of a batch shares (NaN where the refit fails). Lengths in l. The
+    accuracy is that of the rows the capsule's fit is
     interpolated between (``capsmech.inversion.sharp_edge.interpolated_accuracy``): 0.1 % of
     L_z on smooth shapes (64 against 128 meridian elements), up to 1.1 % of L_z, 6.5 % of L_p
     and 0.5 % of v_c/V where the parachute's edge is a corner."""
-    fit = inverter.fit(L_z, L_p, v_c, mu)
-    rows = inverter.triangle_turns(fit.a_over_l, fit.Ca_s) if fit.ok and hasattr(inverter, "triangle_turns") else None
-    # Outside the triangles (or without profiles): the databases' stated accuracy.
-    z_rel, p_abs, vc_rel = (interpolated_accuracy(*rows, L_p) if rows is not None
-                            else (MODEL_FLOOR_REL, MODEL_FLOOR_REL * L_z, 0.0))
+    g_s = fit.G_s
+    rows = inverter.triangle_turns(fit.a_over_l, fit.Ca_s) if fit.ok else None
+    # Outside the triangles (or without profiles): the smooth profiles' accuracy, the
+    # databases' statement.
+    z_rel, p_abs, vc_rel = interpolated_accuracy(*rows, L_p) if rows is not None else smooth_accuracy(L_p)
     shifts = []
     for moved in ((L_z * (1 + z_rel), L_p), (L_z, L_p + max(p_abs, MODEL_FLOOR_REL * L_z))):
         other = inverter.fit(*moved, v_c, mu)
@@ -236,12 +238,12 @@ def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: flo
     return shifts[0], shifts[1], shifts[2]
 
 
-def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, g_s: float) -> float:
+def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float, fit: TubeFit) -> float:
     """How far the database's own accuracy moves a capsule's G_s [N/m]: the three
     ``database_g_s_shifts`` in quadrature (the diagnosis's measure,
     ``capsmech.diagnosis.scoring.length_g_s_with_systematic``, per capsule), for both of
     fit-tube's G_s: the contour fits match the same profiles."""
-    return math.hypot(*database_g_s_shifts(inverter, L_z, L_p, v_c, mu, g_s))
+    return math.hypot(*database_g_s_shifts(inverter, L_z, L_p, v_c, mu, fit))
 
 
 def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]) -> dict[str, TubeFits]:

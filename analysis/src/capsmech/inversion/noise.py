@@ -11,7 +11,7 @@ Shared by the law verdict (``fit-tube``'s ``chi2_shape``, tested by
   the meridian of its two halves' half difference, at ``NOISE_POINTS`` points; or, where larger,
   the noise measured across the video frames, ``capsmech extract``'s ``contour_noise``), plus the square
   of the databases' own accuracy, ``MODEL_FLOOR_REL`` of the capsule's length (64 against 128
-  meridian elements), more at the two points next to a sharp parachute edge
+  meridian elements), more from a sharp parachute edge to the rear pole
   (``capsmech.inversion.sharp_edge.profile_floor``): a capsule is not called misfitted for what
   the databases cannot resolve;
 - with the fit's two parameters removed, ``DOF`` degrees of freedom; and since sigma is itself
@@ -67,7 +67,7 @@ def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
                  frames_noise: float = math.nan, tube_radius: float = math.nan) -> tuple[float, float]:
     """(chi2, sigma) of a contour against a profile (r, z), both in the contour's units: the sum
     over ``CHI2_POINTS`` of the squared residual over sigma^2 plus the square of the database's
-    accuracy at the point (``profile_floor``: ``MODEL_FLOOR_REL`` of ``length``, more next to a
+    accuracy at the point (``profile_floor``: ``MODEL_FLOOR_REL`` of ``length``, more behind a
     sharp parachute edge; ``tube_radius`` in the contour's units), sigma measured on the contour,
     or across the video frames where larger (``tracing_noise``). NaN where sigma is not positive."""
     sigma = tracing_noise(prepared, meridian, frames_noise)

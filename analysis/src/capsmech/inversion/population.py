@@ -555,11 +555,12 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
             mine = [table[cid][law] for k, cid in enumerate(used) if fitted[law][k] and flag_of(table[cid][law]) == ""]
         delta = np.array([number_of(r.get(delta_key)) for r in mine])
         g = np.array([number_of(r.get(g_key)) for r in mine])
-        # The database's own accuracy, shared by every capsule (fit-tube's G_s_database_error).
-        shared = np.array([number_of(r.get("G_s_database_error")) for r in mine])[np.isfinite(g)]
+        # The database's own accuracy, shared by every capsule (fit-tube's G_s_database_error):
+        # in the interval of the mean, and as the drift it can make.
+        errors = np.array([number_of(r.get("G_s_database_error")) for r in mine])
+        shared = errors[np.isfinite(g)]
         g_systematic[law] = float(np.mean(shared[np.isfinite(shared)])) if np.any(np.isfinite(shared)) else 0.0
         g_stats[law] = _mean_interval(g[np.isfinite(g)], g_systematic[law])
-        errors = np.array([number_of(r.get("G_s_database_error")) for r in mine])
         try:
             drifts[law] = law_drift(law, delta, g, errors)
         except ValueError as exc:

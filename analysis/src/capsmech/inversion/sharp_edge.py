@@ -114,6 +114,13 @@ def row_accuracy(turn: float, Ca_s: float = math.inf) -> LengthAccuracy:
     return next(accuracy for bound, accuracy in ACCURACY_BY_TURN if turn < bound)
 
 
+def smooth_accuracy(L_p: float) -> tuple[float, float, float]:
+    """(L_z relative, L_p [l], v_c/V relative): the smooth profiles' accuracy, the databases'
+    own statement, where the rows behind a value are not known."""
+    smooth = ACCURACY_BY_TURN[0][1]
+    return smooth.L_z_rel, smooth.L_p(L_p), smooth.v_c_rel
+
+
 def interpolated_accuracy(turns: np.ndarray, Ca_s: np.ndarray, weights: np.ndarray, L_p: float
                           ) -> tuple[float, float, float]:
     """(L_z relative, L_p [l], v_c/V relative) accuracy of a value interpolated between
