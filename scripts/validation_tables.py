@@ -199,7 +199,41 @@ def population_coverage(name: str = "population_coverage.csv") -> str:
                       "true law's χ²/dof"], rows)
 
 
+def _small_deformation_slope(law_key: str) -> float:
+    """D12 / Ca_s as Ca_s -> 0 (Barthes-Biesel 1980): 5/4 (2 + nu_s)/(1 + nu_s), the area
+    dilatation of NH being that of nu_s = 1/2."""
+    from capsmech.workflow.grid import parse_law
+
+    law = parse_law(law_key)
+    nu = 0.5 if law.nu_s is None else law.nu_s
+    return 1.25 * (2.0 + nu) / (1.0 + nu)
+
+
+def shear_rows() -> str:
+    """Each row of the paper-grid shear database: D12 from the row's mesh level, the other
+    level's, the stated mesh and time errors, and D12/Ca_s against the small-deformation limit
+    where Ca_s <= 0.02."""
+    from capsmech.io.database import load_database
+
+    db = load_database("shear-paper")
+    rows = []
+    for law, table in db.laws.items():
+        c = table.columns
+        limit = _small_deformation_slope(law)
+        for i, ca in enumerate(c["Ca_s"]):
+            if table.status[i] != "steady":
+                rows.append([law, f"{ca:g}", table.status[i], "", "", "", "", ""])
+                continue
+            small = f"{(c['D12'][i] / ca / limit - 1) * 100:+.2f} %" if ca <= 0.02 else ""
+            rows.append([law, f"{ca:g}", f"{c['D12'][i]:.4f}", f"{c['mesh_level'][i]:.0f}",
+                         f"{c['D12_mesh_check'][i]:.4f}", f"{c['D12_mesh_error_rel'][i] * 100:.2f} %",
+                         f"{c['D12_time_error_rel'][i] * 100:.3f} %", small])
+    return _markdown(["law", "Ca_s", "D12", "level", "D12, other level", "mesh error", "time error",
+                      "D12/Ca_s vs small-deformation limit"], rows)
+
+
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
+                                        "shear-rows": shear_rows,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,
                                         "interval-coverage": interval_coverage,

@@ -106,7 +106,7 @@ def test_paper_accuracy_is_the_grids() -> None:
     assert load_database("tube-paper").accuracy == (
         "64 meridian elements against 128: L_z within 0.1 %, L_p 0.002 l, v_c 0.02 % on smooth profiles; "
         "at a sharp parachute edge L_z 1.1 %, L_p 6.5 % (up to 0.1 l), v_c 0.5 % (capsmech.inversion.sharp_edge)")
-    assert "level 3" in load_database("shear-paper").accuracy
+    assert "level 4" in load_database("shear-paper").accuracy
 
 
 def test_shipped_databases_lists_the_catalog() -> None:

@@ -75,6 +75,54 @@ def test_database_rows_state_time_and_mesh_error(checked_run: Path) -> None:
         assert table.columns["D12_mesh_error_rel"][row] > 1e-3
 
 
+def test_rows_from_the_finer_level(checked_run: Path, tmp_path: Path) -> None:
+    """``mesh_check.rows: finer``: the same case files assembled with the finer level's values
+    where it is steady; the coarse level's D12 becomes the check, and the stated error is the
+    finer value's, the coarse one's divided by r^p (Richardson, one level apart)."""
+    from capsmech.workflow.assembly import assemble_database
+
+    grid = {**GRID, "shear": {**GRID["shear"], "mesh_check": {**GRID["shear"]["mesh_check"], "rows": "finer"}}}
+    validate_grid(grid)
+    cases = checked_run / "results" / "cases"
+    out = assemble_database(grid, "shear", cases, tmp_path / "finer.h5")
+    table, coarse_table = load_database(out).law("NH"), load_database(checked_run / "db" / "shear.h5").law("NH")
+    gain = 2.0**MESH_ERROR_ORDER
+    for row, ca in enumerate(table.columns["Ca_s"]):
+        if ca < 0.1:  # no companion: the row is the case's own level, as before
+            assert table.columns["mesh_level"][row] == 2
+            assert table.columns["D12"][row] == coarse_table.columns["D12"][row]
+            continue
+        finer = read_case(cases / "shear" / "NH" / f"Ca{ca:g}_level3.h5")
+        assert table.columns["mesh_level"][row] == 3 and coarse_table.columns["mesh_level"][row] == 2
+        assert table.columns["D12"][row] == finer.steady_value("D12")
+        assert table.columns["L1_over_a"][row] == finer.steady_value("L1")
+        assert table.columns["D12_time_error_rel"][row] == finer.time_error_rel
+        assert table.columns["D12_mesh_check"][row] == coarse_table.columns["D12"][row]
+        assert table.columns["D12_mesh_error_rel"][row] == pytest.approx(
+            coarse_table.columns["D12_mesh_error_rel"][row] * table.columns["D12_mesh_check"][row]
+            / table.columns["D12"][row] / gain, rel=1e-12)
+    with pytest.raises(GridError, match="mesh_check.rows"):
+        validate_grid({**GRID, "shear": {**GRID["shear"], "mesh_check": {"level": 3, "rows": "best"}}})
+
+
+def test_bending_stiffness_as_a_model_setting() -> None:
+    """``shear.settings.k_b`` reaches the kernel as --kb and is the case's (and so the database
+    group's) bending stiffness; a law key's +kb overrides it."""
+    grid = {**GRID, "shear": {**GRID["shear"], "settings": {**GRID["shear"]["settings"], "k_b": 0.0003}}}
+    validate_grid(grid)
+    for case in expand_cases(grid, "shear"):
+        args = case.kernel_args()
+        assert args[args.index("--kb") + 1] == "0.0003"
+        assert case.effects == {"kb": 0.0003}
+    (companion,) = mesh_check_cases(grid).values()
+    assert companion.effects == {"kb": 0.0003}
+    keyed = {**grid, "shear": {**grid["shear"], "laws": ["NH+kb0.001"]}}
+    (keyed_case, _) = expand_cases(keyed, "shear")
+    assert keyed_case.effects == {"kb": 0.001}
+    args = keyed_case.kernel_args()
+    assert args.count("--kb") == 1 and args[args.index("--kb") + 1] == "0.001"
+
+
 def test_a_database_without_accuracy_columns_reads_them_as_nan(checked_run: Path, tmp_path: Path) -> None:
     old = tmp_path / "old.h5"
     old.write_bytes((checked_run / "db" / "shear.h5").read_bytes())

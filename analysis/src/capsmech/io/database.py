@@ -71,11 +71,13 @@ LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
 TEXT_COLUMNS = ("status", "message")
 #: Accuracy columns a database may hold (read as NaN where a file made before them lacks them):
 #: name -> units. Shear: the estimated relative change of D12 still to come when the run stopped
-#: (time), the D12 of the same case on the finer mesh of the grid's ``mesh_check`` and the
-#: estimated relative mesh error of D12 from the two (:func:`mesh_error_rel`).
+#: (time), the D12 of the same case on the grid's other mesh level (``mesh_check``: the finer
+#: one, or the cases' own level where the rows come from the finer one), the estimated relative
+#: mesh error of the row's D12 from the two (:func:`mesh_error_rel`), and the mesh level the
+#: row's values come from.
 ACCURACY_COLUMNS: dict[str, dict[str, str]] = {
     "tube": {},
-    "shear": {"D12_time_error_rel": "1", "D12_mesh_check": "1", "D12_mesh_error_rel": "1"},
+    "shear": {"D12_time_error_rel": "1", "D12_mesh_check": "1", "D12_mesh_error_rel": "1", "mesh_level": "1"},
 }
 #: Observed order of the shear D12's mesh convergence is about 2.4 (levels 2-4, validation page
 #: "shear flow"); the mesh-error estimate assumes the lower 2, which makes it larger.
@@ -85,13 +87,19 @@ MESH_ERROR_ORDER = 2.0
 CRITICAL_GROUP = "critical"
 
 
-def mesh_error_rel(d12: ArrayLike, d12_finer: ArrayLike, levels_apart: int) -> np.ndarray:
-    """Estimated relative mesh error of D12 from the same case on a finer mesh (Richardson):
-    ``|D12_finer - D12| / D12 * r**p / (r**p - 1)`` with ``r = 2**levels_apart`` (each level
-    halves the element size) and ``p = MESH_ERROR_ORDER``; NaN where either is missing."""
+def mesh_error_rel(d12: ArrayLike, d12_finer: ArrayLike, levels_apart: int, of: str = "coarse") -> np.ndarray:
+    """Estimated relative mesh error of D12 from the same case on two meshes (Richardson), with
+    ``r = 2**levels_apart`` (each level halves the element size) and ``p = MESH_ERROR_ORDER``:
+    of the coarser value (``of='coarse'``), ``|D12_finer - D12| / D12 * r**p / (r**p - 1)``;
+    of the finer value (``of='finer'``), ``|D12_finer - D12| / D12_finer / (r**p - 1)``.
+    NaN where either is missing."""
     d, f = np.asarray(d12, dtype=float), np.asarray(d12_finer, dtype=float)
     gain = (2.0 ** levels_apart) ** MESH_ERROR_ORDER
     with np.errstate(invalid="ignore", divide="ignore"):
+        if of == "finer":
+            return np.abs(f - d) / np.abs(f) / (gain - 1.0)
+        if of != "coarse":
+            raise ValueError(f"of must be 'coarse' or 'finer', not {of!r}")
         return np.abs(f - d) / np.abs(d) * gain / (gain - 1.0)
 
 

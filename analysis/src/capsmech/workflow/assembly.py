@@ -38,6 +38,7 @@ from capsmech.workflow.grid import (
     flow_settings,
     grid_json,
     mesh_check_cases,
+    mesh_check_rows,
     parse_law,
 )
 from capsmech.workflow.runner import read_outcome
@@ -104,7 +105,7 @@ def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
         numbers.append(("nu_s", expected.nu_s, result.nu_s))
     if expected.C is not None:
         numbers.append(("C", expected.C, result.C))
-    wanted_effects = dict(expected.effects)
+    wanted_effects = case.effects
     for name, neutral in EFFECT_DEFAULTS.items():
         numbers.append((name, wanted_effects.get(name, neutral), result.effects.get(name, neutral)))
     mismatch += [f"{name} {found!r}, grid wants {want!r}" for name, want, found in numbers
@@ -113,46 +114,69 @@ def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
         raise DatabaseError(f"{path}: not the case of the grid: " + "; ".join(mismatch))
 
 
-def _accuracy(case: Case, result: CaseResult | None, companion: Case | None, cases_dir: Path) -> dict[str, float]:
-    """The row's accuracy columns: the kernel's estimate of the time error, and the mesh check
-    (the companion case on a finer mesh) with the mesh error it implies; NaN where unknown."""
-    values = {name: math.nan for name in ACCURACY_COLUMNS[case.flow]}
-    if case.flow != "shear" or result is None or not result.is_steady:
-        return values
-    values["D12_time_error_rel"] = result.time_error_rel
-    if companion is not None:
-        path = cases_dir / companion.relative_path
-        if not path.is_file():
-            raise DatabaseError(f"{path}: mesh-check case file missing (run the workflow to compute it)")
-        status, _, _, finer = read_outcome(path)
-        if finer is not None:
-            _check_case_matches(case, finer, path)
-        if finer is not None and status == "steady":
-            values["D12_mesh_check"] = finer.steady_value("D12")
-            levels = int(dict(companion.settings)["level"]) - int(dict(case.settings).get("level", SHEAR_DEFAULT_LEVEL))
-            values["D12_mesh_error_rel"] = float(mesh_error_rel(result.steady_value("D12"), values["D12_mesh_check"], levels))
-    return values
-
-
-def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None = None) -> dict[str, Any]:
-    """Read one case file (or failure record) into a database row."""
+def _read_case_file(case: Case, cases_dir: Path, what: str) -> tuple[str, str, str, CaseResult | None]:
+    """``read_outcome`` of the case's file, checked to be the grid's case; ``what`` names the
+    file in the message when it is missing."""
     path = cases_dir / case.relative_path
     if not path.is_file():
-        raise DatabaseError(f"{path}: case file missing (run the workflow to compute it)")
+        raise DatabaseError(f"{path}: {what} missing (run the workflow to compute it)")
     status, message, code_version, result = read_outcome(path)
+    if result is not None:
+        _check_case_matches(case, result, path)
+    return status, message, code_version, result
+
+
+def _shear_level(case: Case) -> int:
+    return int(dict(case.settings).get("level", SHEAR_DEFAULT_LEVEL))
+
+
+def _mesh_accuracy(case: Case, coarse: CaseResult | None, companion: Case, finer: CaseResult | None,
+                   rows_from: str) -> dict[str, float]:
+    """A shear row's mesh columns from its two levels: the other level's D12, the estimated
+    relative mesh error of the row's D12 (of the coarse or of the finer value) and the row's
+    level; the error is NaN unless both levels are steady."""
+    d12_coarse = coarse.steady_value("D12") if coarse is not None and coarse.is_steady else math.nan
+    d12_finer = finer.steady_value("D12") if finer is not None and finer.is_steady else math.nan
+    use_finer = rows_from == "finer" and not math.isnan(d12_finer)
+    levels = _shear_level(companion) - _shear_level(case)
+    return {"mesh_level": float(_shear_level(companion) if use_finer else _shear_level(case)),
+            "D12_mesh_check": d12_coarse if use_finer else d12_finer,
+            "D12_mesh_error_rel": float(mesh_error_rel(d12_coarse, d12_finer, levels,
+                                                       of="finer" if use_finer else "coarse"))}
+
+
+def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None = None,
+              rows_from: str = "coarse") -> dict[str, Any]:
+    """Read one case file (or failure record) into a database row; a shear case with a mesh
+    check (``companion``, the same case on a finer level) takes its values from the finer
+    level when ``rows_from`` is ``'finer'`` and that run is steady, else from its own level."""
+    path = cases_dir / case.relative_path
+    status, message, code_version, result = _read_case_file(case, cases_dir, "case file")
     flow = case.flow
     row: dict[str, Any] = {name: getattr(case, attr) for name, (attr, _) in PARAMETERS[flow].items()}
-    row.update(status=status, message=message, code_version=code_version,
-               wall_time_s=math.nan if result is None else result.wall_time_s)
     names, _ = PROFILES[flow]
     row.update({name: math.nan for name in RESULTS[flow]})
     row.update({f"profile_{c}": np.full(points, np.nan) for c in names})
-    row.update(_accuracy(case, result, companion, cases_dir))
-    if result is None:
+    row.update({name: math.nan for name in ACCURACY_COLUMNS[flow]})
+    if companion is not None:
+        finer_status, finer_message, finer_version, finer = _read_case_file(companion, cases_dir, "mesh-check case file")
+        if finer_version != code_version:
+            raise DatabaseError(f"{cases_dir / companion.relative_path}: written by kernel {finer_version}, "
+                                f"its case {path} by {code_version}: rerun the workflow")
+        row.update(_mesh_accuracy(case, result, companion, finer, rows_from))
+        if rows_from == "finer" and finer is not None and finer.is_steady:
+            path, status, message, result = cases_dir / companion.relative_path, finer_status, finer_message, finer
+        elif rows_from == "finer":
+            message = (f"level {_shear_level(companion)} {finer_status} ({finer_message}); "
+                       f"values of level {_shear_level(case)}: {message}")
+    elif flow == "shear":
+        row["mesh_level"] = float(_shear_level(case))
+    row.update(status=status, message=message, code_version=code_version,
+               wall_time_s=math.nan if result is None else result.wall_time_s)
+    if result is None or status != "steady":
         return row
-    _check_case_matches(case, result, path)
-    if status != "steady":
-        return row
+    if flow == "shear":
+        row["D12_time_error_rel"] = result.time_error_rel
     for name, (source, unit, _) in RESULTS[flow].items():
         found = result.unit(f"steady/{source}")
         if found != unit:
@@ -251,9 +275,10 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     cases_dir, out = Path(cases_dir), Path(out)
     rows: dict[str, list[dict[str, Any]]] = {}
     companions = mesh_check_cases(grid) if flow == "shear" else {}
+    rows_from = mesh_check_rows(grid)
     for case in cases:
         rows.setdefault(case.law.key, []).append(
-            _case_row(case, cases_dir, points, companions.get(case.relative_path)))
+            _case_row(case, cases_dir, points, companions.get(case.relative_path), rows_from))
     versions = sorted({row["code_version"] for law_rows in rows.values() for row in law_rows})
     if len(versions) != 1:
         raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "
@@ -274,6 +299,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
             "case_count": len(cases), "profile_points": points,
             "capsmech_version": __version__, "length_scale": LENGTH_SCALE[flow],
         })
+        effects = {case.law.key: case.effects for case in cases}
         for key, law_rows in rows.items():
             law = parse_law(key)
             group = f.create_group(key)
@@ -281,7 +307,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
                 "law": law.name,
                 "nu_s": math.nan if law.nu_s is None else law.nu_s,
                 "C": math.nan if law.C is None else law.C,
-                **{name: dict(law.effects).get(name, neutral) for name, neutral in EFFECT_DEFAULTS.items()},
+                **{name: effects[key].get(name, neutral) for name, neutral in EFFECT_DEFAULTS.items()},
                 "case_count": len(law_rows),
                 "steady_count": sum(row["status"] == "steady" for row in law_rows),
             })

@@ -40,7 +40,7 @@ SETTING_FLAGS = {
     "tube": {"n_meridian": "--n-meridian", "tube_length": "--tube-length",
              "integrator": "--integrator", "t_max": "--t-max", "model": "--model", "level": "--level",
              "wall_h_far": "--wall-h-far", "wall_h_centre": "--wall-h-centre"},
-    "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max", "integrator": "--integrator"},
+    "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max", "integrator": "--integrator", "k_b": "--kb"},
 }
 
 
@@ -190,6 +190,14 @@ class Case:
         """str: ``<flow>/<law key>/<case_id>.h5``, the case file below the cases directory."""
         return f"{self.flow}/{self.law.key}/{self.case_id}.h5"
 
+    @property
+    def effects(self) -> dict[str, float]:
+        """dict: the case's effects beyond the base model (kernel names, see
+        ``capsmech.io.case.EFFECT_DEFAULTS``): the law key's, and a bending stiffness given as a
+        model setting (``k_b``) where the law key names none."""
+        given = {"kb": float(dict(self.settings)["k_b"])} if "k_b" in dict(self.settings) else {}
+        return {**given, **dict(self.law.effects)}
+
     def kernel_args(self) -> list[str]:
         """Return the capsim arguments of this case (without ``--out``, ``--threads``)."""
         args = ["--flow", self.flow, *self.law.kernel_args(), "--ca", repr(self.Ca_s)]
@@ -197,6 +205,8 @@ class Case:
             args += ["--a-over-l", repr(self.a_over_l)]
         flags = SETTING_FLAGS[self.flow]
         for name, value in self.settings:
+            if name == "k_b" and "kb" in dict(self.law.effects):
+                continue  # the law key's bending stiffness is the case's
             args += [flags[name], str(value)]
         return args
 
@@ -348,6 +358,8 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
             level = int(grid[flow].get("settings", {}).get("level", SHEAR_DEFAULT_LEVEL))
             if check and int(check["level"]) <= level:
                 problems.append(f"shear.mesh_check.level: {check['level']} is not finer than the cases' level {level}")
+            if check and check.get("rows", "coarse") not in MESH_CHECK_ROWS:
+                problems.append(f"shear.mesh_check.rows: {check['rows']!r} is not one of {', '.join(MESH_CHECK_ROWS)}")
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
@@ -397,6 +409,19 @@ def expand_cases(grid: Mapping[str, Any], flow: str) -> list[Case]:
         for a in sizes
         for ca in spec["Ca_s"]
     ]
+
+
+#: Which level a shear row's values come from when the grid has a ``mesh_check``: the cases'
+#: level (``coarse``, the finer level only checks it) or the finer level (``finer``, the
+#: cases' level then estimates the finer one's error).
+MESH_CHECK_ROWS = ("coarse", "finer")
+
+
+def mesh_check_rows(grid: Mapping[str, Any]) -> str:
+    """``'finer'`` when the shear rows take their values from the mesh check's finer level,
+    ``'coarse'`` otherwise (also without a mesh check)."""
+    check = grid.get("shear", {}).get("mesh_check") or {}
+    return str(check.get("rows", "coarse"))
 
 
 def mesh_check_cases(grid: Mapping[str, Any]) -> dict[str, Case]:
