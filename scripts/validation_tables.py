@@ -156,7 +156,7 @@ def interval_coverage(name: str = "interval_coverage.csv") -> str:
                       "median error of the strength", "median interval width"], rows)
 
 
-def g_s_interval_coverage(name: str = "interval_coverage_g_s.csv") -> str:
+def g_s_interval_coverage(name: str = "interval_coverage.csv") -> str:
     """Measured coverage of the G_s intervals (issue 19, item 4) by each estimator, with the
     median error and interval width relative to the truth (``interval_coverage.py``'s rows)."""
     sys.path.insert(0, str(RUNS.parents[2] / "tests" / "python"))

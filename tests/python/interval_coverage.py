@@ -17,8 +17,8 @@ says whether
 ``python tests/python/interval_coverage.py --batches 25 --workers 16 --out FILE.csv`` runs the
 study (about 10 core-minutes per 25 batches of a configuration); ``summarise`` turns its rows
 into the table of docs/validation (coverage with its 95 % Wilson interval). ``make validate``
-runs it at a reduced size; the strength figures in the docs come from a device run (25 batches per
-effect), the G_s figures after the fix from a reduced run on 2 shared cores (see the docs).
+runs it at a reduced size; the figures in the docs (strengths and G_s) come from one run of 42
+batches per effect and strength on the 2-core machine (2026-11-26, about 100 minutes).
 """
 from __future__ import annotations
 
