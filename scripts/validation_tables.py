@@ -199,27 +199,18 @@ def population_coverage(name: str = "population_coverage.csv") -> str:
                       "true law's χ²/dof"], rows)
 
 
-def _small_deformation_slope(law_key: str) -> float:
-    """D12 / Ca_s as Ca_s -> 0 (Barthes-Biesel 1980): 5/4 (2 + nu_s)/(1 + nu_s), the area
-    dilatation of NH being that of nu_s = 1/2."""
-    from capsmech.workflow.grid import parse_law
-
-    law = parse_law(law_key)
-    nu = 0.5 if law.nu_s is None else law.nu_s
-    return 1.25 * (2.0 + nu) / (1.0 + nu)
-
-
 def shear_rows() -> str:
     """Each row of the paper-grid shear database: D12 from the row's mesh level, the other
     level's, the stated mesh and time errors, and D12/Ca_s against the small-deformation limit
     where Ca_s <= 0.02."""
+    from capsmech.inversion.small_deformation import law_d12_slope
     from capsmech.io.database import load_database
 
     db = load_database("shear-paper")
     rows = []
     for law, table in db.laws.items():
         c = table.columns
-        limit = _small_deformation_slope(law)
+        limit = law_d12_slope(law)
         for i, ca in enumerate(c["Ca_s"]):
             if table.status[i] != "steady":
                 rows.append([law, f"{ca:g}", table.status[i], "", "", "", "", ""])

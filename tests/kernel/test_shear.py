@@ -11,6 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
+from capsmech.inversion.small_deformation import d12_slope as small_deformation_slope
 from capsmech.io.case import read_case
 
 from conftest import assert_usage_error, cached_capsim, run_killed_and_resumed
@@ -20,11 +21,6 @@ from conftest import assert_usage_error, cached_capsim, run_killed_and_resumed
 def run_case(capsim, tmp_path_factory):
     """Run capsim once per distinct argument list; return the case file path."""
     return cached_capsim(capsim, tmp_path_factory.mktemp("shear"))
-
-
-def small_deformation_slope(nu_s: float) -> float:
-    """D12/Ca_s at leading order for K_s/G_s = (1+nu_s)/(1-nu_s) (Barthes-Biesel & Rallison 1981)."""
-    return 1.25 * (2 + nu_s) / (1 + nu_s)
 
 
 def law_flags(law: str, nu_s: object) -> list[str]:

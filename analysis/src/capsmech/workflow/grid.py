@@ -195,7 +195,8 @@ class Case:
         """dict: the case's effects beyond the base model (kernel names, see
         ``capsmech.io.case.EFFECT_DEFAULTS``): the law key's, and a bending stiffness given as a
         model setting (``k_b``) where the law key names none."""
-        given = {"kb": float(dict(self.settings)["k_b"])} if "k_b" in dict(self.settings) else {}
+        settings = dict(self.settings)
+        given = {"kb": float(settings["k_b"])} if "k_b" in settings else {}
         return {**given, **dict(self.law.effects)}
 
     def kernel_args(self) -> list[str]:
