@@ -17,8 +17,9 @@ says whether
 ``python tests/python/interval_coverage.py --batches 25 --workers 16 --out FILE.csv`` runs the
 study (about 10 core-minutes per 25 batches of a configuration); ``summarise`` turns its rows
 into the table of docs/validation (coverage with its 95 % Wilson interval). ``make validate``
-runs it at a reduced size; the figures in the docs (strengths and G_s) come from one run of 42
-batches per effect and strength on the 2-core machine (2026-11-26, about 100 minutes).
+runs it at a reduced size; the figures in the docs (strengths and G_s) come from 50 batches per
+effect and strength on the 2-core machine: seeds 0-41 (2026-11-26, about 100 minutes) and 42-49
+(``--first 42 --batches 8``, 2026-11-27, about 13 minutes), with the same diagnosis code.
 """
 from __future__ import annotations
 
