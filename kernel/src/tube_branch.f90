@@ -60,19 +60,24 @@ contains
       type(fold_search_t) :: found
       type(run_options_t) :: case_opts
       type(case_summary_t) :: summary
-      real(dp), allocatable :: values(:), branch_log(:, :), state(:), saved_rz(:, :), stuck_rz(:, :)
-      real(dp) :: critical_log_ca, wall_before, ca_from, t_unused, stuck_ca
+      real(dp), allocatable :: values(:), branch_log(:, :), state(:), saved_rz(:, :), stuck_rz(:, :), last_rz(:, :)
+      real(dp) :: critical_log_ca, wall_before, ca_from, t_unused, stuck_ca, last_ca
       integer :: k, k_done, phase, outcome, n_log, n_nodes, velocities0, jacobians0
       integer(8) :: clock_start, clock_case, clock_now, clock_rate
       character(len=:), allocatable :: signature, note, ended_text
-      logical :: ok, resumed, converged, confirmed
+      logical :: ok, resumed, converged, confirmed, have_last
       character(len=32) :: stepped_status
 
       call model%init(opts, stat, errmsg)
       if (stat /= 0) return
       call branch_ca_values(opts, values, ok)
       n_nodes = size(model%positions, 2)
-      allocate (state(4 + 2 * n_nodes), branch_log(log_columns, 16))
+      ! The state: phase, critical ln Ca_s, outcome, Ca_s and shape, and the last converged
+      ! branch point kept while the cases are time-stepped (a flag, its Ca_s and shape).
+      allocate (state(6 + 4 * n_nodes), branch_log(log_columns, 16), last_rz(2, n_nodes))
+      have_last = .false.
+      last_ca = 0
+      last_rz = 0
       signature = option_signature(opts)//' branch '//trim(opts%branch_ca)
       call system_clock(clock_start, clock_rate)
       clock_now = clock_start
@@ -92,7 +97,10 @@ contains
          critical_log_ca = state(2)
          outcome = nint(state(3))
          model%ca = state(4)
-         model%positions = reshape(state(5:), [2, n_nodes])
+         model%positions = reshape(state(5:4 + 2 * n_nodes), [2, n_nodes])
+         have_last = state(5 + 2 * n_nodes) > 0.5_dp
+         last_ca = state(6 + 2 * n_nodes)
+         last_rz = reshape(state(7 + 2 * n_nodes:), [2, n_nodes])
          if (phase == phase_on_branch) call start_branch_point(model, point)
          if (.not. opts%quiet) write (*, '(a,i0,a,i0,a)') 'capsim: branch resumed after case ', k_done, ' of ', &
             size(values), ''
@@ -116,7 +124,23 @@ contains
          case (phase_stepping)
             call time_stepped_case(case_opts, model, point, phase, stat, errmsg, stepped_status)
             if (stat /= 0) return
-            if (phase == phase_on_branch) call log_point(source_time_stepping)
+            if (phase == phase_on_branch) then
+               call log_point(source_time_stepping)
+               have_last = .false.
+            else if (have_last .and. trim(stepped_status) == 'continuous_elongation') then
+               ! The branch was left at a steady case the corrector could not confirm; this case
+               ! elongates: the fold search from the last converged point says where it ended.
+               model%positions = last_rz
+               model%ca = last_ca
+               call start_branch_point(model, point)
+               found = fold_search_t()
+               call locate_branch_end()
+               call end_at_search(last_ca)
+               ! The shape written for later cases is the last converged one, as on the branch.
+               model%positions = last_rz
+               model%ca = last_ca
+               have_last = .false.
+            end if
          case (phase_on_branch)
             ca_from = exp(point%log_ca)
             allocate (saved_rz, source=point%rz)
@@ -148,11 +172,10 @@ contains
                ! again from that case: the corrector's failure belonged to another part of the
                ! discrete branch (the rear of a nearly rigid capsule buckles just above Ca_s 0.01,
                ! a fold at 0.0118-0.0120 for NH a/l 0.8-1 at 64 elements, while the case at 0.02
-               ! is steady). Otherwise the fold search from where the corrector stopped says where
-               ! the branch goes: to its end (a fold, or the mesh's limit), which an elongating
-               ! case confirms, or on to this case, from which a steady one the corrector could
-               ! not confirm is continued. Searching only then saves the search wherever the case
-               ! restarts the branch (8-11 CPU s after Ca_s 0.01 at NH a/l 0.8 and 1).
+               ! is steady). Where the case elongates, the fold search from where the corrector
+               ! stopped says where the branch ended (a fold, or the mesh's limit). Searching only
+               ! then saves the search wherever the case restarts the branch (8-11 CPU s after
+               ! Ca_s 0.01 at NH a/l 0.8 and 1) or does not elongate (below).
                if (.not. opts%quiet) write (*, '(a)') 'capsim: continuation to Ca_s = '//num(values(k))// &
                   ' stopped at Ca_s = '//num(exp(point%log_ca))//'; time stepping decides'
                stuck_ca = model%ca
@@ -163,25 +186,20 @@ contains
                if (phase == phase_on_branch) then
                   call log_point(source_time_stepping)
                else if (found%outcome == end_none) then
-                  if (trim(stepped_status) == 'steady') then
-                     ! The corrector left model and point at the time-stepped shape.
-                     model%positions = stuck_rz
-                     model%ca = stuck_ca
-                     call start_branch_point(model, point)
-                  end if
-                  call locate_branch_end()
                   if (trim(stepped_status) == 'continuous_elongation') then
-                     if (found%outcome == end_fold .or. found%outcome == end_mesh_limit) then
-                        outcome = found%outcome
-                        critical_log_ca = found%critical_log_ca
-                        phase = phase_ended
-                        confirmed = .true.
-                     end if
-                     if (.not. opts%quiet) write (*, '(a)') 'capsim: the steady branch from Ca_s = '// &
-                        num(ca_from)//' ends: '//search_text(found)
-                  else if (trim(stepped_status) == 'steady' .and. converged .and. carries_branch(point)) then
-                     phase = phase_on_branch
-                     call log_point(source_requested)
+                     call locate_branch_end()
+                     call end_at_search(ca_from)
+                  else
+                     ! A case the corrector cannot confirm (steady, or ended otherwise than by
+                     ! elongating): the next cases are time-stepped until one restarts the
+                     ! branch, and the last converged point is kept for the fold search in case
+                     ! one elongates first. Searching now, towards a case that does not elongate,
+                     ! cost more than the time-stepped cases it could spare (SK C = 2, a/l 0.8,
+                     ! from Ca_s 0.01 to 0.02: 19 CPU s of a 31 s branch, and the case at 0.03
+                     ! was time-stepped all the same).
+                     have_last = .true.
+                     last_rz = stuck_rz
+                     last_ca = stuck_ca
                   end if
                end if
                deallocate (stuck_rz)
@@ -204,7 +222,10 @@ contains
          state(2) = critical_log_ca
          state(3) = outcome
          state(4) = model%ca
-         state(5:) = reshape(model%positions, [2 * n_nodes])
+         state(5:4 + 2 * n_nodes) = reshape(model%positions, [2 * n_nodes])
+         state(5 + 2 * n_nodes) = merge(1.0_dp, 0.0_dp, have_last)
+         state(6 + 2 * n_nodes) = last_ca
+         state(7 + 2 * n_nodes:) = reshape(last_rz, [2 * n_nodes])
          call system_clock(clock_now)
          call write_checkpoint(checkpoint_path(), signature, k, 0.0_dp, state, branch_log, n_log, &
                                wall_before + real(clock_now - clock_start, dp) / clock_rate, stat, errmsg)
@@ -222,6 +243,20 @@ contains
       !> Pseudo-arclength steps (search_fold) from where the corrector stopped, landing on the
       !> case's Ca_s (continue_to_ca) whenever they pass it, until the branch ends or reaches
       !> the case after all (converged; then nothing is confirmed): found holds how.
+      !> After a fold search towards a case that elongates: the branch ends where the search
+      !> found (a fold, or the mesh's limit), confirmed by that case; the branch ran from Ca_s = from.
+      subroutine end_at_search(from)
+         real(dp), intent(in) :: from
+         if (found%outcome == end_fold .or. found%outcome == end_mesh_limit) then
+            outcome = found%outcome
+            critical_log_ca = found%critical_log_ca
+            phase = phase_ended
+            confirmed = .true.
+         end if
+         if (.not. opts%quiet) write (*, '(a)') 'capsim: the steady branch from Ca_s = '// &
+            num(from)//' ends: '//search_text(found)
+      end subroutine end_at_search
+
       subroutine locate_branch_end()
          converged = .false.
          do while (.not. converged)

@@ -101,12 +101,14 @@ def test_fold_lies_between_steady_and_elongating_time_stepped_runs(capsim, branc
 
 
 @pytest.mark.slow
-def test_steady_case_the_corrector_cannot_confirm_is_reached_by_the_search(capsim, tmp_path):
+def test_fold_is_found_from_the_last_point_past_a_case_the_corrector_cannot_confirm(capsim, tmp_path):
     """NH a/l 0.85 at 64 elements (the paper grid's mesh): p-fixed steps do not reach 0.12 from
-    0.1, and the corrector does not confirm 0.12's time-stepped shape; the arclength search from
-    0.1 reaches it, the branch goes on from there, and its fold (0.1337 on the whole grid) is
-    found once 0.15 elongates. Kernel 0.3.3's first reordering lost this branch's fold (caught
-    by bench/bench_tube_continuation.py: every later case time-stepped, no critical Ca_s)."""
+    0.1, and the corrector does not confirm 0.12's time-stepped shape. The branch is not searched
+    towards a case known steady (kernel 0.3.4: that search cost more than the time-stepped cases
+    it spared); 0.15, time-stepped, elongates, and the search from the last point (0.1) finds the
+    fold (0.1337 on the whole grid; kernel 0.3.3 searched from 0.12: 0.13370). Kernel 0.3.3's
+    first reordering lost this branch's fold (caught by bench/bench_tube_continuation.py: every
+    later case time-stepped, no critical Ca_s)."""
     directory = tmp_path / "NH_0.85"
     run_branch(capsim, directory, "NH", "0.85", ["0.09", "0.1", "0.12", "0.15", "0.2"], n_meridian="64")
     with h5py.File(directory / "branch.h5") as f:
@@ -114,8 +116,8 @@ def test_steady_case_the_corrector_cannot_confirm_is_reached_by_the_search(capsi
         source = list(f["branch/source"][:])
         critical = float(f.attrs["critical_Ca_s"])
         kind = f.attrs["critical_kind"]
-    # 0.09 time-stepped, 0.1 continued, an arclength point past 0.12, then 0.12 landed on.
-    assert source == [0, 1, 2, 1] and ca[3] == pytest.approx(0.12)
+    # 0.09 time-stepped, 0.1 continued; 0.12 time-stepped (steady), not a branch point.
+    assert source == [0, 1] and ca == pytest.approx([0.09, 0.1])
     assert (kind.decode() if isinstance(kind, bytes) else kind) == "fold"
     assert 0.12 < critical < 0.15
     assert read_case(directory / "Ca0.12.h5").status == "steady"

@@ -54,9 +54,12 @@ SLURM_PROFILE = REPO / "workflow" / "profiles" / "slurm"
 FAST_STATUS = ("--slurm-init-seconds-before-status-checks", "2", "--seconds-between-status-checks", "2")
 #: Two shear cases of ~30 s of one core each (level 3, small Ca_s: many steps): long enough to
 #: write a checkpoint (every 10 s of wall time) before they are cancelled or killed.
+#: Two shear cases that outlive the kernel's 10 s checkpoint interval on an idle machine (t_max
+#: 10: 23-28 s on one thread; with t_max 4 the second finished in 9 s, before its first
+#: checkpoint, and the test had nothing to kill).
 FAULT_GRID = {
     "name": "faults", "databases_dir": "db", "results_dir": "results",
-    "shear": {"laws": ["NH"], "Ca_s": [0.02, 0.025], "settings": {"level": 3, "t_max": 4}},
+    "shear": {"laws": ["NH"], "Ca_s": [0.02, 0.025], "settings": {"level": 3, "t_max": 10}},
 }
 CANCELLED, KILLED = "shear/NH/Ca0.02", "shear/NH/Ca0.025"
 

@@ -154,6 +154,7 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
     from tqdm import tqdm
 
     from capsmech.diagnosis.effect_grid import case_count, estimated_core_minutes
+    from capsmech.workflow.grid import uses_branches
     from capsmech.workflow.simulate import cached_grid, simulate_grid
 
     placed, folder = cached_grid(grid)
@@ -162,7 +163,8 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
         print(f"capsmech diagnose: candidate {candidate}: {cases} cases found in the cache {folder}")
         return folder / "tube.h5"
     minutes = estimated_core_minutes(grid, database, args.law)
-    print(f"capsmech diagnose: candidate {candidate} needs {cases} cases (~{minutes:.0f} core-min, "
+    how = "; by continuation, usually less" if uses_branches(grid) else ""
+    print(f"capsmech diagnose: candidate {candidate} needs {cases} cases (~{minutes:.0f} core-min case by case{how}, "
           f"{args.profile or 'local profile'}); computing them into {folder}", flush=True)
     with tqdm(total=None, desc=f"simulating {candidate}", unit="step", disable=not sys.stderr.isatty()) as bar:
         def advance(done: int, total: int) -> None:

@@ -29,7 +29,7 @@ from typing import Any
 import yaml
 
 from capsmech.errors import CapsmechError
-from capsmech.workflow.grid import expand_cases, validate_grid
+from capsmech.workflow.grid import by_continuation, expand_cases, validate_grid
 from capsmech.workflow.paths import repo_root
 from capsmech.workflow.runner import clear_stale_lock, source_code_version
 
@@ -98,8 +98,8 @@ def law_grid(grid: dict[str, Any], laws: Sequence[str], accuracy: str = "") -> d
                            "tube": {"laws": list(laws), "a_over_l": list(tube["a_over_l"]), "Ca_s": list(tube["Ca_s"]),
                                     "database": {"name": f"tube-{name}", "version": 1,
                                                  "accuracy": accuracy or f"the mesh of grid {grid.get('name', '?')!r}"}}}
-    if tube.get("settings"):
-        new["tube"]["settings"] = dict(tube["settings"])
+    # By continuation where the model allows it: the same cases, a law group in minutes.
+    new["tube"]["settings"] = by_continuation(tube.get("settings"))
     validate_grid(new, f"new laws {', '.join(laws)}")
     return new
 
