@@ -97,8 +97,9 @@ def test_simulate_closes_the_loop_on_a_law_no_database_holds(tmp_path, monkeypat
     verdict names SK_C with an interval holding 3, and G_s after holds the truth better than
     before. Measured (12 capsules): kernel 0.3.1, case by case, about 1 h on the loaded 2-core
     machine: C = 3.19 [2.63, 3.75], within noise (chi2/dof 0.97); G_s by the contour fits
-    0.0716 -> 0.0256 [0.0233, 0.0279] N/m, truth 0.025. Kernel 0.3.3, by continuation, the
-    whole test in 2 min 38 s: C = 3.18 [2.62, 3.74]; G_s 0.0719 -> 0.0257 [0.0234, 0.0280]."""
+    0.0716 -> 0.0256 [0.0233, 0.0279] N/m, truth 0.025. By continuation, the whole test in
+    2 min 38 s (kernel 0.3.3) and 1 min 43 s (0.3.4): C = 3.18 [2.62, 3.74]; G_s 0.0719 ->
+    0.0257 [0.0234, 0.0280]."""
     import independent_batches as ib
 
     monkeypatch.setenv(DATA_DIR_ENV, str(tmp_path / "cache"))
