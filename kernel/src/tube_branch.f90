@@ -240,9 +240,6 @@ contains
 
    contains
 
-      !> Pseudo-arclength steps (search_fold) from where the corrector stopped, landing on the
-      !> case's Ca_s (continue_to_ca) whenever they pass it, until the branch ends or reaches
-      !> the case after all (converged; then nothing is confirmed): found holds how.
       !> After a fold search towards a case that elongates: the branch ends where the search
       !> found (a fold, or the mesh's limit), confirmed by that case; the branch ran from Ca_s = from.
       subroutine end_at_search(from)
@@ -257,6 +254,9 @@ contains
             num(from)//' ends: '//search_text(found)
       end subroutine end_at_search
 
+      !> Pseudo-arclength steps (search_fold) from where the corrector stopped, landing on the
+      !> case's Ca_s (continue_to_ca) whenever they pass it, until the branch ends or reaches
+      !> the case after all (converged; then nothing is confirmed): found holds how.
       subroutine locate_branch_end()
          converged = .false.
          do while (.not. converged)

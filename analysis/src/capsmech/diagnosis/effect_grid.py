@@ -76,7 +76,7 @@ def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over
                               "accuracy": "the mesh of the base database: " + str(tube.get("database", {}).get(
                                   "accuracy", "see its grid"))}},
     }
-    # By continuation in Ca_s where the model allows it (the same cases, several times faster).
+    # By continuation in Ca_s where the model allows it (the same cases, in fewer CPU seconds).
     grid["tube"]["settings"] = by_continuation(tube.get("settings"))
     validate_grid(grid, name)
     return grid

@@ -269,9 +269,10 @@ def by_continuation(settings: Mapping[str, Any] | None) -> dict[str, Any]:
     """Tube settings for cases computed on demand: ``settings`` with ``branch: true`` where the
     model is axisymmetric (the 3D model has no continuation) and the integrator is not rk2.
 
-    The cases are the same (same files, same kernel arguments but ``--ca``); continuation reaches
-    them 1.8-2.3 times faster per case over a paper-grid law group and about 10 times faster on
-    the smooth, small-Ca_s part that effect grids cover (docs/validation/performance.md)."""
+    The cases are the same (same files, same kernel arguments but ``--ca``; equal to 3e-7 on the
+    Skalak C = 2-8 grid of docs/validation/diagnosis.md); continuation reached them with 1.3
+    times fewer CPU seconds there and 1.0-1.9 times over paper-grid law groups (kernel 0.3.4,
+    docs/validation/performance.md): less where many cases must be time-stepped all the same."""
     out = dict(settings or {})
     if out.get("model", "axi") == "axi" and out.get("integrator") != "rk2":
         out["branch"] = True
