@@ -30,11 +30,7 @@ def _levels(text: str, option: str) -> list[float]:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
-    from capsmech.diagnosis.effect_grid import (
-        case_count,
-        estimated_core_minutes,
-        write_grid,
-    )
+    from capsmech.diagnosis.effect_grid import cost_text, write_grid
     from capsmech.diagnosis.report import write_report
     from capsmech.diagnosis.sequential import SequentialDiagnosis
 
@@ -76,8 +72,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
                               header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
                                      "candidate needs.\nRun: make database GRID=" + r.needs["name"])
-            print(f"capsmech diagnose: candidate {r.name} needs {case_count(r.needs)} cases "
-                  f"(~{estimated_core_minutes(r.needs, database, args.law):.0f} core-min): "
+            print(f"capsmech diagnose: candidate {r.name} needs {cost_text(r.needs, database, args.law)}: "
                   f"make database GRID={r.needs['name']} (grid written to {path}), or diagnose --simulate")
     for capsule, why in result.excluded:
         print(f"capsmech diagnose: left out {capsule}: {why}")
@@ -153,8 +148,7 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
     """Run the grid a candidate needs through the workflow (cached), with an estimate first."""
     from tqdm import tqdm
 
-    from capsmech.diagnosis.effect_grid import case_count, estimated_core_minutes
-    from capsmech.workflow.grid import uses_branches
+    from capsmech.diagnosis.effect_grid import case_count, cost_text
     from capsmech.workflow.simulate import cached_grid, simulate_grid
 
     placed, folder = cached_grid(grid)
@@ -162,10 +156,8 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
     if (folder / "tube.h5").is_file():
         print(f"capsmech diagnose: candidate {candidate}: {cases} cases found in the cache {folder}")
         return folder / "tube.h5"
-    minutes = estimated_core_minutes(grid, database, args.law)
-    how = "; by continuation, usually less" if uses_branches(grid) else ""
-    print(f"capsmech diagnose: candidate {candidate} needs {cases} cases (~{minutes:.0f} core-min case by case{how}, "
-          f"{args.profile or 'local profile'}); computing them into {folder}", flush=True)
+    print(f"capsmech diagnose: candidate {candidate} needs {cost_text(grid, database, args.law)}, "
+          f"{args.profile or 'local profile'}; computing them into {folder}", flush=True)
     with tqdm(total=None, desc=f"simulating {candidate}", unit="step", disable=not sys.stderr.isatty()) as bar:
         def advance(done: int, total: int) -> None:
             bar.total = total

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from capsmech.io.database import TubeDatabase
-from capsmech.workflow.grid import by_continuation, validate_grid
+from capsmech.workflow.grid import by_continuation, uses_branches, validate_grid
 from capsmech.workflow.simulate import case_count
 
 #: Nodes added beyond the batch's fitted points on each side: the effect moves the points the
@@ -95,6 +95,13 @@ def estimated_core_minutes(grid: dict[str, Any], database: TubeDatabase, base_la
         np.round(ca, 9), np.round(grid["tube"]["Ca_s"], 9)) & np.isfinite(wall)
     seconds = float(np.mean(wall[here])) if here.any() else float(np.nanmean(wall))
     return case_count(grid) * seconds / 60
+
+
+def cost_text(grid: dict[str, Any], database: TubeDatabase, base_law: str) -> str:
+    """``189 cases (~11 core-min case by case; by continuation, usually less)``: what the grid
+    costs, as both of diagnose's messages say it."""
+    how = "; by continuation, usually less" if uses_branches(grid) else ""
+    return f"{case_count(grid)} cases (~{estimated_core_minutes(grid, database, base_law):.0f} core-min case by case{how})"
 
 
 def write_grid(grid: dict[str, Any], path: str | Path, header: str = "") -> Path:
