@@ -8,8 +8,9 @@ Two kinds of object are traced, and each says which it is and where its contour 
   paired with the nearest inner one (on the common normal of two parallel curves), their
   midpoint the membrane - the middle of the dark line, as in the paper's manual extraction;
 - a **silhouette**: a filled, opaque object (cells, beads seen out of their ring focus). Its
-  contour is the **outer edge**: the iso-line of the contrast at the detection level, which is
-  where an object mask thresholded on the same contrast ends.
+  contour is the **outer edge**: the iso-line of the detection's contrast (smoothed
+  :data:`DETECTION_SMOOTHING_PX`) at the detection level, which is where the object mask
+  thresholded on that same contrast ends.
 
 An object is a ring when the half-peak iso-lines enclose a transparent interior of at least
 :data:`MIN_INTERIOR_FRACTION` of the outer edge's area, else a silhouette.
@@ -29,7 +30,8 @@ DETECTION_SMOOTHING_PX = 1.0
 CONTOUR_SMOOTHING_PX = 0.6
 #: A ring's interior (inside the half-peak inner edge) covers at least this much of its outer edge's area.
 MIN_INTERIOR_FRACTION = 0.15
-#: A silhouette's edge: this fraction of its peak contrast, or the detection threshold if higher.
+#: A silhouette's edge: this fraction of its peak contrast (90th percentile of the detection's
+#: contrast over its pixels), or the detection threshold if higher.
 SILHOUETTE_LEVEL = 0.2
 
 CONTOUR_AT = {"ring": "mid-line of the dark ring", "silhouette": "outer edge of the silhouette"}
@@ -192,10 +194,11 @@ def trace_object(contrast: np.ndarray, region: np.ndarray, mask: np.ndarray, thr
                  smooth: np.ndarray | None = None) -> TracedObject | str:
     """Trace one object (its joined ``region``; ``mask``: the pixels above the threshold).
 
-    The edges are traced on a lighter smoothing than the detection's: blur pulls the edge
+    A ring's edges are traced on a lighter smoothing than the detection's: blur pulls the edge
     back around a parachute's sharp rim (L_p -0.35 px at 1 px, -0.16 px at 0.6 px for a
     28 px deep parachute), while too little lets the noise push the extremes out (+0.3 px
-    on L_z without smoothing).
+    on L_z without smoothing). A silhouette's outer edge is traced on the detection's
+    smoothing: it is where the detection mask ends.
 
     ``smooth``, the contrast at the detection's smoothing, when the caller has it already.
     The smoothings are computed on a window around the object, wide enough (6 px beyond the
@@ -244,8 +247,15 @@ def trace_object(contrast: np.ndarray, region: np.ndarray, mask: np.ndarray, thr
             return TracedObject("ring", contour, outer + offset, width, peak,
                                 float(outer[:, 0].max()) + offset[0] - half_width,
                                 float(outer[:, 0].min()) + offset[0] + half_width, columns)
-    # A silhouette: its outer edge at the detection level (where a thresholded mask ends).
-    level = max(threshold, SILHOUETTE_LEVEL * peak)
+    # A silhouette: its outer edge at the detection level, traced on the detection's own contrast
+    # (smoothed DETECTION_SMOOTHING_PX): the iso-line where the object's mask, thresholded on that
+    # same contrast, ends. The ring's lighter smoothing sharpens a rim; here it would trace an edge
+    # that is not the mask's (faint fringes and appendages come and go with the smoothing).
+    detected = (smooth[r0:r1, c0:c1] if smooth is not None else
+                ndimage.gaussian_filter(contrast[w0:w1, v0:v1], DETECTION_SMOOTHING_PX)[window])
+    body = np.where(sub_region, detected, 0.0)
+    level = max(threshold, SILHOUETTE_LEVEL * float(np.percentile(body[inside], 90)))
+    crop = np.pad(body, 1)
     filled = ndimage.binary_fill_holes(crop > level)
     edges = closed_contours(np.where(filled, np.maximum(crop, level * 1.0001), crop), level)
     if not edges:
