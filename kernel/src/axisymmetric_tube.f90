@@ -167,7 +167,7 @@ contains
       real(dp) :: area, volume, l_z, l_p, stretch, lam_s, lam_p
       integer :: n, e
       n = size(self%positions, 2)
-      call self%velocity(self%positions, self%u0)
+      call self%velocity_here(self%positions, self%u0)
       call meridian_area_volume(self%positions, area, volume)
       l_z = maxval(self%positions(2, :)) - minval(self%positions(2, :))
       l_p = self%positions(2, n) - minval(self%positions(2, :))
