@@ -3,8 +3,9 @@ stepping, in one run: cases per second of each, their agreement, and the time of
 group of the paper grid (config/paper.yaml: 9 a/l x 22 Ca_s) with one branch per a/l on
 --workers processes of one thread each (issue 22's target: under 2 minutes on 2 cores).
 
-The time-stepping side runs a sample of the same cases (--sample a/l values x a few Ca_s), one
-thread each, one after another. Run after `make build`; prints figures only (the machines are
+The time-stepping side runs a sample of the same cases (--sample-a a/l values x --sample-ca
+Ca_s; `all` for the grid's, so that both sides of the law group are measured), one thread each,
+on the same workers. Run after `make build`; prints figures only (the machines are
 shared: compare the two columns of one run, not runs of different days).
 
     python bench/bench_tube_continuation.py [--law NH] [--workers 2] [--n-meridian 64] [--capsim PATH]
@@ -84,8 +85,8 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--n-meridian", type=int, default=64)
     parser.add_argument("--a-values", default="", help="a/l of the branches (default: the paper grid's)")
-    parser.add_argument("--sample-a", default="0.7,0.9,1.1", help="a/l of the time-stepped sample")
-    parser.add_argument("--sample-ca", default="0.02,0.07,0.15", help="Ca_s of the time-stepped sample")
+    parser.add_argument("--sample-a", default="0.7,0.9,1.1", help="a/l of the time-stepped sample ('all': the grid's)")
+    parser.add_argument("--sample-ca", default="0.02,0.07,0.15", help="Ca_s of the time-stepped sample ('all': the grid's)")
     parser.add_argument("--capsim", type=Path, default=CAPSIM, help="the kernel to run (default bin/capsim)")
     args = parser.parse_args()
     if not args.capsim.exists():
@@ -119,14 +120,22 @@ def main() -> int:
                 critical = float(f.attrs["critical_Ca_s"])
             print(f"{a_over_l:>5g} {wall:>9.1f} {steady:>7} {continued:>9} {stepped:>8} {critical:>14.4g} {kind}")
 
-        sample = [(float(a), float(c)) for a in args.sample_a.split(",") for c in args.sample_ca.split(",")]
-        print(f"\ntime stepping, one case at a time (sample of {len(sample)}), against the branch's case:")
+        sample_a = a_values if args.sample_a == "all" else [float(a) for a in args.sample_a.split(",")]
+        sample_ca = ca_values if args.sample_ca == "all" else [float(c) for c in args.sample_ca.split(",")]
+        sample = [(float(a), float(c)) for a in sample_a for c in sample_ca]
+        whole = len(sample) == n_cases
+        print(f"\ntime stepping, one case at a time ({'the whole group' if whole else f'sample of {len(sample)}'}"
+              f" on {args.workers} workers), against the branch's case:")
         print(f"{'a/l':>5} {'Ca_s':>6} {'CPU [s]':>9} {'stepped':>34} {'branch':>34} "
               f"{'max rel diff L_z, L_p, v_c':>27}")
         single_total = 0.0
         worst = 0.0
-        for a_over_l, ca in sample:
-            wall, single = run_single(args.capsim, args.law, a_over_l, ca, args.n_meridian, root)
+        start = time.perf_counter()
+        with ThreadPoolExecutor(args.workers) as pool:
+            singles = list(pool.map(lambda ac: run_single(args.capsim, args.law, ac[0], ac[1], args.n_meridian, root),
+                                    sample))
+        single_wall = time.perf_counter() - start
+        for (a_over_l, ca), (wall, single) in zip(sample, singles):
             single_total += wall
             branch_case = read(root / f"branch_{a_over_l:g}" / f"Ca{ca:g}.h5")
             how = "continued" if "by continuation" in branch_case["message"] else "stepped"
@@ -140,8 +149,13 @@ def main() -> int:
             print(f"{a_over_l:>5g} {ca:>6g} {wall:>9.2f} {single['status'] + ' (' + polish + ')':>34} "
                   f"{branch_case['status'] + ' (' + how + ')':>34} {diff:>27.2e}")
         per_case = single_total / len(sample)
-        print(f"\ntime stepping: {1 / per_case:.2f} cases per CPU second ({per_case:.2f} CPU s a case); "
-              f"law group extrapolated to {n_cases * per_case / args.workers:.0f} s on {args.workers} idle cores")
+        if whole:
+            print(f"\ntime stepping: {1 / per_case:.2f} cases per CPU second ({per_case:.2f} CPU s a case); "
+                  f"law group case by case {single_total:.1f} CPU s, {single_wall:.0f} s wall measured")
+        else:
+            print(f"\ntime stepping: {1 / per_case:.2f} cases per CPU second ({per_case:.2f} CPU s a case); "
+                  f"law group extrapolated from {len(sample)} sampled cases to {n_cases * per_case / args.workers:.0f} s "
+                  f"on {args.workers} idle cores (not measured: `--sample-a all --sample-ca all` runs the group)")
         print(f"continuation: {n_cases / branch_cpu:.2f} cases per CPU second; law group "
               f"{branch_cpu / args.workers:.0f} s on {args.workers} idle cores (CPU / workers; target 120 s), "
               f"{group_wall:.0f} s wall measured on this machine's load; "

@@ -98,6 +98,21 @@ def test_implicit_and_explicit_steps_reach_the_same_steady_shape(capsim, tmp_pat
     assert polish_growth_rate(implicit.message) < 1e-2
 
 
+def test_large_implicit_steps_do_not_fake_an_elongation(capsim, tmp_path):
+    # GH nu_s 0.5, a/l 0.8, Ca_s 1.5: with the default steps (up to 0.2 l/V) kernel 0.3.4 took
+    # an element at the rear rim from stretch 2.85 to 4.43 in one step at t = 1.4 and ended the
+    # run as continuous elongation; steps of 0.1 reach a steady parachute. An implicit step may
+    # change no element's stretch by more than 30 %: the default path then reaches the steady
+    # shape that the smaller steps reach (the same Newton root).
+    args = ["--law", "GH", "--nu-s", "0.5", "--a-over-l", "0.8", "--ca", "1.5"]
+    default = run_tube(capsim, tmp_path / "default.h5", *args)
+    small = run_tube(capsim, tmp_path / "small.h5", *args, "--dt", "0.1")
+    assert default.status == small.status == "steady", (default.message, small.message)
+    for name in ("L_z", "L_p", "v_c"):
+        assert default.steady_value(name) == pytest.approx(small.steady_value(name), rel=1e-5), name
+    assert polish_growth_rate(default.message) < 1e-2
+
+
 def test_buckled_rear_of_a_small_capsule_settles_into_a_parachute(capsim, tmp_path):
     # a/l = 0.3, Ca_s = 0.05: the compressed rear buckles inward (Jacobian eigenvalues up to
     # +9 V/l); with a Jacobian reused blindly over 4 steps this run blew up at t = 1.8.
@@ -111,7 +126,8 @@ def test_buckled_rear_of_a_small_capsule_settles_into_a_parachute(capsim, tmp_pa
 def test_tube_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path):
     # The steady shape after one kill; test_resume_exact has the bit-for-bit check (several
     # kills, every dataset).
-    args = ["--flow", "tube", "--law", "NH", "--a-over-l", "0.9", "--ca", "0.1", "--n-meridian", "32",
+    # 64 elements: at 32 the run (0.4 s since kernel 0.3.5) ended before the first checkpoint.
+    args = ["--flow", "tube", "--law", "NH", "--a-over-l", "0.9", "--ca", "0.1", "--n-meridian", "64",
             "--threads", "1", "--quiet"]
     a, b = uninterrupted_and_resumed(capsim, args, tmp_path)
     assert a.status == b.status == "steady", (a.message, b.message)
