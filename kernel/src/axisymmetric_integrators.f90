@@ -28,7 +28,7 @@ module axisymmetric_integrators
    !> Ca_s, where the rear rim is a corner that jumps from node to node, a step of 0.2 l/V took
    !> an element from stretch 2.85 to 4.43 (GH nu_s 0.5, a/l 0.8, Ca_s 1.5, t = 1.4) or 2.46 to
    !> 5.92 (a/l 0.85, Ca_s 2, t = 4.3): the run ended as continuous elongation or mesh
-   !> breakdown where steps of 0.1 reach a steady shape (largest stretch 2.66). The start from a
+   !> breakdown where steps of 0.1 reach a steady shape (stretch at most 2.66 on the way). The start from a
    !> sphere at dt 0.2 changes stretches by at most 23 % a step at Ca_s 1.5.
    real(dp), parameter :: step_stretch_limit = 0.3_dp
 
