@@ -122,7 +122,7 @@ def main() -> int:
 
         sample_a = a_values if args.sample_a == "all" else [float(a) for a in args.sample_a.split(",")]
         sample_ca = ca_values if args.sample_ca == "all" else [float(c) for c in args.sample_ca.split(",")]
-        sample = [(float(a), float(c)) for a in sample_a for c in sample_ca]
+        sample = [(a, c) for a in sample_a for c in sample_ca]
         whole = len(sample) == n_cases
         print(f"\ntime stepping, one case at a time ({'the whole group' if whole else f'sample of {len(sample)}'}"
               f" on {args.workers} workers), against the branch's case:")

@@ -35,7 +35,6 @@ from capsmech.diagnosis.candidates import (
     prestress_candidate,
 )
 from capsmech.diagnosis.diagnose import NOT_ASSESSED, diagnose, screen_asymmetric
-from capsmech.diagnosis.effect_grid import case_count
 from capsmech.diagnosis.report import write_report
 from capsmech.diagnosis.scoring import (
     BatchScore,
@@ -51,6 +50,7 @@ from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
 from capsmech.io.measurements import read_measurements
 from capsmech.workflow.grid import validate_grid
+from capsmech.workflow.simulate import case_count
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCHES = ROOT / "data" / "examples" / "undeclared"

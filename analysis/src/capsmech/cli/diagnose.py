@@ -148,8 +148,8 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
     """Run the grid a candidate needs through the workflow (cached), with an estimate first."""
     from tqdm import tqdm
 
-    from capsmech.diagnosis.effect_grid import case_count, cost_text
-    from capsmech.workflow.simulate import cached_grid, simulate_grid
+    from capsmech.diagnosis.effect_grid import cost_text
+    from capsmech.workflow.simulate import cached_grid, case_count, simulate_grid
 
     placed, folder = cached_grid(grid)
     cases = case_count(grid)
