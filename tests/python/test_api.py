@@ -145,6 +145,19 @@ def test_developer_commands_sit_under_dev():
     assert parser.parse_args(["dev", "unlock-stale", "."]).action == "unlock-stale"
 
 
+def test_the_workflows_case_command_imports_no_user_job():
+    """`capsmech dev run-case`, started once per database case, parses the developers' commands
+    alone and imports neither pandas nor scipy nor matplotlib (1.2 s a process: more than most
+    steady tube cases take in the kernel), nor does `import capsmech` (its names load on use)."""
+    import subprocess
+    import sys
+
+    for argv in (["-m", "capsmech.cli", "dev", "run-case", "--help"], ["-c", "import capsmech"]):
+        proc = subprocess.run([sys.executable, "-X", "importtime", *argv], capture_output=True, text=True, check=True)
+        imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines()}
+        assert {"pandas", "scipy", "matplotlib"}.isdisjoint(imported), argv
+
+
 def test_law_is_repeatable_wherever_it_takes_several():
     parser = build_parser()
     for command in (["fit-tube", "x.csv"], ["fit-shear", "x.csv"], ["compare-methods"]):
