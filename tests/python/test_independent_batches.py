@@ -171,10 +171,18 @@ def test_a_distortion_no_candidate_describes_is_unexplained(tmp_path):
 
 
 def test_a_law_of_the_database_is_named_without_an_interval(tmp_path):
+    """The law is chosen (BIC drop 798 against the offset's 723) and named without an interval.
+    Whether the offset remains a rival is decided by 8 capsules at Ca_s 0.023-0.046, next to
+    the rear's buckling fold, where the database rows move by up to 0.17 % of L_z between two
+    fillings (validation: databases): with the tube-paper of kernel 0.3.2, 7 of 8 capsules
+    preferred the law (Wilcoxon p = 0.027, "effect"); with 0.3.5's, 6 of 8 (p = 0.074), and the
+    verdict says the data cannot tell it from the offset. Either is accepted; the chosen one and
+    its missing interval are asserted."""
     drawn, capsules = batch(tmp_path, "law_GH_nu0.5")
     result = diagnose(capsules, databases(), "NH", [law_candidate("NH", "GH_nu0.5"), contour_offset_candidate("NH")],
                       refine_evaluations=0)
-    assert result.kind == "effect" and result.chosen is not None, result.verdict
+    assert result.kind in ("effect", "cannot_tell") and result.chosen is not None, result.verdict
+    assert [r.name for r in result.rivals] in ([], ["contour_offset"]), result.verdict
     assert result.chosen.name == "law GH_nu0.5" and result.chosen.discrete
     assert "no interval" in result.verdict
 

@@ -283,13 +283,15 @@ def test_the_gh_example_batch_names_gh_nu05(example_fits):
     # misfit at the length fit (0.011 against 0.018), the lengths' 2 % error hid that (p = 0.18,
     # "cannot tell"). NH (the first verdict, 0.089 N/m) fits the contours worse on all 12.
     # Against the noise (chi2 per degree of freedom, limit 1.54): GH nu_s 0.5 0.95, SK C = 1 1.68.
+    # With the tube-paper database of kernel 0.3.5 (2026-11-27): p = 7/4096 (GH nu_s 0.5 better
+    # on 11 of 12, s002 by chi2_shape 9.16 against 9.63 the other way), chi2/dof 0.93 and 1.69.
     verdict = capsmech.population(example_fits["GH_nu0.5"])
     assert verdict.kind == "law" and verdict.best == "GH_nu0.5", verdict.reason
     assert verdict.candidates == ("GH_nu0.5",)
     assert verdict.evidence["GH_nu0.5"].noise.consistent
     assert verdict.evidence["SK_C1"].status in ("worse contours", "misfits noise")
     assert not verdict.evidence["SK_C1"].noise.consistent
-    assert verdict.p_better[("GH_nu0.5", "SK_C1")] < 0.001
+    assert verdict.p_better[("GH_nu0.5", "SK_C1")] < 0.005
     assert verdict.p_better[("GH_nu0.5", "NH")] < 0.001
     assert verdict.evidence["NH"].status in ("worse contours", "misfits noise", "drifts")
     # GH nu_s 0 is rejected by its contours (chi2/dof 41 against 1.68) since the drift test
@@ -297,11 +299,14 @@ def test_the_gh_example_batch_names_gh_nu05(example_fits):
     # that error can make: p = 0.5).
     assert verdict.evidence["GH_nu0"].status in ("fits < half", "drifts", "misfits noise")
     # G_s at the best shapes (their noise tested): within 2.5 % of the truth, the interval
-    # (with the database's accuracy) holding it and narrower than 10 % of it.
+    # (with the database's accuracy) holding it and narrower than 11 % of it (10.3 %, 2026-11-27;
+    # below 10 % until the databases' accuracy counted the rows next to the rear's buckling,
+    # Ca_s 0.02-0.03, at 0.2 % of L_z and 0.003 l: capsule s002, at Ca_s 0.023, where L_z hardly
+    # moves with Ca_s, now carries a database error of 22 % of its G_s, 8 % before).
     assert verdict.estimator == "contour fits"
     assert verdict.g_s == pytest.approx(G_S, rel=0.025)
     low, high = verdict.g_s_interval
-    assert low < G_S < high and high - low < 0.1 * G_S
+    assert low < G_S < high and high - low < 0.11 * G_S
     for law in verdict.candidates:
         e = verdict.evidence[law]
         assert e.g_s_interval[0] < G_S < e.g_s_interval[1]

@@ -25,6 +25,7 @@ from capsmech.inversion.shape_fit import fit_shape
 from capsmech.inversion.sharp_edge import (
     ACCURACY_BY_TURN,
     BUCKLING_ROW,
+    NEAR_FOLD_ROW,
     interpolated_accuracy,
     largest_turn,
     row_accuracy,
@@ -87,6 +88,12 @@ def test_accuracy_interpolates_the_rows_and_is_the_databases_statement_on_smooth
     assert row_accuracy(math.nan) == smooth
     assert row_accuracy(120.0, 0.5) == corner
     assert row_accuracy(10.0, 0.01) == BUCKLING_ROW     # the rear's buckling, whatever the turn
+    # Near the fold (Ca_s 0.02-0.03) a smooth row is as good as the near-fold spread, a corner as
+    # its class: the larger of the two, component by component.
+    near = row_accuracy(10.0, 0.03)
+    assert (near.L_z_rel, near.L_p_abs, near.v_c_rel) == (NEAR_FOLD_ROW.L_z_rel, NEAR_FOLD_ROW.L_p_abs, NEAR_FOLD_ROW.v_c_rel)
+    assert row_accuracy(120.0, 0.03) == corner
+    assert row_accuracy(10.0, 0.04) == smooth
     one = interpolated_accuracy(np.array([10.0, 120.0, 20.0]), np.array([0.1, 0.5, 0.1]), np.array([0.0, 1.0, 0.0]), 1.0)
     assert one == pytest.approx((corner.L_z_rel, corner.L_p(1.0), corner.v_c_rel))
     halfway = interpolated_accuracy(np.array([10.0, 120.0]), np.array([0.1, 0.5]), np.array([0.5, 0.5]), 0.3)
@@ -103,11 +110,12 @@ def _fitted(database, line):
 
 
 def test_the_database_error_covers_a_finer_meridian(database, monkeypatch):
-    # Measured: at a sharp edge G_s off by +0.1 to +10.5 % (the 64-element database reads G_s
-    # high on deep parachutes); the reported database error 6.2-19 %, covering all 9, the 7 rows
+    # Measured (kernel-0.3.5 database): at a sharp edge G_s off by +0.1 to +7.6 % (the
+    # 64-element database reads G_s high on deep parachutes); the reported database error
+    # 6.4-21.3 %, covering all 9, the 7 rows
     # that did not set the accuracy classes among them. The databases' former statement (0.1 %
     # of L_z for every row) gave 0.5-1.2 % there and covered 1 of 9. Near the NH example batch
-    # G_s is off by 0.1-0.7 %: the error reported is 2.2-2.8 % (the former 0.8-0.9 %).
+    # G_s is off by 0.1-0.7 %: the error reported is 2.3-3.0 % (the former 0.8-0.9 %).
     covered_by_former = 0
     for line in FINER.splitlines():
         inverter, lengths, fit, error, truth, tag = _fitted(database, line)
@@ -120,6 +128,7 @@ def test_the_database_error_covers_a_finer_meridian(database, monkeypatch):
         # With every row of the smooth class (the former statement), the same capsule:
         monkeypatch.setattr(sharp_edge, "ACCURACY_BY_TURN", ((math.inf, ACCURACY_BY_TURN[0][1]),))
         monkeypatch.setattr(sharp_edge, "BUCKLING_CA_S", 0.0)
+        monkeypatch.setattr(sharp_edge, "NEAR_FOLD_CA_S", 0.0)
         former = database_g_s_error(inverter, lengths[0], lengths[1], lengths[2] * V, MU, fit)
         monkeypatch.undo()
         assert former < 0.015 * truth and error > 4 * former
@@ -152,16 +161,18 @@ def _contour_fits(database, name, law, seeds=range(3)):
 
 @pytest.mark.parametrize("name", ["GH_nu0.5_0.9_1.5", "GH_nu0.2_0.9_0.8", "SK_C1_0.9_1.0", "GH_nu0_0.85_0.2"])
 def test_a_capsule_of_the_right_law_with_a_sharp_edge_reaches_the_noise(database, name, monkeypatch):
-    # Measured: the right law's best shape leaves chi2/DOF 0.2-3.0 (median per shape 0.5-1.9)
-    # with the rim's floor; with the smooth floor alone 10-15 on the two deep parachutes (GH
-    # nu_s 0.5 at Ca_s 1.5, 0.2 at 0.8: -3 px just behind the rim), which would call the right
-    # law "misfits noise". SK C = 1 on the GH shapes stays far off (15-290).
+    # Measured (tube-paper of kernel 0.3.5): the right law's best shape leaves chi2/DOF 0.3-1.2
+    # with the rim's floor (0.2-3.0 against the 0.3.2 database); with the smooth floor alone
+    # 4.7-6.4 on the two deep parachutes (GH nu_s 0.5 at Ca_s 1.5, 0.2 at 0.8: the misfit just
+    # behind the rim; 10-15 against the 0.3.2 database, whose rows there differed from the finer
+    # meridian's by more), which would call the right law "misfits noise" (its limit at p = 0.01
+    # is 1.5-1.7 for 10-12 capsules). SK C = 1 on the GH shapes stays far off (12-290).
     law = name.rsplit("_", 2)[0]
     with_rim = _contour_fits(database, name, law)
     assert np.median(with_rim) < 2.0 and with_rim.max() < 3.5, with_rim
     if name in ("GH_nu0.5_0.9_1.5", "GH_nu0.2_0.9_0.8"):
         monkeypatch.setattr(sharp_edge, "row_accuracy", lambda turn, Ca_s=math.inf: ACCURACY_BY_TURN[0][1])
-        assert np.median(_contour_fits(database, name, law, seeds=[0])) > 8.0
+        assert np.median(_contour_fits(database, name, law, seeds=[0])) > 4.0
         monkeypatch.undo()
         assert np.min(_contour_fits(database, name, "SK_C1")) > 10.0
 

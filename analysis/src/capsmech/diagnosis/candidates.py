@@ -176,7 +176,8 @@ class _BlendedInverter:
     def velocity_ratio(self, a_over_l: float, Ca_s: float) -> float:
         return sum(w * inverter.velocity_ratio(a_over_l, Ca_s) for w, inverter in zip(self.weights, self.inverters))
 
-    def triangle_turns(self, a_over_l: float, Ca_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def triangle_turns(self, a_over_l: float, Ca_s: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Every level's rows behind (a/l, Ca_s) (``TubeInverter.triangle_turns``), their weights
         times the level's: the blend's values are interpolated from all of them."""
         found = [inverter.triangle_turns(a_over_l, Ca_s) for inverter in self.inverters]
@@ -184,7 +185,8 @@ class _BlendedInverter:
         if len(parts) < len(found):
             return None
         return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                np.concatenate([w * p[2] for w, p in zip(self.weights, parts)]))
+                np.concatenate([w * p[2] for w, p in zip(self.weights, parts)]),
+                np.concatenate([p[3] for p in parts]))
 
 
 def scalar_effect_candidate(base_law: str, effect: str, levels: Sequence[float] | None = None) -> Candidate:

@@ -43,7 +43,7 @@ from capsmech.inversion.inverters import (
 from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import fit_shape
-from capsmech.inversion.sharp_edge import interpolated_accuracy, smooth_accuracy
+from capsmech.inversion.sharp_edge import interpolated_accuracy, is_steady_root, smooth_accuracy
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
@@ -87,11 +87,14 @@ def inverter_flag_code(reason: str) -> str:
 
 
 def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
-    """The tube inverter of one law, on the database's steady rows."""
-    rows = database.law(law).steady_rows()
+    """The tube inverter of one law, on the database's steady rows (each marked a root of the
+    steady equations or not, from the kernel's message: ``sharp_edge.is_steady_root``)."""
+    table = database.law(law)
+    rows = table.steady_rows()
+    root = np.array([is_steady_root(str(m)) for m in table.message[table.steady]], dtype=bool)
     return TubeInverter(TubeTable(a_over_l=rows["a_over_l"], Ca_s=rows["Ca_s"], L_z=rows["L_z"],
                                   L_p=rows["L_p"], vc_over_V=rows["vc_over_V"],
-                                  profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z")))
+                                  profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z"), root=root))
 
 
 def shear_inverter(database: ShearDatabase, law: str) -> ShearInverter:
@@ -222,13 +225,14 @@ def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: flo
     an error every capsule of a batch shares (NaN where the refit fails). Lengths in l. The
     accuracy is that of the rows the capsule's fit is
     interpolated between (``capsmech.inversion.sharp_edge.interpolated_accuracy``): 0.1 % of
-    L_z on smooth shapes (64 against 128 meridian elements), up to 1.1 % of L_z, 6.5 % of L_p
-    and 0.5 % of v_c/V where the parachute's edge is a corner."""
+    L_z on smooth shapes (64 against 128 meridian elements), up to 1.6 % of L_z, 6.5 % of L_p
+    and 0.6 % of v_c/V where the parachute's edge is a corner (``capsmech.inversion.sharp_edge``)."""
     g_s = fit.G_s
     rows = inverter.triangle_turns(fit.a_over_l, fit.Ca_s) if fit.ok else None
     # Outside the triangles (or without profiles): the smooth profiles' accuracy, the
     # databases' statement.
-    z_rel, p_abs, vc_rel = interpolated_accuracy(*rows, L_p) if rows is not None else smooth_accuracy(L_p)
+    z_rel, p_abs, vc_rel = (interpolated_accuracy(rows[0], rows[1], rows[2], L_p, roots=rows[3])
+                            if rows is not None else smooth_accuracy(L_p))
     shifts = []
     for moved in ((L_z * (1 + z_rel), L_p), (L_z, L_p + max(p_abs, MODEL_FLOOR_REL * L_z))):
         other = inverter.fit(*moved, v_c, mu)

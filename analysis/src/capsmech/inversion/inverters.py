@@ -69,6 +69,9 @@ class TubeTable:
     vc_over_V: np.ndarray
     profile_r: np.ndarray | None = None
     profile_z: np.ndarray | None = None
+    #: Whether each row is a root of the steady equations (``sharp_edge.is_steady_root``);
+    #: None: all are.
+    root: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         arrays = [np.asarray(getattr(self, k), dtype=float) for k in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V")]
@@ -83,6 +86,10 @@ class TubeTable:
                 if profile.ndim != 2 or profile.shape[0] != n:
                     raise ValueError(f"tube table: {name} must be (rows, points)")
                 object.__setattr__(self, name, profile[keep])
+        root = np.ones(n, dtype=bool) if self.root is None else np.asarray(self.root, dtype=bool)
+        if root.shape != (n,):
+            raise ValueError("tube table: root must be 1-D with one entry per row")
+        object.__setattr__(self, "root", root[keep])
         if np.any(arrays[1][keep] <= 0):
             raise ValueError("tube table: Ca_s must be > 0")
         if keep.sum() < N_NEIGHBOURS:
@@ -468,10 +475,12 @@ class TubeInverter:
         b = transform[:2] @ (x - transform[2])
         return self._hull.simplices[simplex], np.append(b, 1 - b.sum())
 
-    def triangle_turns(self, a_over_l: float, Ca_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def triangle_turns(self, a_over_l: float, Ca_s: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The largest turns [degrees] of the database profiles at the vertices of the triangle
         holding (a/l, Ca_s) (``capsmech.inversion.sharp_edge.largest_turn``), the vertices'
-        Ca_s, and the point's barycentric weights there: what the accuracy of a value
+        Ca_s, the point's barycentric weights there, and whether each vertex is a root of the
+        steady equations (``sharp_edge.is_steady_root``): what the accuracy of a value
         interpolated there depends on (None outside the database or without profiles)."""
         if self.table.profile_r is None or self.table.profile_z is None:
             return None
@@ -480,7 +489,8 @@ class TubeInverter:
             return None
         if self._turns is None:
             self._turns = np.array([largest_turn(r, z) for r, z in zip(self.table.profile_r, self.table.profile_z)])
-        return self._turns[triangle[0]], self.table.Ca_s[triangle[0]], triangle[1]
+        roots = np.ones(len(self.table.Ca_s), dtype=bool) if self.table.root is None else self.table.root
+        return self._turns[triangle[0]], self.table.Ca_s[triangle[0]], triangle[1], roots[triangle[0]]
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
         """Meridian (points, 2) of (r, z) [l] at (a/l, Ca_s): the database profiles blended with
