@@ -26,7 +26,9 @@ from capsmech.inversion.sharp_edge import (
     ACCURACY_BY_TURN,
     BUCKLING_ROW,
     NEAR_FOLD_ROW,
+    NOT_A_ROOT_ROW,
     interpolated_accuracy,
+    is_steady_root,
     largest_turn,
     row_accuracy,
 )
@@ -94,10 +96,32 @@ def test_accuracy_interpolates_the_rows_and_is_the_databases_statement_on_smooth
     assert (near.L_z_rel, near.L_p_abs, near.v_c_rel) == (NEAR_FOLD_ROW.L_z_rel, NEAR_FOLD_ROW.L_p_abs, NEAR_FOLD_ROW.v_c_rel)
     assert row_accuracy(120.0, 0.03) == corner
     assert row_accuracy(10.0, 0.04) == smooth
+    # A row that is no root of the steady equations (its polish discarded) is at least as far as
+    # the refills moved such rows, whatever its class; a corner keeps its larger L_p part.
+    loose = row_accuracy(10.0, 0.1, root=False)
+    assert (loose.L_z_rel, loose.L_p_abs, loose.v_c_rel) == (NOT_A_ROOT_ROW.L_z_rel, NOT_A_ROOT_ROW.L_p_abs,
+                                                             NOT_A_ROOT_ROW.v_c_rel)
+    assert row_accuracy(120.0, 0.5, root=False).L_p_rel == corner.L_p_rel
+    mixed = interpolated_accuracy(np.array([10.0, 10.0]), np.array([0.1, 0.1]), np.array([0.5, 0.5]), 0.3,
+                                  roots=np.array([True, False]))
+    assert mixed[0] == pytest.approx(0.5 * (smooth.L_z_rel + NOT_A_ROOT_ROW.L_z_rel))
     one = interpolated_accuracy(np.array([10.0, 120.0, 20.0]), np.array([0.1, 0.5, 0.1]), np.array([0.0, 1.0, 0.0]), 1.0)
     assert one == pytest.approx((corner.L_z_rel, corner.L_p(1.0), corner.v_c_rel))
     halfway = interpolated_accuracy(np.array([10.0, 120.0]), np.array([0.1, 0.5]), np.array([0.5, 0.5]), 0.3)
     assert halfway[1] == pytest.approx(0.5 * (smooth.L_p(0.3) + corner.L_p(0.3)))
+
+
+def test_the_rows_that_are_no_root_are_read_from_the_kernels_messages(database):
+    """tube-paper (kernel 0.3.5) has 26 steady rows whose Newton polish the kernel discarded
+    (validation: databases); the inverters see them, each row's flag next to its values."""
+    assert is_steady_root("... Newton polish: residual 3.439E-07, largest growth rate 7.031E-03 V/l")
+    assert not is_steady_root("...; the Newton polish stopped at residual 9.892E-03 V and was discarded")
+    not_roots = 0
+    for law in database.laws:
+        table = tube_inverter(database, law).table
+        assert table.root is not None and table.root.shape == table.Ca_s.shape
+        not_roots += int((~table.root).sum())
+    assert not_roots == 26
 
 
 def _fitted(database, line):

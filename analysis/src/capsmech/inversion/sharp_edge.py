@@ -13,8 +13,9 @@ Measured against 128 elements and against a second filling by other time steps
 (``ACCURACY_BY_TURN``), the databases hold their stated accuracy (0.1 %) on smooth profiles
 only: at a corner L_z is good to 1.6 %, L_p to 6.5 % (0.1 l on a deep parachute) and v_c/V to
 0.6 %; near the rear's buckling at Ca_s 0.01-0.03, see ``BUCKLING_ROW`` and ``NEAR_FOLD_ROW``;
-a row that is not a root of the steady equations, ``NOT_A_ROOT_ROW``. ``interpolated_accuracy`` gives the accuracy of a fit
-among rows of these classes, for the fits' database error
+a row that is not a root of the steady equations, ``NOT_A_ROOT_ROW``.
+``interpolated_accuracy`` gives the accuracy of a fit among rows of these classes, for the
+fits' database error
 (``capsmech.inversion.fitting.database_g_s_shifts``); ``profile_floor`` the accuracy point by
 point along a profile, for the contour's chi2 (``capsmech.inversion.noise.contour_chi2``, the
 diagnosis's goodness of fit).
