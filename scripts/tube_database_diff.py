@@ -22,7 +22,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "analysis" / "src"))
-from capsmech.inversion.sharp_edge import BUCKLING_CA_S, NEAR_FOLD_CA_S, largest_turn  # noqa: E402
+from capsmech.inversion.sharp_edge import ACCURACY_BY_TURN, BUCKLING_CA_S, NEAR_FOLD_CA_S, largest_turn  # noqa: E402
 
 CLASSES = ("Ca_s <= 0.011 (buckling)", "Ca_s <= 0.035 (near the fold)", "turn < 30", "turn 30-90", "turn >= 90")
 
@@ -33,9 +33,10 @@ def row_class(ca_s: float, turn: float) -> str:
         return CLASSES[0]
     if ca_s <= NEAR_FOLD_CA_S:
         return CLASSES[1]
-    if not turn >= 30.0:
+    smooth_below, corner_from = ACCURACY_BY_TURN[0][0], ACCURACY_BY_TURN[1][0]
+    if not turn >= smooth_below:
         return CLASSES[2]
-    return CLASSES[3] if turn < 90.0 else CLASSES[4]
+    return CLASSES[3] if turn < corner_from else CLASSES[4]
 
 
 def main(argv: list[str] | None = None) -> int:

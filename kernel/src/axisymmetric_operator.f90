@@ -155,6 +155,9 @@ contains
       if (opts%kb > 0.0_dp) call self%bending%init(self%rz_ref, opts%kb * self%a**2)
       allocate (self%rz_pred(2, n), self%u0(2, n), self%u1(2, n), self%force(2, n), self%density(2, n))
       allocate (self%node_area(n), self%grad(2, n))
+      ! The last evaluation's shape and velocity (velocity_here), here so that the first
+      ! `velocity` of the time loop does not allocate them.
+      allocate (self%rz_evaluated(2, n), self%u_evaluated(2, n))
 
       self%tube_length = opts%tube_length
       call tube_wall_elements(0.5_dp * self%tube_length, self%wall_a, self%wall_b)
