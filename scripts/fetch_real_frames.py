@@ -206,11 +206,13 @@ def _ini(text: str) -> dict[str, str]:
     return out
 
 
-def _avi_frames(data: bytes) -> list[tuple[int, np.ndarray]]:
+def _avi_frames(data: bytes, partial: list | None = None) -> list[tuple[int, np.ndarray]]:
     """(chunk index, frame) of the complete frames of an uncompressed (8-bit DIB) or I420 AVI.
 
     The chunks of the 'movi' list are walked in order; the n-th video chunk is the n-th event.
-    Empty or truncated chunks (the test AVIs are truncated) are skipped but counted."""
+    Empty or truncated chunks (the test AVIs are truncated) are skipped but counted. The rows
+    that a truncated last chunk of a bottom-up DIB still holds (the frame's bottom rows) are
+    appended to ``partial``, when given, as (chunk index, first image row, rows)."""
     i = data.find(b"strf")
     _, width, height, _, bpp, compression = struct.unpack("<IiiHHI", data[i + 8:i + 28])
     h = abs(height)
@@ -236,6 +238,10 @@ def _avi_frames(data: bytes) -> list[tuple[int, np.ndarray]]:
                 if compression == 0 and height > 0:
                     img = img[::-1]   # bottom-up DIB
                 frames.append((index, np.ascontiguousarray(img)))
+            elif partial is not None and compression == 0 and height > 0 and len(chunk) >= stride:
+                k = len(chunk) // stride
+                rows_kept = np.frombuffer(chunk[:stride * k], np.uint8).reshape(k, stride)[:, :width][::-1]
+                partial.append((index, h - k, np.ascontiguousarray(rows_kept)))
             index += 1
         elif cid == b"idx1":
             break
@@ -250,7 +256,8 @@ def read_tdms_avi(blob: bytes, event_offset: int = 0) -> dict:
         avi = next(n for n in names if n.endswith(".avi"))
         para = _ini(zf.read(next(n for n in names if n.endswith("_para.ini"))).decode("latin-1"))
         cam = _ini(zf.read(next(n for n in names if n.endswith("_camera.ini"))).decode("latin-1"))
-        frames = _avi_frames(zf.read(avi))
+        partial: list = []
+        frames = _avi_frames(zf.read(avi), partial)
         contours = []
         cname = next((n for n in names if n.endswith("contours.txt")), None)
         if cname:
@@ -271,7 +278,58 @@ def read_tdms_avi(blob: bytes, event_offset: int = 0) -> dict:
     rec["contour"] = [contours[k][1] for k in chunk_index]
     rec["contour_frame_numbers"] = [contours[k][0] for k in chunk_index]
     rec["avi_chunk_index"] = chunk_index
+    # The truncated chunk after the last complete frame, numbered like the events.
+    rec["partial_frame"] = (partial[0][0] + event_offset, *partial[0][1:]) if partial else None
+    if partial and partial[0][0] + event_offset < len(contours):
+        rec["partial_frame_contour_number"] = contours[partial[0][0] + event_offset][0]
     return rec
+
+
+def next_frame_survey(frame: np.ndarray, partial: tuple[int, int, np.ndarray], contour: np.ndarray | None,
+                      contour_number: int | None, next_number: int | None) -> dict:
+    """The last complete frame's object against the rows of the next, truncated frame (the camera's
+    next frame: the object has moved on, so those rows are the empty channel there).
+
+    The contrast ``1 - frame / (gain next)`` (the gain: the median ratio of the two) smoothed
+    1 px, its noise the robust deviation over the rows; per threshold (3-6 deviations, on the
+    absolute contrast, the dark part, the bright part) the columns of the component, joined over
+    2 px, that has the most pixels within the reference contour's columns (+-25 px), and the
+    largest deviation there. It shows how faint the object is even against its true background,
+    and how far the reference contour covers it."""
+    from scipy import ndimage as ndi
+
+    chunk, first_row, rows = partial
+    part = frame[first_row:first_row + len(rows)].astype(float)
+    nxt = rows.astype(float)
+    gain = float(np.median(part / np.maximum(nxt, 1)))
+    c = ndi.gaussian_filter(1 - part / np.maximum(gain * nxt, 1), 1.0)
+    sigma = float(1.4826 * np.median(np.abs(c - np.median(c))))
+    out: dict = {"chunk": int(chunk), "contour_frame_number": next_number, "image_rows": [int(first_row),
+                 int(first_row + len(rows) - 1)], "gain": round(gain, 4), "noise_1px": round(sigma, 5)}
+    if contour is None or not len(contour):
+        return out
+    lo, hi = int(contour[:, 0].min()) - 25, int(contour[:, 0].max()) + 25
+    in_rows = contour[contour[:, 1] >= first_row]
+    out["reference_contour"] = {"frame_number": contour_number, "columns": [int(contour[:, 0].min()),
+                                int(contour[:, 0].max())],
+                                "columns_in_these_rows": ([int(in_rows[:, 0].min()), int(in_rows[:, 0].max())]
+                                                          if len(in_rows) else None)}
+    for name, values in (("abs", np.abs(c)), ("dark", c), ("bright", -c)):
+        out[f"peak_{name}_sigmas"] = round(float(values[:, max(lo, 0):hi].max() / sigma), 2)
+        spans = {}
+        for k in (3, 4, 5, 6):
+            mask = values > k * sigma
+            labels, _ = ndi.label(ndi.binary_dilation(mask, iterations=2))
+            labels = np.where(mask, labels, 0)
+            counts = np.bincount(labels[:, max(lo, 0):hi].ravel())
+            counts[0] = 0
+            if counts.max() == 0:
+                spans[str(k)] = None
+                continue
+            cols = np.nonzero((labels == int(np.argmax(counts))).any(axis=0))[0]
+            spans[str(k)] = [int(cols.min()), int(cols.max())]
+        out[f"object_columns_{name}"] = spans
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -325,7 +383,7 @@ def survey(image: np.ndarray, bg: np.ndarray | None, pixel_um: float, channel_um
     peaks, _ = find_peaks(tophat, height=max(4.0, 0.2 * float(tophat.max(initial=0))))
     lines = []
     for r0 in peaks:
-        xs, ys = [], []
+        xs, ys, full = [], [], []
         for x0 in range(0, W - 8, 8):
             col = back[:, x0:x0 + 8].mean(1)
             pred = int(round(r0 + t_best * (x0 + 4 - W / 2)))
@@ -337,6 +395,9 @@ def survey(image: np.ndarray, bg: np.ndarray | None, pixel_um: float, channel_um
                 continue
             xs.append(x0 + 4)
             ys.append(_subpix(col, r))
+            # The whole line: darker than the rows 3 px beside it by half its depth over the frame.
+            beside = [col[q] for q in (r - 3, r + 3) if 0 <= q < H]
+            full.append(bool(np.mean(beside) - col[r] >= 0.5 * tophat[r0]))
         if len(xs) < max(5, 0.4 * (W // 8)):   # a line must span most of the frame
             continue
         xa, ya = np.array(xs, float), np.array(ys)
@@ -344,6 +405,7 @@ def survey(image: np.ndarray, bg: np.ndarray | None, pixel_um: float, channel_um
         keep = np.abs(ya - (a + b * xa)) < 1.0
         if keep.sum() >= 5:
             b, a = np.polyfit(xa[keep], ya[keep], 1)
+        whole = keep & np.array(full)
         row = float(a + b * W / 2)
         if any(abs(row - ln["row_at_centre"]) < 1.5 for ln in lines):
             continue
@@ -351,7 +413,12 @@ def survey(image: np.ndarray, bg: np.ndarray | None, pixel_um: float, channel_um
                       "tilt_deg": round(float(np.degrees(np.arctan(b))), 3),
                       "depth_grey": round(float(tophat[r0]), 1),
                       "rms_px": round(float(np.std(ya[keep] - (a + b * xa[keep]))), 2),
-                      "columns_fitted": f"{int(keep.sum())}/{len(xs)}"})
+                      "columns_fitted": f"{int(keep.sum())}/{len(xs)}",
+                      # First and last column of the 8 px strips where the whole line (half its
+                      # depth at least) lies on the fit (within 1 px): beyond, the wall leaves its
+                      # row (an inlet, a widening) or is hidden.
+                      "columns_on_line": ([int(xa[whole].min()) - 4, int(xa[whole].max()) + 3]
+                                          if whole.any() else None)})
     out: dict = {"background": "events/image_bg" if bg is not None else "median of the frames",
                  "levelling_tilt_deg_coarse": round(best, 2), "dark_lines": lines}
     centre = H / 2
@@ -361,6 +428,9 @@ def survey(image: np.ndarray, bg: np.ndarray | None, pixel_um: float, channel_um
     out["channel_width_nominal_px"] = round(nominal, 1)
     if above and below:
         top, bottom = above[-1], below[0]
+        if top["columns_on_line"] and bottom["columns_on_line"]:
+            out["straight_columns"] = [max(top["columns_on_line"][0], bottom["columns_on_line"][0]),
+                                       min(top["columns_on_line"][1], bottom["columns_on_line"][1])]
         width = bottom["row_at_centre"] - top["row_at_centre"]
         out["inner_walls_rows"] = [top["row_at_centre"], bottom["row_at_centre"]]
         out["wall_tilt_deg"] = [top["tilt_deg"], bottom["tilt_deg"]]
@@ -474,6 +544,13 @@ def write_recording(stem: str, blob: bytes, where: str, out: Path, workdir: Path
     files.append("frame_times.csv")
 
     srv = survey(frames, bg, pix, rec["channel_width_um"])
+    last = rec.get("avi_chunk_index", [None])[-1] if rec.get("avi_chunk_index") else None
+    if rec.get("partial_frame") is not None and last is not None and rec["partial_frame"][0] == last + 1:
+        ev_last = len(rec["image"]) - 1
+        srv["next_frame_rows"] = next_frame_survey(
+            rec["image"][ev_last], rec["partial_frame"],
+            np.asarray(rec["contour"][ev_last]) if rec["contour"] is not None else None,
+            rec["contour_frame_numbers"][ev_last], rec.get("partial_frame_contour_number"))
     back = bg.astype(float) if bg is not None else np.median(frames.astype(float), axis=0)
     ev_rows = []
     H, W = frames.shape[1:]

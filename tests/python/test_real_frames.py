@@ -46,27 +46,18 @@ BAD_REFERENCE = {("fmt-tdms_fl-image-bright_2017", 2)}
 #: fmt-tdms_fl-image-bright_2017 (4/6 while silhouettes were traced on the rings' 0.6 px smoothing) passes
 #: since their outer edge is traced on the detection's own contrast (1 px), where the detection mask ends.
 SHORT = {
-    "fmt-tdms_fl-image-large-fov_2017": "a single frame of the whole constriction, no background image: the "
-                                        "per-row median leaves the walls that widen at both ends in the contrast "
-                                        "(their objects at columns 0-90 touch the border), and the faint cell "
-                                        "(columns 768-815) peaks at contrast 0.059, under the detection threshold "
-                                        "0.107 (6 noise deviations): it is never found. A running median along the "
-                                        "rows (3 channel widths, 167 px) does not help: the widening lies within "
-                                        "85 px (left) and 25 px (right) of the frame's ends, where the window must "
-                                        "stay inside the frame, lest a capsule cut by the edge be taken for "
-                                        "background (so objects at columns 0-72 and 966-999 remain), and the cell "
-                                        "then peaks at 0.044 = 3.9 noise deviations (threshold 0.069) while the "
-                                        "noise alone reaches 5.6 elsewhere in the channel. Nor does a separable "
-                                        "background (the row median times a column gain, the running median over "
-                                        "167 px of each column's median): it removes the 6.8 % illumination "
-                                        "gradient along the channel (noise 0.0179 -> 0.0120 at 1 px) but the cell "
-                                        "is a faint interior (+0.01) inside a bright halo (-0.03) and stays at 3.7 "
-                                        "deviations (elsewhere 5.9); smoothing more integrates the halo against "
-                                        "the interior, and the residual background does not average out like "
-                                        "white noise (deviation 0.0057 at 5 px, 0.0024 expected): Gaussian 1.5-5 px "
-                                        "3.4-1.9 (elsewhere 6.0-4.0), box 15-35 px 2.7-1.9 (3.9-4.2), LoG 3-14 px "
-                                        "3.9-1.6 (5.6-7.2), local energy (c^2 over 3 px) 9.9 but 16.6 elsewhere "
-                                        "mid-channel. Needs a background image",
+    "fmt-tdms_fl-image-large-fov_2017": "its one frame's cell is not found ('no capsule'; the stack says that a "
+                                        "single frame's own background cannot show it and asks for a background "
+                                        "image). The cell is a faint interior (+0.008 against its surroundings) "
+                                        "in a bright rim. Against the per-row median of the straight channel "
+                                        "(noise 0.0148 at 1 px) its darkest point is at 3.4 noise deviations, while "
+                                        "the chip's texture alone reaches 6.5 elsewhere in the channel. Against "
+                                        "the next camera frame's rows 32-64, which the truncated AVI still holds "
+                                        "(noise 0.0062; meta.json survey next_frame_rows), the rim peaks at 7.7 and "
+                                        "only columns 817-819 pass the detection's 6. No single-frame background "
+                                        "or filter measured finds it (validation page). Its reference contour is "
+                                        "itself a crescent fragment (columns 768-815) of the cell, whose rim spans "
+                                        "753-822 against those rows",
 }
 CHANNELS = sorted(p.name for p in DATA.iterdir() if p.is_dir() and p.name not in NO_CHANNEL) if DATA.is_dir() else []
 

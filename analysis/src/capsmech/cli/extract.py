@@ -94,6 +94,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         print(channel.width_check)
     if channel.background_check:
         print(channel.background_check)
+    if channel.geometry_check:
+        print(channel.geometry_check)
     print(channel.flow_check)
     if args.overlay:
         # The level/tilt/walls picture once, and every frame that shows an object, measured or not.

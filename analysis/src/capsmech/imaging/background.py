@@ -62,14 +62,16 @@ class StackBackground:
     frames: int
 
 
-def row_background(image: np.ndarray) -> np.ndarray:
+def row_background(image: np.ndarray, columns: tuple[int, int] | None = None) -> np.ndarray:
     """Each row's median over the columns, spread over the row (levelled frames: walls horizontal).
 
     The fallback for single frames: an object filling less than half of every row does not
-    move the median.
+    move the median. ``columns``: the first and last column of the straight channel, over
+    which the median is taken (beyond, the walls leave their rows).
     """
     image = np.asarray(image, dtype=np.float32)
-    return np.repeat(np.median(image, axis=1)[:, None], image.shape[1], axis=1)
+    part = image if columns is None else image[:, columns[0]:columns[1] + 1]
+    return np.repeat(np.median(part, axis=1)[:, None], image.shape[1], axis=1)
 
 
 def noise_level(values: np.ndarray) -> float:

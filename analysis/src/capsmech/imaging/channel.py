@@ -35,11 +35,15 @@ class Walls:
     source : str
         How they were found: ``detected``, ``given`` (user's rows) or
         ``one wall detected, the other placed at the channel width``.
+    columns : (int, int) or None
+        First and last column of the straight channel, where the detected wall lines lie at
+        their rows (:func:`straight_columns`); None: the whole width.
     """
 
     top_row: float
     bottom_row: float
     source: str = "detected"
+    columns: tuple[int, int] | None = None
 
     @property
     def radius_px(self) -> float:
@@ -381,6 +385,71 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
         raise ExtractionError(f"{label}: the walls found (rows {walls.top_row:.1f}, {walls.bottom_row:.1f}) are too "
                               f"close to be a channel{hint}")
     return walls
+
+
+#: Strips (columns) in which :func:`straight_columns` looks for the wall lines.
+STRAIGHT_STRIP_PX = 16
+
+
+def straight_columns(background: np.ndarray, walls: Walls, strip_px: int = STRAIGHT_STRIP_PX) -> tuple[int, int] | None:
+    """First and last column of the straight channel in a levelled background: where each
+    detected wall line lies at its row, or None when it does over the whole width.
+
+    Beyond, the walls leave their rows: the channel widens into its inlet or outlet (an RT-DC
+    chip's reservoirs, a capillary's end). What lies there is wall, not a capsule, and the
+    tube's model does not hold there. Per strip of ``strip_px`` columns a line is present
+    when its row is darker than the rows 3 px above and below by a third of the line's depth
+    over the whole width (as :func:`wall_lines` requires of a wall). Only the ends of the view
+    are cut: a notch or a speck on a wall further in is no end. A wall placed by the user or at
+    the channel width is not looked for.
+    """
+    image = np.asarray(background, dtype=np.float32)
+    rows, cols = image.shape
+    if walls.source == "given":
+        return None
+    bright = float(np.percentile(np.median(image, axis=1), 90))
+    n = cols // strip_px
+    if bright <= 0 or n < 3:
+        return None
+    rows_in_view = [r for r in (walls.top_row, walls.bottom_row) if 3 <= round(r) <= rows - 4]
+    if walls.source != "detected":      # one wall detected, the other placed: only the detected one
+        rows_in_view = [r for r in rows_in_view if any(abs(r - line) < 1.5 for line in wall_lines(image))]
+    present = np.ones(n, dtype=bool)
+    # Per column (a running mean over 5): the line at half its depth or more, to place the ends.
+    column_present = np.ones(cols, dtype=bool)
+    whole = 1 - np.median(image, axis=1) / bright
+    strips = 1 - image[:, :n * strip_px].reshape(rows, n, strip_px).mean(axis=2) / bright
+    dark = 1 - image / bright
+    for row in rows_in_view:
+        r = int(round(row))
+        depth = whole[r] - 0.5 * (whole[r - 3] + whole[r + 3])
+        if depth <= 0:
+            continue
+        present &= strips[r] - 0.5 * (strips[r - 3] + strips[r + 3]) > depth / 3
+        local = ndimage.uniform_filter1d(dark[r] - 0.5 * (dark[r - 3] + dark[r + 3]), 5, mode="nearest")
+        column_present &= local > depth / 2
+    if present.all() or not present.any():
+        return None
+    first_strip = int(np.argmax(present))
+    last_strip = n - 1 - int(np.argmax(present[::-1]))
+    # The strips beyond the last full one (cols % strip_px columns) follow the last strip.
+    first = first_strip * strip_px
+    last = cols - 1 if last_strip == n - 1 else (last_strip + 1) * strip_px - 1
+    # The ends to the column: the strip's edge moved to where the line starts (stops) in the
+    # column profile, within a strip either way.
+    if first > 0:
+        while first > max(0, (first_strip - 1) * strip_px) and column_present[first - 1]:
+            first -= 1
+        while first < min(last, (first_strip + 1) * strip_px) and not column_present[first]:
+            first += 1
+    if last < cols - 1:
+        while last < min(cols - 1, (last_strip + 2) * strip_px - 1) and column_present[last + 1]:
+            last += 1
+        while last > max(first, last_strip * strip_px - 1) and not column_present[last]:
+            last -= 1
+    if first == 0 and last == cols - 1:
+        return None
+    return first, last
 
 
 def parse_walls(text: str) -> tuple[float, float]:

@@ -15,12 +15,15 @@ Per stack (:func:`prepare`)
     3. Walls (``channel.find_walls``): the widest bright interval between dark lines of the
        levelled background, or the user's rows; the channel width given by the user is
        checked against the one found.
+    4. Straight channel (``channel.straight_columns``): where the view shows an inlet or an
+       outlet, the columns beyond which the walls leave their rows are cut off; objects are
+       looked for between them only.
 Per frame (:func:`analyse_contrast`)
     1. Contrast c = 1 - I / background (flat field: walls, dirt and gradients divide out).
     2. Objects (``objects.find_objects``): c smoothed (1 px) above 6 noise deviations
        inside the channel, fragments joined, specks dropped. None: ``no capsule``; one
-       whose pixels reach the image's left or right edge: ``touches the image border``;
-       more than one: ``N capsules`` (each is still traced and drawn).
+       whose pixels reach the image's left or right edge: ``touches the image border`` (the
+       straight channel's end: ``touches the end of the straight channel``); more than one: ``N capsules`` (each is still traced and drawn).
     3. Tracing (``objects.trace_object``): a dark ring around a transparent interior gives
        its mid-line; a filled silhouette its outer edge (the report says which).
     4. Focus: a ring whose line is wider than ``max_line_width_px``, or than ``focus_ratio``
@@ -47,6 +50,7 @@ Per capsule (:func:`measure_capsules`)
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from collections.abc import Callable, Iterable
@@ -55,8 +59,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from capsmech.imaging.background import MIN_FREE_FRAMES, flat_field, row_background, stack_background
-from capsmech.imaging.channel import Walls, estimate_tilt, find_walls, level
+from capsmech.imaging.background import (
+    MIN_FRAMES_TEMPORAL,
+    MIN_FREE_FRAMES,
+    flat_field,
+    row_background,
+    stack_background,
+)
+from capsmech.imaging.channel import Walls, estimate_tilt, find_walls, level, straight_columns
 from capsmech.imaging.frames import (
     ExtractionError,
     FrameStack,
@@ -69,6 +79,7 @@ from capsmech.imaging.measurement import (
     DEFAULT_SETTINGS,
     ExtractionSettings,
     FrameResult,
+    cut_flag,
     flag_out_of_focus,
     measure_trace,
 )
@@ -128,6 +139,9 @@ class Channel:
         (``background.StackBackground.untrusted``); None: a given background, trusted.
     background_check : str
         Where the stack background cannot be trusted, in words ('' where it can everywhere).
+    geometry_check : str
+        Where the channel is straight, in words, when not over the whole width ('' when it is):
+        objects are looked for there only (``walls.columns``).
     """
 
     walls: Walls
@@ -139,6 +153,7 @@ class Channel:
     flow_check: str = ""
     untrusted: np.ndarray | None = None
     background_check: str = ""
+    geometry_check: str = ""
 
     def background_trusted_under(self, trace: TracedObject) -> bool:
         """Whether the background under a traced object's contour can be trusted: at most
@@ -163,7 +178,7 @@ class Channel:
         """
         levelled = self.levelled(image)
         if self.background is None:
-            return flat_field(levelled, row_background(levelled))
+            return flat_field(levelled, row_background(levelled, self.walls.columns))
         inside = _inside(levelled.shape, self.walls)[::2, ::2]
         ratio = (levelled[::2, ::2][inside] / np.maximum(self.background[::2, ::2][inside], 1e-6)
                  if inside.any() else np.ones(1))
@@ -225,17 +240,32 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
     else:
         reference = levelled_bg if levelled_bg is not None else level(raw, tilt)
         found = find_walls(reference, label, channel_width_px)
+    geometry = ""
+    if found.columns is None:
+        straight = straight_columns(levelled_bg if levelled_bg is not None else level(raw, tilt), found)
+        found = dataclasses.replace(found, columns=straight)
+    if found.columns is not None:
+        width = np.asarray(frames[0]).shape[1]
+        geometry = (f"straight channel: columns {found.columns[0]}-{found.columns[1]} of 0-{width - 1} (the walls "
+                    f"leave their rows beyond: an inlet, an outlet or a widening); objects are looked for there only")
+    if source.startswith("per-row"):
+        trust_check = (f"background: each frame's own per-row median ({len(frames)} frame"
+                       f"{'s' if len(frames) != 1 else ''}, fewer than {MIN_FRAMES_TEMPORAL} for a temporal median):"
+                       f"\nan object fainter than the chip's texture is not seen; give the empty channel's image "
+                       f"(--background) to find it")
     check = ""
     if channel_width_px:
         diff = found.width_px / channel_width_px - 1
         check = (f"channel width {found.width_px:.1f} px found, {channel_width_px:.1f} px given: "
                  f"{100 * diff:+.1f} %" + (" (more than 10 % apart: check the walls or the width)"
                                             if abs(diff) > 0.10 else ""))
-    return Channel(found, tilt, levelled_bg, source, check, untrusted=untrusted, background_check=trust_check)
+    return Channel(found, tilt, levelled_bg, source, check, untrusted=untrusted, background_check=trust_check,
+                   geometry_check=geometry)
 
 
 def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray:
-    """The rows between the walls, ``margin`` px clear of each wall line in view.
+    """The rows between the walls, ``margin`` px clear of each wall line in view, in the straight
+    channel's columns (``walls.columns``).
 
     Clear of them: a frame whose walls differ from the background's (blurred, or moved by a
     fraction of a pixel) leaves streaks along them that are no object.
@@ -244,6 +274,9 @@ def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray
     top = int(math.floor(walls.top_row)) + 1 + (margin if walls.top_row >= 0 else 0)
     bottom = int(math.ceil(walls.bottom_row)) - (margin if walls.bottom_row <= shape[0] - 1 else 0)
     inside[max(0, top):max(0, min(shape[0], bottom))] = True
+    if walls.columns is not None:
+        inside[:, :walls.columns[0]] = False
+        inside[:, walls.columns[1] + 1:] = False
     return inside
 
 
@@ -288,7 +321,7 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
             traces.append(traced)
     result.traces = traces
     for t in traces:
-        measure_trace(t, walls.axis_row, cols, settings)
+        measure_trace(t, walls.axis_row, cols, settings, walls.columns)
     objects = np.isin(labels, keep) & mask
     result.object_x = float(np.nonzero(objects)[1].mean())
     rings = [t for t in traces if t.kind == "ring"]
@@ -300,14 +333,16 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
             return result
     elif traces:
         result.line_contrast = float(np.median([t.line_contrast for t in traces]))
-    # The border first: a capsule cut by it may fall apart into several arcs.
-    cut = [t for t in traces if t.columns[0] <= 1 or t.columns[1] >= cols - 2]
+    # The border first (or the straight channel's end): a capsule cut by it may fall apart into several arcs.
+    cut = [t for t in traces if cut_flag(t.columns, cols, walls.columns)]
     object_columns = np.nonzero(objects.any(axis=0))[0]
-    if len(cut) == len(traces) and (object_columns.min() <= 1 or object_columns.max() >= cols - 2):
-        result.flag = "touches the image border"
+    whole_cut = cut_flag((int(object_columns.min()), int(object_columns.max())), cols, walls.columns)
+    if len(cut) == len(traces) and whole_cut:
+        result.flag = whole_cut
         return result
     if len(keep) > 1:
-        result.flag = f"{len(keep)} capsules" + (f" ({len(cut)} cut by the image border)" if cut else "")
+        result.flag = f"{len(keep)} capsules" + (f" ({len(cut)} cut by the image border or the channel's end)"
+                                                 if cut else "")
         return result
     if not traces:
         result.flag = reasons[0]

@@ -225,7 +225,8 @@ def write_channel_overlay(path: str | Path, background: np.ndarray, channel: Cha
     title = (f"levelled by {channel.tilt_deg:+.3f} deg; walls at rows {channel.walls.top_row:.2f}, "
              f"{channel.walls.bottom_row:.2f} ({channel.walls.source}), width {channel.walls.width_px:.1f} px; "
              f"background: {channel.background_source}" + (f"\n{channel.width_check}" if channel.width_check else "")
-             + (f"\n{channel.background_check}" if channel.background_check else ""))
+             + (f"\n{channel.background_check}" if channel.background_check else "")
+             + (f"\n{channel.geometry_check}" if channel.geometry_check else ""))
     fig, ax = _figure(background, title)
     if channel.untrusted is not None and channel.untrusted.any():
         # Where the background is a guess: objects there are flagged, not measured.
@@ -233,6 +234,8 @@ def write_channel_overlay(path: str | Path, background: np.ndarray, channel: Cha
     for row in (channel.walls.top_row, channel.walls.bottom_row):
         ax.axhline(row, color="deepskyblue", lw=0.8)
     ax.axhline(channel.walls.axis_row, color="gold", lw=0.6, ls="--")
+    for column in channel.walls.columns or ():
+        ax.axvline(column, color="deepskyblue", lw=0.8, ls=":")
     return _save(fig, path)
 
 

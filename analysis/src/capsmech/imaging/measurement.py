@@ -96,18 +96,34 @@ def asymmetry(contour: np.ndarray, axis_row: float, half_length: float) -> float
     return float(max(d_ul, d_lu) / half_length)
 
 
-def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: ExtractionSettings) -> None:
+def cut_flag(object_columns: tuple[int, int], columns: int, view: tuple[int, int] | None = None) -> str:
+    """Why an object spanning ``object_columns`` is cut: it reaches the image's left or right
+    border, or the end of the straight channel (``view``: its first and last column, None: the
+    whole width of ``columns``); '' when it is not cut."""
+    first, last = view if view is not None else (0, columns - 1)
+    for reached, end, border in ((object_columns[0] <= first + 1, first, first == 0),
+                                 (object_columns[1] >= last - 1, last, last == columns - 1)):
+        if reached:
+            return ("touches the image border" if border else
+                    f"touches the end of the straight channel (column {end}: the walls leave their rows beyond)")
+    return ""
+
+
+def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: ExtractionSettings,
+                  view: tuple[int, int] | None = None) -> None:
     """Measure one traced object on its own (its lengths, symmetry and flag, set on ``trace``).
 
-    Its flag: cut by the image's left or right edge, a line wider than
-    ``settings.max_line_width_px``, no crossing of the tube axis, or asymmetric.
+    Its flag: cut by the image's left or right edge or by the end of the straight channel
+    (``view``, see :func:`cut_flag`), a line wider than ``settings.max_line_width_px``, no
+    crossing of the tube axis, or asymmetric.
     """
     trace.L_z_px = trace.x_front - trace.x_rear
     trace.x_rear_axis = rear_axis_crossing(trace.contour, axis_row)
     trace.L_p_px = max(0.0, trace.x_rear_axis - trace.x_rear) if math.isfinite(trace.x_rear_axis) else math.nan
     trace.asymmetry = asymmetry(trace.contour, axis_row, trace.L_z_px / 2)
-    if trace.columns[0] <= 1 or trace.columns[1] >= columns - 2:
-        trace.flag = "touches the image border"
+    cut = cut_flag(trace.columns, columns, view)
+    if cut:
+        trace.flag = cut
     elif trace.kind == "ring" and trace.line_width_px > settings.max_line_width_px:
         trace.flag = f"out of focus (line {trace.line_width_px:.1f} px wide > {settings.max_line_width_px:g})"
     elif not math.isfinite(trace.x_rear_axis):
