@@ -66,6 +66,19 @@ def test_the_straight_channel_starts_where_the_walls_do_and_capsules_there_are_m
             assert not r.good, (k, r.flag)      # in the inlet: not looked for
 
 
+def test_a_gap_in_the_walls_away_from_the_ends_cuts_nothing():
+    """A notch: both wall lines missing over 40 columns in the middle of the view (and a capsule
+    beside it). Only the ends of the view are cut, so the channel stays whole."""
+    outline = capsule_outline()
+    frames = render_stack(outline, 8, 60.0, 40.0, STYLE, seed=8)
+    open_view = render_frame([], replace(STYLE, wall_darkness=1e-9), np.random.default_rng(9))
+    for rows in (slice(0, 40), slice(120, 160)):      # the walls' rows only: the capsules stay
+        frames[:, rows, 220:260] = open_view[rows, 220:260]
+    channel, results = extract_stack(FrameStack(list(frames), [f"f{k}" for k in range(8)]))
+    assert channel.walls.columns is None and channel.geometry_check == ""
+    assert sum(r.good for r in results) >= 6, [r.flag for r in results]
+
+
 def test_a_single_frame_is_levelled_against_the_straight_channel_only():
     outline = capsule_outline()
     frame = with_inlet(render_stack(outline, 1, 260.0, 0.0, STYLE, seed=5), 13)

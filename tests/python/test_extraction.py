@@ -402,6 +402,7 @@ def test_glass_shown_as_a_thick_band_has_its_inner_edge_as_the_wall(tube_db, gla
     frames = np.clip(frames * (1 - 0.45 * (band(*glass[0]) + band(*glass[1]))), 0, 255).astype(np.uint8)
     channel, results = extract_stack(stack_of(frames))
     assert channel.walls.top_row == pytest.approx(50.0, abs=0.3) and channel.walls.bottom_row == pytest.approx(150.0, abs=0.3)
+    assert channel.walls.columns is None          # a band's edge is a step, not a line that could leave its row
     L_z, L_p = (length * 50.0 for length in drawn_lengths(outline))
     good = [r for r in results if r.good]
     assert len(good) >= 10, [r.flag for r in results]

@@ -399,9 +399,10 @@ def straight_columns(background: np.ndarray, walls: Walls, strip_px: int = STRAI
     chip's reservoirs, a capillary's end). What lies there is wall, not a capsule, and the
     tube's model does not hold there. Per strip of ``strip_px`` columns a line is present
     when its row is darker than the rows 3 px above and below by a third of the line's depth
-    over the whole width (as :func:`wall_lines` requires of a wall). Only the ends of the view
-    are cut: a notch or a speck on a wall further in is no end. A wall placed by the user or at
-    the channel width is not looked for.
+    over the whole width (as :func:`wall_lines` requires of a wall); the ends are then placed to
+    the column where the line, averaged over 5 columns, reaches half its depth. Only the ends of
+    the view are cut: a notch or a speck on a wall further in is no end. Walls given by the
+    user, placed at the channel width or found as a glass band's edge are not looked for.
     """
     image = np.asarray(background, dtype=np.float32)
     rows, cols = image.shape
@@ -411,9 +412,11 @@ def straight_columns(background: np.ndarray, walls: Walls, strip_px: int = STRAI
     n = cols // strip_px
     if bright <= 0 or n < 3:
         return None
-    rows_in_view = [r for r in (walls.top_row, walls.bottom_row) if 3 <= round(r) <= rows - 4]
-    if walls.source != "detected":      # one wall detected, the other placed: only the detected one
-        rows_in_view = [r for r in rows_in_view if any(abs(r - line) < 1.5 for line in wall_lines(image))]
+    # The walls that are lines: not one placed at the channel width, nor a glass band's edge (a
+    # step, not a line: it has no depth against the rows either side).
+    lines = wall_lines(image)
+    rows_in_view = [r for r in (walls.top_row, walls.bottom_row)
+                    if 3 <= round(r) <= rows - 4 and any(abs(r - line) < 1.5 for line in lines)]
     present = np.ones(n, dtype=bool)
     # Per column (a running mean over 5): the line at half its depth or more, to place the ends.
     column_present = np.ones(cols, dtype=bool)
