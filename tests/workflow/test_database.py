@@ -269,3 +269,19 @@ def test_a_discarded_polish_is_rerun_with_a_stricter_steady_rule(tmp_path: Path)
     assert retry_args(["--flow", "tube", "--t-max", "60", "--steady-tol", "2e-3"])[-4:] == \
         ["--steady-tol", "2e-05", "--t-max", "400"]
     assert retry_args(["--flow", "tube", "--t-max", "60"]).count("--t-max") == 1
+
+
+def test_a_polish_still_discarded_is_rerun_once_more_ten_times_stricter(tmp_path: Path) -> None:
+    """SK C = 1, a/l 0.7, Ca_s 0.02 (the paper grid's, 64 elements): its polish is discarded at the
+    default rule and still at 100 times stricter (residual 4e-3 V), and converges at 1000 times
+    stricter (residual 8e-8 V, stable): the case file is that last rerun's."""
+    from capsmech.workflow.grid import Case, parse_law
+
+    case = Case(flow="tube", law=parse_law("SK_C1"), Ca_s=0.02, a_over_l=0.7,
+                settings=(("n_meridian", 64), ("t_max", 60)))
+    out = tmp_path / "case.h5"
+    assert run_case(CAPSIM, case.kernel_args(), out, code_version=CODE_VERSION) == "steady"
+    message = read_case(out).message
+    assert message.startswith("rerun with a steady rule 1000 times stricter (--steady-tol 1e-06 --t-max 400) ")
+    assert float(message.split("Newton polish: residual ")[1].split(",")[0]) < 1e-6
+    assert not message.endswith("discarded") and not (tmp_path / "case.h5.retry.h5").exists()

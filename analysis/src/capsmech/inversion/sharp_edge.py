@@ -122,11 +122,11 @@ NEAR_FOLD_ROW = LengthAccuracy(L_z_rel=2e-3, L_p_abs=3e-3, L_p_rel=0.0, v_c_rel=
 #: wherever the slow drift passed the steady rule (``is_steady_root``). The path spread comes
 #: from these rows: discarded in either filling, 41 rows moved by up to L_z 1.85 % (GH nu_s 0,
 #: a/l 1, Ca_s 0.5), L_p 0.018 l (GH nu_s 0, a/l 0.8, Ca_s 0.01), v_c 0.10 %. The workflow now
-#: reruns such a case with a steady rule 100 times stricter (``workflow.runner``): in
-#: tube-paper 14 of the 26 then reach a root, moving by up to L_z 1.81 % (GH nu_s 0, a/l 1,
+#: reruns such a case with a steady rule 100, then 1000 times stricter (``workflow.runner``):
+#: in tube-paper 20 of the 26 then reach a root, moving by up to L_z 1.81 % (GH nu_s 0, a/l 1,
 #: Ca_s 0.5; 0.17 % at Ca_s 0.02-0.03), L_p 0.0154 l above Ca_s 0.011 (0.027 l at Ca_s 0.01,
-#: the buckling class), v_c 0.44 %: within this and the other classes. 12 of the 744 steady
-#: rows stay no root, 9 of them at Ca_s 0.01.
+#: the buckling class), v_c 0.56 % (a corner): within this and the other classes. 6 of the 744
+#: steady rows stay no root, all at Ca_s 0.01.
 NOT_A_ROOT_ROW = LengthAccuracy(L_z_rel=0.019, L_p_abs=0.018, L_p_rel=0.0, v_c_rel=1e-3)
 
 

@@ -21,12 +21,14 @@ any other exit code
 
 A steady tube case whose Newton polish was discarded (the kernel's message ends "... and was
 discarded": time stepping declared the shape steady at its drift rule, but Newton's method from
-there stalled or found an unstable shape) is **run again with a steady rule
-:data:`RETRY_STEADY_TOL_FACTOR` times stricter** and up to :data:`RETRY_T_MAX`: the same time
-steps, continued until the shape drifts 100 times less, and polished again from there (the
-paper grid: 14 of its 26 such rows then reach a root of the steady equations). The rerun's case
-file replaces the first when it is steady too, its message prefixed with why it was rerun;
-otherwise the first stays.
+there stalled or found an unstable shape) is **run again with a steady rule 100 times
+stricter, then, while its polish is still discarded, 1000 times** (:data:`RETRY_STEADY_TOL_FACTORS`),
+up to :data:`RETRY_T_MAX`: the rule's area part, the binding one (``--steady-tol``), is
+tightened, its shape part (``--shape-tol``) left as it is; the same time steps, continued until
+the area drifts 100 (1000) times less, and polished again from there (the paper grid: 14 of its
+26 such rows reach a root of the steady equations at 100 times, 6 more at 1000). A rerun's case
+file replaces the case before when it is steady too, its message prefixed with why it was
+rerun; otherwise the case before stays.
 
 A branch (:func:`run_branch`, one run for every Ca_s of a (law, a/l)) follows the same policy
 for its kernel run; when the kernel reports an error of its own, the cases it did not write are
@@ -54,10 +56,12 @@ FAILURE_RECORD = "capsim_failure"
 _CODE_VERSION = re.compile(r"code_version\s*=\s*'([^']*)'")
 
 
-#: A steady tube case whose Newton polish was discarded is rerun with the steady rule (the
-#: kernel's --steady-tol, default 1e-3 per time unit) this many times smaller ...
-RETRY_STEADY_TOL_FACTOR = 0.01
-#: ... and up to this time (l/V; the grids' 60 is too short for the stricter rule at Ca_s 0.01).
+#: A steady tube case whose Newton polish was discarded is rerun with the steady rule's area
+#: part (the kernel's --steady-tol, default 1e-3 per time unit) this many times smaller, the
+#: next factor only while the polish is still discarded ...
+RETRY_STEADY_TOL_FACTORS = (1e-2, 1e-3)
+#: ... and up to this time (l/V; the grids' 60 is too short for the stricter rule at Ca_s 0.01:
+#: the paper grid's reruns ended steady by t = 113).
 RETRY_T_MAX = 400.0
 #: The kernel's default steady rule (capsim --steady-tol).
 KERNEL_STEADY_TOL = 1.0e-3
@@ -211,20 +215,24 @@ def run_case(capsim: str | Path, kernel_args: Sequence[str], out: str | Path, *,
     status, message = _run_once(capsim, kernel_args, out, code_version=code_version, threads=threads)
     if status != "steady" or _option(kernel_args, "--flow") != "tube" or not polish_discarded(message):
         return status
-    stricter = retry_args(kernel_args)
     retry = out.with_name(out.name + ".retry.h5")
-    retry.unlink(missing_ok=True)       # a rerun finished but not moved in place by a killed job
-    retry_status, retry_message = _run_once(capsim, stricter, retry, code_version=code_version, threads=threads)
-    if retry_status != "steady":
-        retry.unlink(missing_ok=True)
-        print(f"case {out}: the stricter rerun ended {retry_status}: the first run's case stays")
-        return status
-    changed = " ".join(stricter[-4:])
-    with h5py.File(retry, "r+") as f:
-        f.attrs["message"] = (f"rerun with a steady rule {1 / RETRY_STEADY_TOL_FACTOR:g} times stricter ({changed}) "
-                              f"after the Newton polish was discarded: {retry_message}")
-    os.replace(retry, out)
-    print(f"case {out}: steady, rerun with {changed}")
+    for factor in RETRY_STEADY_TOL_FACTORS:
+        stricter = retry_args(kernel_args, factor)
+        retry.unlink(missing_ok=True)       # a rerun finished but not moved in place by a killed job
+        retry_status, retry_message = _run_once(capsim, stricter, retry, code_version=code_version, threads=threads)
+        if retry_status != "steady":
+            retry.unlink(missing_ok=True)
+            print(f"case {out}: the rerun {' '.join(stricter[-4:])} ended {retry_status}: the last steady case stays")
+            break
+        changed = " ".join(stricter[-4:])
+        with h5py.File(retry, "r+") as f:
+            f.attrs["message"] = (f"rerun with a steady rule {1 / factor:g} times stricter ({changed}) "
+                                  f"after the Newton polish was discarded: {retry_message}")
+        # Closer to the steady shape than the run before, a root or not: it replaces it.
+        os.replace(retry, out)
+        print(f"case {out}: steady, rerun with {changed}")
+        if not polish_discarded(retry_message):
+            break
     return "steady"
 
 
@@ -258,11 +266,11 @@ def _option(kernel_args: Sequence[str], name: str) -> str | None:
     return values[-1] if values else None
 
 
-def retry_args(kernel_args: Sequence[str]) -> list[str]:
-    """The kernel arguments of the stricter rerun: the case's own with ``--steady-tol`` (the
-    case's rule times :data:`RETRY_STEADY_TOL_FACTOR`) and ``--t-max`` (at least
-    :data:`RETRY_T_MAX`) set (the kernel refuses an option given twice), those two last."""
-    tol = float(_option(kernel_args, "--steady-tol") or KERNEL_STEADY_TOL) * RETRY_STEADY_TOL_FACTOR
+def retry_args(kernel_args: Sequence[str], factor: float = RETRY_STEADY_TOL_FACTORS[0]) -> list[str]:
+    """The kernel arguments of a stricter rerun: the case's own with ``--steady-tol`` (the
+    case's rule times ``factor``) and ``--t-max`` (at least :data:`RETRY_T_MAX`) set (the
+    kernel refuses an option given twice), those two last."""
+    tol = float(_option(kernel_args, "--steady-tol") or KERNEL_STEADY_TOL) * factor
     t_max = max(float(_option(kernel_args, "--t-max") or 0.0), RETRY_T_MAX)
     kept: list[str] = []
     k = 0
