@@ -130,3 +130,25 @@ def test_the_channel_is_cut_only_where_the_survey_finds_no_whole_wall_line(name)
     s_first, s_last = survey["straight_columns"]
     # The survey's 8 px strips against the channel's 16 px ones: half a strip's slack.
     assert first <= s_first + 8 and last >= s_last - 8, (channel.walls.columns, survey["straight_columns"])
+
+
+def test_the_command_prints_the_straight_channel_and_draws_every_flagged_frame(tmp_path, capsys):
+    """`capsmech extract` on the inlet stack: it prints where the straight channel is, writes
+    the flag of each frame cut by its end in the per-frame report, and an overlay for every
+    frame with an object, flagged or measured."""
+    import csv
+
+    from capsmech.cli.main import main
+    from capsmech.imaging.rendering import write_tiff_stack
+
+    frames = with_inlet(render_stack(capsule_outline(), 14, 20.0, 30.0, STYLE, seed=3), 11)
+    tiff = write_tiff_stack(tmp_path / "inlet.tif", frames, pixel_size_um=1.0, frame_rate=1000.0)
+    out = tmp_path / "m.csv"
+    assert main(["extract", str(tiff), "--out", str(out), "--overlay", str(tmp_path / "ov")]) == 0
+    printed = capsys.readouterr().out
+    assert f"straight channel: columns 70-{STYLE.shape[1] - 1} of 0-{STYLE.shape[1] - 1}" in printed
+    report = list(csv.DictReader(open(tmp_path / "m_frames.csv")))
+    cut = [row for row in report if row["flag"].startswith("touches the end of the straight channel (column 70")]
+    assert len(cut) == 3
+    with_object = [row for row in report if row["flag"] != "no capsule"]
+    assert len(list((tmp_path / "ov" / "frames").glob("*.png"))) == len(with_object) == 13

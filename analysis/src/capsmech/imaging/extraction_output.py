@@ -209,6 +209,8 @@ def write_frame_overlay(path: str | Path, image: np.ndarray, frame: FrameResult,
     for row in (walls.top_row, walls.bottom_row):
         ax.axhline(row, color="deepskyblue", lw=0.8)
     ax.axhline(walls.axis_row, color="gold", lw=0.6, ls="--")
+    for column in walls.columns or ():          # the straight channel's ends
+        ax.axvline(column, color="deepskyblue", lw=0.8, ls=":")
     for trace in frame.traces:
         if trace.kind == "ring":
             outer = np.vstack([trace.outer, trace.outer[:1]])
