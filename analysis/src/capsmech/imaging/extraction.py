@@ -23,7 +23,8 @@ Per frame (:func:`analyse_contrast`)
     2. Objects (``objects.find_objects``): c smoothed (1 px) above 6 noise deviations
        inside the channel, fragments joined, specks dropped. None: ``no capsule``; one
        whose pixels reach the image's left or right edge: ``touches the image border`` (the
-       straight channel's end: ``touches the end of the straight channel``); more than one: ``N capsules`` (each is still traced and drawn).
+       straight channel's end: ``touches the end of the straight channel``); more than one:
+       ``N capsules`` (each is still traced and drawn).
     3. Tracing (``objects.trace_object``): a dark ring around a transparent interior gives
        its mid-line; a filled silhouette its outer edge (the report says which).
     4. Focus: a ring whose line is wider than ``max_line_width_px``, or than ``focus_ratio``
@@ -233,17 +234,18 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
             free = "no frame" if MIN_FREE_FRAMES == 1 else f"fewer than {MIN_FREE_FRAMES} frames"
             trust_check = (f"background not trusted on {int(untrusted.sum())} px ({free} of {estimate.frames} shows "
                            f"them free of objects);\nobjects there are flagged: give --background to measure them")
+    # The levelled image the walls and the straight channel are found on (the stack's median
+    # frame, levelled, where there is no background).
+    reference = levelled_bg if levelled_bg is not None else level(raw, tilt)
     if isinstance(walls, Walls):
         found = walls
     elif walls is not None:
         found = Walls(float(walls[0]), float(walls[1]), "given")
     else:
-        reference = levelled_bg if levelled_bg is not None else level(raw, tilt)
         found = find_walls(reference, label, channel_width_px)
     geometry = ""
     if found.columns is None:
-        straight = straight_columns(levelled_bg if levelled_bg is not None else level(raw, tilt), found)
-        found = dataclasses.replace(found, columns=straight)
+        found = dataclasses.replace(found, columns=straight_columns(reference, found))
     if found.columns is not None:
         width = np.asarray(frames[0]).shape[1]
         geometry = (f"straight channel: columns {found.columns[0]}-{found.columns[1]} of 0-{width - 1} (the walls "
@@ -333,8 +335,9 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
             return result
     elif traces:
         result.line_contrast = float(np.median([t.line_contrast for t in traces]))
-    # The border first (or the straight channel's end): a capsule cut by it may fall apart into several arcs.
-    cut = [t for t in traces if cut_flag(t.columns, cols, walls.columns)]
+    # The border first (or the straight channel's end): a capsule cut by it may fall apart into
+    # several arcs. measure_trace flagged each object it cuts.
+    cut = [t for t in traces if t.flag.startswith("touches")]
     object_columns = np.nonzero(objects.any(axis=0))[0]
     whole_cut = cut_flag((int(object_columns.min()), int(object_columns.max())), cols, walls.columns)
     if len(cut) == len(traces) and whole_cut:

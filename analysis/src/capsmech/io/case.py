@@ -63,8 +63,6 @@ REQUIRED_ATTRS = (
 _STR_ATTRS = ("code_version", "flow", "law", "status", "message")
 _INT_ATTRS = ("schema_version", "mesh_level", "threads")
 _FLOAT_ATTRS = ("nu_s", "C", "Ca_s", "dt", "wall_time_s")
-#: Effects beyond the base model (issue 6): root attribute -> its neutral value, which a case
-#: file written before the effect existed implicitly has.
 #: How the kernel's message of a steady tube case ends when its Newton polish after time
 #: stepping stalled or found an unstable shape: the row is then no root of the steady equations.
 POLISH_DISCARDED = "and was discarded"
@@ -76,6 +74,8 @@ def polish_discarded(message: str) -> bool:
     return message.rstrip().endswith(POLISH_DISCARDED)
 
 
+#: Effects beyond the base model (issue 6): root attribute -> its neutral value, which a case
+#: file written before the effect existed implicitly has.
 EFFECT_DEFAULTS = {"prestress": 0.0, "lambda": 1.0, "kb": 0.0, "offset": 0.0}
 #: Root attribute of an effect whose name differs from the effect's (law key) name.
 EFFECT_ATTRS = {"kb": "k_b"}
