@@ -135,16 +135,26 @@ def test_contour_that_underflows_once_in_metres_is_refused(tmp_path: Path) -> No
 # --- One bad row flagged, not the batch lost -------------------------------------------------
 
 
-def test_huge_length_is_flagged_and_the_batch_fitted(tmp_path: Path) -> None:
+def test_huge_length_is_refused_at_its_line(tmp_path: Path) -> None:
+    """A length of 1e300 um is no unit slip (a factor 1e6 beyond any capsule): the file is refused
+    at that line and field, not fitted into an 'outside the database' row."""
     csv = tmp_path / "huge.csv"
-    csv.write_text(f"{TUBE_HEADER}\nbad,1e300,10,3,50,1\nok,120,10,3,50,1\nbig,1e160,10,3,50,1\n")
+    csv.write_text(f"{TUBE_HEADER}\nok,120,10,3,50,1\nbad,1e300,10,3,50,1\n")
+    with pytest.raises(MeasurementError, match=r"huge\.csv:3: field 'L_z': 1e\+300 um is not a physical value"):
+        fit_tube(csv, "tube-dev", "NH")
+
+
+def test_a_length_outside_the_database_is_flagged_and_the_batch_fitted(tmp_path: Path) -> None:
+    """A length of 1 m is implausible but within a unit slip's reach (a warning): its row is flagged as
+    outside the database, and the rest of the batch fitted."""
+    csv = tmp_path / "long.csv"
+    csv.write_text(f"{TUBE_HEADER}\nbad,1e6,10,3,50,1\nok,120,10,3,50,1\n")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         results = fit_tube(csv, "tube-dev", "NH")
     flags = dict(zip(results["id"], results["flag"]))
-    assert flags == {"bad": "outside_database", "ok": "", "big": "outside_database"}
-    reason = results.set_index("id").loc["bad", "reason"]
-    assert "outside the database" in reason
+    assert flags == {"bad": "outside_database", "ok": ""}
+    assert "database" in results.set_index("id").loc["bad", "reason"]
 
 
 # --- Databases: truncated, damaged, checksummed ----------------------------------------------

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeAlias, cast, overload
 
+import numpy as np
 import pandas as pd
 
-from capsmech.errors import OutsideDatabaseWarning
+from capsmech.errors import InputWarning, OutsideDatabaseWarning
 from capsmech.inversion.fitting import (
     SHEAR_RESULT_UNITS,
     TUBE_RESULT_UNITS,
@@ -29,6 +30,7 @@ from capsmech.inversion.fitting import (
 )
 from capsmech.inversion.population import PopulationVerdict, population_verdict
 from capsmech.inversion.population_report import plot_population as plot_population_rows
+from capsmech.io import plausibility
 from capsmech.io.database import Database, DatabaseError, ShearDatabase, TubeDatabase, load_database
 from capsmech.io.measurements import Capsule, read_measurements
 
@@ -114,6 +116,18 @@ def _warn_unfitted(frame: pd.DataFrame, database: Database) -> None:
                   OutsideDatabaseWarning, stacklevel=3)
 
 
+def _warn_implausible_modulus(frame: pd.DataFrame) -> None:
+    """One warning when the batch's fitted G_s lies outside the range of real membranes: a unit slip."""
+    fitted = frame.loc[frame["flag"] == "", "G_s"].to_numpy(dtype=float)
+    fitted = fitted[np.isfinite(fitted)]
+    if fitted.size == 0:
+        return
+    sentence = plausibility.out_of_range("the fitted G_s", plausibility.SHEAR_MODULUS, [float(np.median(fitted))],
+                                         f"median of {fitted.size} fits")
+    if sentence:
+        warnings.warn(sentence, InputWarning, stacklevel=3)
+
+
 def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws: str | Iterable[str] | None = None,
              progress: bool = False) -> pd.DataFrame:
     """Fit capsules measured in a tube (capillary) with every law asked for (paper section 4.2).
@@ -140,6 +154,7 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
     keys = check_laws(db, laws)
     frame = _frame(fit_tube_rows(_capsules(capsules, "tube"), db, keys, progress=progress), TUBE_RESULT_UNITS)
     _warn_unfitted(frame, db)
+    _warn_implausible_modulus(frame)
     return frame
 
 
@@ -153,6 +168,7 @@ def fit_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
     keys = check_laws(db, laws)
     frame = _frame(fit_shear_rows(_capsules(capsules, "shear"), db, keys), SHEAR_RESULT_UNITS)
     _warn_unfitted(frame, db)
+    _warn_implausible_modulus(frame)
     return frame
 
 

@@ -92,6 +92,7 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.errors import CapsmechError, InputWarning
+from capsmech.io import plausibility
 from capsmech.io.contours import ContourError, contour_problem, read_contour
 from capsmech.io.text import read_text, split_lines
 
@@ -378,6 +379,12 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
             if not math.isfinite(values[name]) or (values[name] == 0 and value != 0):
                 raise MeasurementError(f"{path}:{line}: field {name!r}: {value:g} {unit} is out of range once "
                                        f"converted to SI ({values[name]:g})")
+            # A zero L_p (no rear dimple) is a measurement, not a slip: only positive values are ranged.
+            if name in plausibility.COLUMNS and values[name] > 0 and plausibility.COLUMNS[name].absurd(values[name]):
+                quantity = plausibility.COLUMNS[name]
+                raise MeasurementError(f"{path}:{line}: field {name!r}: {value:g} {unit} is not a physical value "
+                                       f"(plausible: {quantity.low:g}-{quantity.high:g} {quantity.unit}, and no unit "
+                                       "slip brings it there)")
         contour = None
         if contour_cell is not None:
             contour = _read_row_contour(path, line, contour_cell, pixel)
@@ -393,6 +400,12 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
             raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
                                    "inclination to the flow direction)")
     # Warned only once the file is read: a file that is refused warns of nothing.
+    for name, quantity in plausibility.COLUMNS.items():
+        outside = [c for c in capsules if math.isfinite(c[name]) and c[name] > 0 and not quantity.contains(c[name])]
+        sentence = plausibility.out_of_range(name, quantity, (c[name] for c in outside),
+                                             _lines([c.line for c in outside])) if outside else None
+        if sentence:
+            warnings.warn(f"{path}: {sentence}", InputWarning, stacklevel=2)
     if ignored:
         warnings.warn(f"{path}:{header_line}: ignored column(s) not in the {flow} format: "
                       f"{', '.join(repr(c) for c in ignored)}", InputWarning, stacklevel=2)
@@ -400,6 +413,15 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
         warnings.warn(f"{path}: comment line(s) {', '.join(commented)} have the fields of a capsule row and are "
                       "left out; if an id starts with '#', quote it (\"#c01\",...)", InputWarning, stacklevel=2)
     return capsules
+
+
+def _lines(numbers: list[int]) -> str:
+    """``'line 4'``, ``'lines 2-14'`` or ``'lines 2, 5, 9 ...'`` for the rows a warning is about."""
+    if len(numbers) == 1:
+        return f"line {numbers[0]}"
+    if numbers == list(range(numbers[0], numbers[-1] + 1)):
+        return f"lines {numbers[0]}-{numbers[-1]}"
+    return "lines " + ", ".join(str(n) for n in numbers[:5]) + (" ..." if len(numbers) > 5 else "")
 
 
 def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None], pixel: float | None) -> np.ndarray:
