@@ -8,7 +8,7 @@ program capsim
    use blas_threads, only: match_blas_threads
    use capsim_kinds, only: dp
    use hdf5_writer, only: h5_file_t
-   use run_options, only: run_options_t, parse_command_line, write_help
+   use run_options, only: run_options_t, parse_command_line, write_help, step_count_problem
    use case_output, only: case_summary_t, close_case_file
    use capsule_model, only: capsule_model_t
    use capsule_dynamics, only: capsule_t
@@ -66,6 +66,9 @@ program capsim
       call model%init(opts, stat, errmsg)
    end select
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)
+   ! The automatic step is known only now (it follows the mesh): bounded like a given one.
+   if (len(step_count_problem(opts%t_max, model%dt)) > 0) &
+      call die('capsim: error: --dt-factor: '//step_count_problem(opts%t_max, model%dt), 2)
    if (.not. opts%quiet) then
       write (*, '(a,i0,a,es9.2,a,i0,a)') 'capsim: ', size(model%positions), ' degrees of freedom, dt = ', model%dt, &
          ', ', omp_get_max_threads(), ' threads'

@@ -14,6 +14,7 @@ module capsule_model
    use membrane_law, only: membrane_law_t
    use run_options, only: run_options_t, option_signature
    use case_output, only: case_summary_t, write_checkpoint, read_checkpoint, open_case_file
+   use file_ops, only: keep_aside
    use state_vector, only: state_cursor_t, state_counting, state_storing, state_restoring
    implicit none
    private
@@ -190,7 +191,7 @@ contains
       integer(8) :: clock_start, clock_now, clock_rate, clock_ckpt, clock_print
       real(dp) :: t_next_record, v0
       real(dp), allocatable :: state(:)
-      character(len=:), allocatable :: signature, errmsg, note
+      character(len=:), allocatable :: signature, errmsg, note, kept
       logical :: resumed, decided
       integer :: stat
 
@@ -200,8 +201,18 @@ contains
       allocate (state(self%state_size()))
       call read_checkpoint(checkpoint_path, signature, self%step, self%t, state, self%history, self%n_rec, &
                            summary%wall_time_before_s, resumed, note)
-      if (len(note) > 0) write (error_unit, '(a)') 'capsim: warning: checkpoint "'//checkpoint_path// &
-         '" not used: '//note//'; starting afresh'
+      if (len(note) > 0) then
+         ! A whole checkpoint of other options is another run's work: kept, not overwritten by
+         ! this run's first checkpoint, so that rerunning with the first options resumes it.
+         if (index(note, 'signature differs') > 0) then
+            kept = keep_aside(checkpoint_path, 'other-options')
+            if (len(kept) > 0) note = note//'; kept as "'//kept//'"'
+         end if
+         write (error_unit, '(a)') 'capsim: warning: checkpoint "'//checkpoint_path//'" not used: '//note// &
+            '; starting afresh'
+         ! Said before any work: a run killed later must not lose this line in a buffer.
+         flush (error_unit)
+      end if
       if (resumed) then
          call self%set_state(state)
          if (.not. opts%quiet) write (*, '(a,f0.3)') 'capsim: resumed from checkpoint at t = ', self%t

@@ -6,6 +6,7 @@ module case_output
    use capsim_kinds, only: dp, code_version, schema_version
    use file_ops, only: replace_file, path_kind, path_absent, path_regular, delete_file
    use checksum, only: crc32_t
+   use text_format, only: real_text
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t
    use membrane_law, only: membrane_law_t
@@ -39,6 +40,8 @@ module case_output
    !> First bytes of a checkpoint of this layout (write_checkpoint).
    character(len=*), parameter :: checkpoint_magic = 'CAPSCKP3'
    integer, parameter :: int_bytes = 4, real_bytes = 8, header_bytes = len(checkpoint_magic) + int_bytes
+   !> Largest checkpoint file read [bytes].
+   integer(int64), parameter :: max_checkpoint_bytes = 256_int64 * 2_int64**20
 
 
 contains
@@ -281,6 +284,11 @@ contains
       type(crc32_t) :: crc
       note = 'damaged (shorter than its header)'
       if (file_size < header_bytes) return
+      ! Checked before the bytes are read into memory: a file this large is no checkpoint (the
+      ! largest, a level-5 capsule's state and a full history, is a few MiB).
+      note = 'larger than any checkpoint ('//real_text(real(file_size, dp))//' bytes, '// &
+             real_text(real(max_checkpoint_bytes, dp))//' at most)'
+      if (file_size > max_checkpoint_bytes) return
       read (unit, iostat=ios, pos=1) magic, crc_file
       note = 'not a checkpoint of this kernel (an older format or another file)'
       if (ios /= 0 .or. magic /= checkpoint_magic) return

@@ -4,7 +4,7 @@ module file_ops
    implicit none
    private
    public :: replace_file, path_kind, path_absent, path_regular, path_directory, path_other, folder_of, &
-             folder_writable, delete_file
+             folder_writable, delete_file, keep_aside
 
    !> What a path names (path_kind): nothing, a regular file, a directory, or anything else (a
    !> device, FIFO or socket, which must not be replaced by a regular file).
@@ -44,6 +44,25 @@ contains
          errmsg = 'cannot rename "'//from//'" to "'//to//'"'
       end if
    end subroutine replace_file
+
+   !> Renames the file at `path` to the first free `path.SUFFIX`, `path.SUFFIX-2`, ... (up to 99)
+   !> and returns that name; '' when none was free or the rename failed (the file is left).
+   function keep_aside(path, suffix) result(kept)
+      character(len=*), intent(in) :: path, suffix
+      character(len=:), allocatable :: kept, errmsg
+      character(len=8) :: number
+      integer :: n, stat
+      do n = 1, 99
+         number = ''
+         if (n > 1) write (number, '(a,i0)') '-', n
+         kept = path//'.'//suffix//trim(number)
+         if (path_kind(kept) /= path_absent) cycle
+         call replace_file(path, kept, stat, errmsg)
+         if (stat == 0) return
+         exit
+      end do
+      kept = ''
+   end function keep_aside
 
    !> path_absent, path_regular, path_directory or path_other for what `path` names (links
    !> followed); a path that cannot be examined (a missing folder on the way) is absent.

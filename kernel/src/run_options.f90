@@ -10,9 +10,19 @@ module run_options
    use file_ops, only: path_kind, path_absent, path_regular, path_directory, folder_of, folder_writable
    use option_table, only: option_spec_t, option_specs, option_index, option_applies, option_context, n_options
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   use omp_lib, only: omp_get_num_procs
    implicit none
    private
-   public :: run_options_t, parse_command_line, option_signature, write_help, path_len, branch_ca_values, branch_case_path
+   public :: run_options_t, parse_command_line, option_signature, write_help, path_len, branch_ca_values, branch_case_path, &
+             step_count_problem
+
+   !> Most time steps a run may take to reach t = 1 (one time unit, the shortest span over which
+   !> a steady state is judged): the smallest automatic step (level 5, Ca_s 1e-3) takes 1e5, so
+   !> more is a time step typed wrong, refused before any work. A long t_max is no fault: the
+   !> run ends at its steady state.
+   real(dp), parameter :: max_time_steps = 1.0e7_dp
+   !> Largest namelist file read: a namelist of every option is under 2 kB.
+   integer, parameter :: max_namelist_bytes = 65536
 
    !> Longest path (--out, --wall-cache, --namelist) the kernel holds; a longer one is refused.
    integer, parameter :: path_len = 1024
@@ -535,6 +545,10 @@ contains
       n_meridian = unset_int
       level = unset_int
       threads = unset_int
+      ! Fortran's namelist read takes the last of a repeated name and ignores a second group:
+      ! both would run other options than the file seems to say.
+      errmsg = namelist_problem(path)
+      if (len(errmsg) > 0) return
       open (newunit=unit, file=path, status='old', action='read', iostat=ios, iomsg=iomsg)
       if (ios /= 0) then
          errmsg = '--namelist: cannot open "'//path//'": '//trim(iomsg)
@@ -600,6 +614,136 @@ contains
       end subroutine take_int
 
    end subroutine read_namelist
+
+   !> The most --threads accepted here: 4 per processor the OpenMP runtime sees, at least 64.
+   integer function max_threads()
+      max_threads = max(64, 4 * omp_get_num_procs())
+   end function max_threads
+
+   !> Why steps of dt are too small to get anywhere ('' when they are not): more than
+   !> max_time_steps to reach min(t_max, 1).
+   function step_count_problem(t_max, dt) result(problem)
+      real(dp), intent(in) :: t_max, dt
+      character(len=:), allocatable :: problem
+      real(dp) :: span
+      problem = ''
+      span = min(t_max, 1.0_dp)
+      if (.not. (span / dt <= max_time_steps)) then
+         problem = 'a time step of '//real_text(dt)//' takes '//real_text(span / dt)//' steps to reach t = '// &
+                   real_text(span)//', more than the '//real_text(max_time_steps)//' a run may take for one time unit'
+      end if
+   end function step_count_problem
+
+   !> What makes the namelist file at `path` ambiguous: a name given twice in its group, or a
+   !> second group; '' when there is neither. Blanks, comments (! to the end of the line) and
+   !> quoted values are skipped as Fortran's namelist input does.
+   function namelist_problem(path) result(problem)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: problem
+      character(len=:), allocatable :: text, key
+      character(len=64) :: keys(128)
+      integer :: key_lines(128), n_keys, groups, line, unit, ios, i, j, k
+      integer(8) :: bytes
+      character :: quote, c
+      logical :: comment
+
+      problem = ''
+      open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', iostat=ios)
+      if (ios /= 0) return          ! the namelist read that follows says why
+      inquire (unit=unit, size=bytes)
+      if (bytes > max_namelist_bytes) then
+         close (unit)
+         problem = '--namelist: "'//path//'" is '//int_text(int(bytes))//' bytes, larger than any namelist ('// &
+                   int_text(max_namelist_bytes)//' at most)'
+         return
+      end if
+      allocate (character(len=int(bytes)) :: text)
+      if (bytes > 0) read (unit, iostat=ios) text
+      close (unit)
+      if (ios /= 0) return
+      n_keys = 0
+      groups = 0
+      line = 1
+      quote = ' '
+      comment = .false.
+      i = 1
+      do while (i <= len(text))
+         c = text(i:i)
+         if (c == achar(10)) then
+            line = line + 1
+            comment = .false.
+         else if (comment) then
+            continue
+         else if (quote /= ' ') then
+            if (c == quote) quote = ' '
+         else if (c == "'" .or. c == '"') then
+            quote = c
+         else if (c == '!') then
+            comment = .true.
+         else if (c == '&' .or. c == '$') then
+            groups = groups + 1
+            if (groups > 1) then
+               problem = '--namelist: "'//path//'" line '//int_text(line)//': a second group; the file must hold '// &
+                         'one group &capsim'
+               return
+            end if
+         else if (is_name_start(c) .and. (i == 1 .or. index(' ,'//achar(9)//achar(10)//achar(13), &
+                                                           text(max(1, i - 1):max(1, i - 1))) > 0)) then
+            j = i
+            do while (j < len(text))
+               if (.not. is_name_char(text(j + 1:j + 1))) exit
+               j = j + 1
+            end do
+            k = j + 1
+            do while (k <= len(text))
+               if (text(k:k) /= ' ' .and. text(k:k) /= achar(9)) exit
+               k = k + 1
+            end do
+            if (k <= len(text) .and. groups == 1) then
+               if (text(k:k) == '=' .or. text(k:k) == '(') then
+                  key = lower(text(i:j))
+                  do k = 1, n_keys
+                     if (trim(keys(k)) == key) then
+                        problem = '--namelist: "'//path//'" line '//int_text(line)//': '//key// &
+                                  ' is given twice (first on line '//int_text(key_lines(k))//')'
+                        return
+                     end if
+                  end do
+                  if (n_keys < size(keys)) then
+                     n_keys = n_keys + 1
+                     keys(n_keys) = key
+                     key_lines(n_keys) = line
+                  end if
+               end if
+            end if
+            i = j
+         end if
+         i = i + 1
+      end do
+
+   contains
+
+      pure logical function is_name_start(ch)
+         character, intent(in) :: ch
+         is_name_start = (ch >= 'a' .and. ch <= 'z') .or. (ch >= 'A' .and. ch <= 'Z')
+      end function is_name_start
+
+      pure logical function is_name_char(ch)
+         character, intent(in) :: ch
+         is_name_char = is_name_start(ch) .or. (ch >= '0' .and. ch <= '9') .or. ch == '_'
+      end function is_name_char
+
+      pure function lower(word) result(low)
+         character(len=*), intent(in) :: word
+         character(len=len(word)) :: low
+         integer :: m
+         low = word
+         do m = 1, len(word)
+            if (word(m:m) >= 'A' .and. word(m:m) <= 'Z') low(m:m) = achar(iachar(word(m:m)) + 32)
+         end do
+      end function lower
+
+   end function namelist_problem
 
    subroutine validate(opts, stat, errmsg)
       type(run_options_t), intent(in) :: opts
@@ -738,6 +882,13 @@ contains
          errmsg = '--dt: must not exceed --t-max'
       else if (opts%threads < 0) then
          errmsg = '--threads: must be >= 0 (0 = OpenMP default), got '//int_text(opts%threads)
+      else if (opts%threads > max_threads()) then
+         ! Each thread takes a stack; a count far beyond the processors crashes the OpenMP
+         ! runtime (a segfault, or its own "out of memory") and never runs faster.
+         errmsg = '--threads: at most '//int_text(max_threads())//' (4 per processor of this machine, '// &
+                  int_text(omp_get_num_procs())//' processors), got '//int_text(opts%threads)
+      else if (opts%dt > 0.0_dp .and. len(step_count_problem(opts%t_max, opts%dt)) > 0) then
+         errmsg = '--dt: '//step_count_problem(opts%t_max, opts%dt)
       else if (.not. (opts%steady_tol > 0.0_dp)) then
          errmsg = '--steady-tol: must be > 0, got '//real_text(opts%steady_tol)
       else if (.not. (opts%max_length > 1.0_dp)) then
