@@ -34,7 +34,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         check_output(out, "--out", TABLE_SUFFIXES)
     database = as_database(args.database, flow, args.command)
     laws = check_laws(database, args.law, "--law")
-    capsules = read_measurements(args.measurements, flow)
+    capsules = read_measurements(args.measurements, flow, contours_anywhere=args.contours_anywhere)
     with warnings.catch_warnings():
         # The table's flag column says it per row, and the summary below in one line.
         warnings.simplefilter("ignore", OutsideDatabaseWarning)
@@ -66,4 +66,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         add_database_option(fit, f"{flow}-paper", f"{flow} database")
         add_law_option(fit)
         fit.add_argument("--out", action="append", metavar="FILE", help="write the results (.csv or .h5; repeatable)")
+        fit.add_argument("--contours-anywhere", action="store_true",
+                         help="read contour files outside the measurement file's folder too (by default refused)")
         fit.set_defaults(func=cmd_fit)

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator, PchipInterpolator
 from scipy.spatial import Delaunay, cKDTree
 
+from capsmech.errors import DatabaseError
 from capsmech.inversion.sharp_edge import largest_turn
 
 #: Neighbours of the diffuse approximation (paper section 4.2).
@@ -93,7 +94,9 @@ class TubeTable:
         if np.any(arrays[1][keep] <= 0):
             raise ValueError("tube table: Ca_s must be > 0")
         if keep.sum() < N_NEIGHBOURS:
-            raise ValueError(f"tube table: {keep.sum()} steady rows, the fit needs at least {N_NEIGHBOURS}")
+            # A database a user names (a smoke-test grid) can be this small: their error, not a bug.
+            raise DatabaseError(f"the database has {keep.sum()} steady rows for this law, and a fit needs at least "
+                                f"{N_NEIGHBOURS} (a grid made for smoke tests cannot be fitted against)")
         for name, a in zip(("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V"), arrays):
             object.__setattr__(self, name, a[keep])
 
@@ -700,7 +703,7 @@ class ShearInverter:
         stated = np.isfinite(err)
         self._error_d12, self._error = d12[stated], err[stated]
         if len(ca) < 2:
-            raise ValueError("shear table: fewer than 2 steady rows")
+            raise DatabaseError("the shear database has fewer than 2 steady rows for this law: nothing to fit against")
         if np.any(np.diff(d12) <= 0):
             raise ValueError("shear table: D12 does not increase with Ca_s along the steady rows")
         self.min_D12 = min_D12

@@ -234,7 +234,15 @@ def _separator(lines: list[str]) -> str:
     return ","
 
 
-def _rows(lines: list[str], separator: str) -> Iterator[tuple[int, list[str]]]:
+def _cells(path: Path, text: str, separator: str, number: int) -> list[str]:
+    """One line's cells; a cell beyond the csv module's limit (128 kB) is no measurement."""
+    try:
+        return next(csv.reader([text], delimiter=separator), [])
+    except csv.Error as err:
+        raise MeasurementError(f"{path}:{number}: {err} (no field of a measurement file is that long)") from None
+
+
+def _rows(path: Path, lines: list[str], separator: str) -> Iterator[tuple[int, list[str]]]:
     """The non-blank lines as (line number, cells); comment lines come after the header, as
     (-line number, cells without the '#'), so that a row commented out can be recognised."""
     header_seen = False
@@ -243,9 +251,9 @@ def _rows(lines: list[str], separator: str) -> Iterator[tuple[int, list[str]]]:
             continue
         if _is_comment(text):
             if header_seen:
-                yield -number, next(csv.reader([text.lstrip()[1:]], delimiter=separator), [])
+                yield -number, _cells(path, text.lstrip()[1:], separator, number)
             continue
-        row = next(csv.reader([text], delimiter=separator), [])
+        row = _cells(path, text, separator, number)
         if any(cell.strip() for cell in row):
             header_seen = True
             yield number, row
@@ -302,7 +310,7 @@ def _row_like_id(path: Path, line: int, row: list[str], parsed: list[Column | No
     return f"{line} (#{capsule_id})"
 
 
-def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule]:
+def read_measurements(path: str | Path, flow: str | None = None, contours_anywhere: bool = False) -> list[Capsule]:
     """Read a tube or shear measurement CSV (see the module docstring) into SI units.
 
     Parameters
@@ -313,6 +321,10 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
         ``;``-separated file.
     flow : {'tube', 'shear'} or None
         Which format; None (default) infers it from the header's columns.
+    contours_anywhere : bool
+        Read contour files wherever the ``contour`` cells point. By default a contour must lie in
+        the measurement file's folder or below it: a file received from elsewhere cannot make
+        the reader open ``../../etc/passwd`` and echo its lines in an error.
 
     Returns
     -------
@@ -335,7 +347,7 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
         raise ValueError(f"flow must be 'tube', 'shear' or None, got {flow!r}")
     lines = split_lines(read_text(path, MAX_FILE_BYTES, "measurement file", MeasurementError))
     separator = _separator(lines)
-    rows = _rows(lines, separator)
+    rows = _rows(path, lines, separator)
     first = next(rows, None)
     if first is None:
         raise MeasurementError(f"{path}: no header line")
@@ -387,7 +399,7 @@ def read_measurements(path: str | Path, flow: str | None = None) -> list[Capsule
                                        "slip brings it there)")
         contour = None
         if contour_cell is not None:
-            contour = _read_row_contour(path, line, contour_cell, pixel)
+            contour = _read_row_contour(path, line, contour_cell, pixel, contours_anywhere)
         capsules.append(Capsule(id=capsule_id, values=values, line=line, contour=contour))
     if not capsules:
         raise MeasurementError(f"{path}: no capsule rows after the header")
@@ -424,10 +436,16 @@ def _lines(numbers: list[int]) -> str:
     return "lines " + ", ".join(str(n) for n in numbers[:5]) + (" ..." if len(numbers) > 5 else "")
 
 
-def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None], pixel: float | None) -> np.ndarray:
+def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None], pixel: float | None,
+                      anywhere: bool = False) -> np.ndarray:
     """The contour file a row names, in metres."""
     name, unit, scale = cell
     contour_path = Path(name) if Path(name).is_absolute() else path.parent / name
+    folder = path.parent.resolve()
+    if not anywhere and not contour_path.resolve().is_relative_to(folder):
+        raise MeasurementError(f"{path}:{line}: field 'contour': {name!r} lies outside the measurement file's folder "
+                               f"{folder}; contours are read only from there and below (move it there, or allow "
+                               "contours anywhere: --contours-anywhere, contours_anywhere=True)")
     if unit == "px":
         if pixel is None:
             raise MeasurementError(f"{path}:{line}: field 'contour' is in px but the row has no pixel_size")
