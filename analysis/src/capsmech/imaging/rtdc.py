@@ -161,9 +161,40 @@ def _open(path: Path):
     import hdf5plugin  # noqa: F401 - registers the bitshuffle / zstd / lz4 filters with HDF5
 
     try:
-        return h5py.File(path, "r")
+        handle = h5py.File(path, "r")
     except OSError as err:
         raise ExtractionError(f"{path}: cannot read as an .rtdc (HDF5) file: {err}") from None
+    try:
+        _refuse_data_elsewhere(handle, path)
+    except ExtractionError:
+        handle.close()
+        raise
+    return handle
+
+
+#: The members of ``events`` that are read.
+READ_EVENTS = ("image", "image_bg", "frame", "time")
+
+
+def _refuse_data_elsewhere(handle, path: Path) -> None:
+    """An ExtractionError if what is read lives in another file: an external link, a virtual
+    dataset (its sources are other files) or external raw storage. A recording is one file; one
+    that points elsewhere would make the reader open whatever its author named."""
+    import h5py
+
+    links = [("events", handle.get("events", getlink=True))]
+    events = handle.get("events") if not isinstance(links[0][1], h5py.ExternalLink) else None
+    if events is not None:
+        links += [(f"events/{name}", events.get(name, getlink=True)) for name in READ_EVENTS if name in events]
+    for name, link in links:
+        if isinstance(link, h5py.ExternalLink):
+            raise ExtractionError(f"{path}: {name} is an external link to {link.filename!r}; a recording's data must "
+                                  "be in its own file")
+        item = handle.get(name)
+        if isinstance(item, h5py.Dataset) and (item.is_virtual or item.external):
+            kind = "a virtual dataset (its data are in other files)" if item.is_virtual else \
+                "stored in external files"
+            raise ExtractionError(f"{path}: {name} is {kind}; a recording's data must be in its own file")
 
 
 def read_rtdc(path: str | Path, mirror: bool = False) -> RtdcRecording:
