@@ -18,6 +18,25 @@ import numpy as np
 
 from capsmech.errors import ExtractionError
 
+#: Most pixels (frames x rows x columns) read into memory from files that are decoded whole: 2^30,
+#: 1 GB of 8-bit pages and 4 GB as float32 (a 480x160 film of 10,000 frames is 0.77e9). An
+#: .rtdc recording streams page by page and has no such limit.
+MAX_STACK_PIXELS = 2**30
+#: Largest frame [pixels]: 2^25, 5792 x 5792, beyond the largest microscope cameras' 5120 x 5120.
+MAX_FRAME_PIXELS = 2**25
+
+
+def check_pixel_count(path: Path, frames: int, shape: tuple[int, ...], already: int = 0) -> None:
+    """Refuse, before decoding, frames too large or too many to hold in memory."""
+    frame_pixels = int(np.prod(shape[:2], dtype=np.int64))
+    if frame_pixels > MAX_FRAME_PIXELS:
+        raise ExtractionError(f"{path}: frames of {shape[1]}x{shape[0]} px are larger than any camera's "
+                              f"({MAX_FRAME_PIXELS:,} pixels at most); crop them")
+    total = already + frames * frame_pixels
+    if total > MAX_STACK_PIXELS:
+        raise ExtractionError(f"{path}: {frames} frames of {shape[1]}x{shape[0]} px bring the stack to {total:,} pixels, "
+                              f"more than one extraction holds ({MAX_STACK_PIXELS:,}); split or crop the stack")
+
 
 @dataclass
 class FrameStack:
@@ -154,7 +173,7 @@ class _TiffComplaints:
         self.logger.propagate = self.propagate
 
 
-def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | None]:
+def _tiff_frames(path: Path, already: int = 0) -> tuple[list[np.ndarray], float | None, float | None]:
     """Frames of a (multi-page) TIFF, and the frame rate and pixel size [um] of its metadata.
 
     A damaged file (cut short: pages missing, or fewer than its ImageJ metadata announce) is
@@ -164,8 +183,12 @@ def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | No
 
     with _TiffComplaints() as complaints, tifffile.TiffFile(path) as tif:
         series = tif.series[0]
-        data = series.asarray()
         axes = series.axes
+        image_shape = tuple(int(n) for n, axis in zip(series.shape, axes) if axis in "YX")
+        if len(image_shape) == 2:
+            pages = int(np.prod([n for n, axis in zip(series.shape, axes) if axis not in "YXS"], dtype=np.int64))
+            check_pixel_count(path, pages, image_shape, already)
+        data = series.asarray()
         frame_rate = pixel_um = None
         meta = tif.imagej_metadata or {}
         announced = int(meta.get("images", 0) or 0)
@@ -192,9 +215,10 @@ def _tiff_frames(path: Path) -> tuple[list[np.ndarray], float | None, float | No
     return [_to_grey(frame, str(path)) for frame in data], frame_rate, pixel_um
 
 
-def _read_file(path: Path, stack: FrameStack,
-               mirror: bool) -> tuple[Sequence[np.ndarray], np.ndarray | None, np.ndarray | None]:
-    """One file's frames, its frame numbers and times when it has them; its metadata into ``stack``.
+def _read_file(path: Path, stack: FrameStack, mirror: bool,
+               already: int = 0) -> tuple[Sequence[np.ndarray], np.ndarray | None, np.ndarray | None]:
+    """One file's frames, its frame numbers and times when it has them; its metadata into ``stack``
+    (``already``: the pixels the stack holds before this file, for :func:`check_pixel_count`).
 
     An ``.rtdc`` file's frames come as a lazy sequence, mirrored already when ``mirror``; the
     other files' as a list, as read.
@@ -221,7 +245,7 @@ def _read_file(path: Path, stack: FrameStack,
             stack.notes.append(f"{path}: {video.dropped} damaged frame(s) left out (file cut short?)")
         return video.frames, video.frame_numbers, None
     if suffix in (".tif", ".tiff"):
-        frames, rate, pixel = _tiff_frames(path)
+        frames, rate, pixel = _tiff_frames(path, already)
         stack.frame_rate = stack.frame_rate or rate
         stack.pixel_size_um = stack.pixel_size_um or pixel
         return frames, None, None
@@ -276,7 +300,8 @@ def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
     files = expand_frame_paths(paths)
     for path in files:
         try:
-            frames, file_numbers, file_times = _read_file(path, stack, mirror=flow_direction == "left")
+            held = sum(int(f.shape[0]) * int(f.shape[1]) for f in stack.frames[:1]) * len(stack.frames)
+            frames, file_numbers, file_times = _read_file(path, stack, mirror=flow_direction == "left", already=held)
         except ExtractionError:
             raise
         except Exception as err:  # noqa: BLE001 - any reader failure is the file's problem
@@ -291,6 +316,8 @@ def read_frames(paths: Sequence[str | Path], flow_direction: str = "right",
             stack.frames = frames
             stack.labels = [f"{path}[{page}]" for page in range(len(frames))]
             continue
+        if not lazy and frames:
+            check_pixel_count(path, len(frames), frames[0].shape, held)
         for page, frame in enumerate(frames):
             _check_size(frame, path, page, stack)
             cast(list, stack.frames).append(frame[:, ::-1] if flow_direction == "left" and not lazy else frame)
