@@ -50,6 +50,8 @@ NOT_RUN = {
                                                                 "over the smoke grid",
     "capsmech diagnose-shear shear.csv": "a placeholder for a user's own batch (the same command on a shipped "
                                          "batch runs above)",
+    "capsmech extract-shear": "placeholders for a user's Couette images; tests/python/test_shear_images.py runs "
+                              "extract-shear on drawn frames and fit-shear on what it writes",
 }
 #: Placeholders the pages use for a user's file, and the shipped file that stands in for it.
 STAND_INS = {"shear.csv": "data/examples/undeclared/shear_batch_A.csv"}

@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from capsmech.diagnosis.diagnose import Diagnosis
     from capsmech.diagnosis.offcentre import OffcentreTable
     from capsmech.diagnosis.sequential import SequentialDiagnosis
+    from capsmech.imaging.shear_plane import ShearExtraction
 
 DatabaseLike: TypeAlias = Database | str | Path
 CapsulesLike: TypeAlias = Sequence[Capsule] | str | Path
@@ -554,3 +555,74 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
                    "centroid_x_px": r.centroid_x, "asymmetry": r.asymmetry} for r in results]
     return Extraction(_frame(rows, EXTRACTION_UNITS), pd.DataFrame(frame_rows), float(pixel_um), float(rate),
                       channel.walls, stack, results, measurements, channel)
+
+
+def extract_shear(frames: str | Path | Sequence[str | Path], pixel_size: float | str | None = None, *,
+                  one_capsule: bool = False, capsule_id: str | None = None, line: str = "dark",
+                  flow_angle: float = 0.0, min_radius: float = 6.0, background: str | Path | Any | None = None,
+                  progress: bool = False) -> ShearExtraction:
+    """Measure capsules in the shear plane of a Couette rheometer: outline -> ellipse (paper §4.3).
+
+    Parameters
+    ----------
+    frames : path, glob pattern or sequence of them
+        Image files, multi-page TIFFs or folders (as ``extract`` reads them).
+    pixel_size : float or str, optional
+        One pixel [um], or a quantity with its unit (``"1.4um"``); default the files' metadata.
+    one_capsule : bool
+        The frames show one capsule: its frames are combined into one row. Default: every
+        capsule of every frame is a row of its own.
+    capsule_id : str, optional
+        Id (several capsules: ``ID-1``, ``ID-2``, ...); default the first file's name.
+    line : {"dark", "bright"}
+        The membrane's ring is darker (bright field) or brighter than the liquid.
+    flow_angle : float
+        The flow's direction on the screen [deg], counter-clockwise from the image's +x axis.
+    min_radius : float
+        Smaller objects [px, equivalent radius] are specks.
+    background : path or 2-D array, optional
+        An image of the empty field; default a smooth surface fitted to each frame.
+    progress : bool
+        A progress bar on stderr.
+
+    Returns
+    -------
+    capsmech.imaging.shear_plane.ShearExtraction
+        ``capsule_rows()`` (L1, L2 [um], D12, theta [deg], each with its uncertainty at two
+        standard deviations), ``objects`` (every object found, measured or with its reason) and
+        ``measurements(shear_rate, mu)``: the capsules as ``fit_shear`` takes them.
+
+    Raises
+    ------
+    ExtractionError
+        Unreadable frames, bad options, or no pixel size in the files or the arguments.
+    """
+    import numpy as np
+    from tqdm import tqdm
+
+    from capsmech.errors import ExtractionError
+    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM
+    from capsmech.imaging.frames import read_frames
+    from capsmech.imaging.shear_plane import ShearSettings, measure_stack
+
+    paths = [frames] if isinstance(frames, (str, Path)) else list(frames)
+    settings = ShearSettings(line=line, flow_angle_deg=float(flow_angle), min_radius_px=float(min_radius))
+    stack = read_frames(paths)
+    pixel_um = _quantity(pixel_size, "pixel_size", PIXEL_UNITS_UM, "um") or stack.pixel_size_um
+    if pixel_um is None:
+        raise ExtractionError("pixel_size: required (the files carry no pixel size)")
+    bg = None
+    if background is not None:
+        bg = (read_frames([background]).frames[0] if isinstance(background, (str, Path))
+              else np.asarray(background, dtype=float))
+    bar = tqdm(total=len(stack), desc="frames", unit="frame", disable=not progress, leave=False)
+
+    def advance(done: int, total: int) -> None:
+        bar.update(done - bar.n)
+
+    try:
+        return measure_stack(stack.frames, stack.labels, float(pixel_um), settings,
+                             stem=capsule_id or Path(stack.labels[0].split("[")[0]).stem, one_capsule=one_capsule,
+                             background=bg, progress=advance)
+    finally:
+        bar.close()

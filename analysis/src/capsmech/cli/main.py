@@ -1,5 +1,5 @@
 """The ``capsmech`` command: one subcommand per user job, each in its own module of
-``capsmech.cli`` (case: simulate, show; extract; fit: fit-tube, fit-shear; population;
+``capsmech.cli`` (case: simulate, show; extract; extract_shear: extract-shear; fit: fit-tube, fit-shear; population;
 diagnose: diagnose, diagnose-shear, make-batch; compare: compare-methods; databases: databases,
 database, figures), and the developers' commands under ``capsmech dev``.
 
@@ -33,7 +33,7 @@ addressed by name (capsmech databases) or by file."""
 
 
 #: The modules of ``capsmech.cli`` that register subcommands, in the order the help lists them.
-JOBS = ("extract", "fit", "population", "diagnose", "compare", "case", "databases", "dev")
+JOBS = ("extract", "extract_shear", "fit", "population", "diagnose", "compare", "case", "databases", "dev")
 
 
 def build_parser(jobs: Sequence[str] = JOBS) -> argparse.ArgumentParser:
