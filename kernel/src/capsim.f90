@@ -6,7 +6,7 @@ program capsim
    use file_ops, only: delete_file
    use omp_lib, only: omp_set_num_threads, omp_get_max_threads
    use blas_threads, only: match_blas_threads
-   use capsim_kinds, only: dp
+   use capsim_kinds, only: dp, code_version
    use hdf5_writer, only: h5_file_t
    use run_options, only: run_options_t, parse_command_line, write_help, step_count_problem
    use case_output, only: case_summary_t, close_case_file
@@ -37,6 +37,10 @@ program capsim
    call parse_command_line(opts, stat, errmsg)
    if (opts%show_help) then
       call write_help(output_unit)
+      stop
+   end if
+   if (opts%show_version) then
+      write (output_unit, '(a)') 'capsim '//code_version
       stop
    end if
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)

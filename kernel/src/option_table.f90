@@ -132,7 +132,9 @@ module option_table
                     help='read group &capsim of FILE first (flow law model nu_s c ca lambda kb a_over_l level '// &
                          'n_meridian dt t_max threads out)'), &
       option_spec_t(name='--help', short='-h', group='run', &
-                    help='print this help and exit') &
+                    help='print this help and exit'), &
+      option_spec_t(name='--version', group='run', &
+                    help='print the kernel version (the code_version case files record) and exit') &
       ]
 
    integer, parameter :: n_options = size(option_specs)

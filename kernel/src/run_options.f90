@@ -97,6 +97,7 @@ module run_options
       logical :: volume_correction = .true.
       logical :: quiet = .false.
       logical :: show_help = .false.
+      logical :: show_version = .false.
       !> Which options of option_table (by index) were given, on the command line or in the
       !> namelist: an option given where it does not apply is refused (validate).
       logical :: given(n_options) = .false.
@@ -205,7 +206,7 @@ contains
          call bind_option(opts, trim(option_specs(i)%name), .true., value, shown, stat, errmsg)
          if (stat /= 0) return
       end do
-      if (opts%show_help) return
+      if (opts%show_help .or. opts%show_version) return
       ! A branch runs its cases at the listed Ca_s; --ca, if not given, is the first of them
       ! (the case that time stepping starts from).
       if (len_trim(opts%branch_ca) > 0 .and. .not. opts%given(option_index('--ca'))) then
@@ -247,6 +248,8 @@ contains
       select case (name)
       case ('--help')
          call flag_field(opts%show_help)
+      case ('--version')
+         call flag_field(opts%show_version)
       case ('--quiet')
          call flag_field(opts%quiet)
       case ('--namelist')

@@ -36,12 +36,29 @@ addressed by name (capsmech databases) or by file."""
 JOBS = ("extract", "extract_shear", "fit", "population", "diagnose", "compare", "case", "databases", "dev")
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the package, the kernel it runs and the databases it ships, one line each
+    (looked up only when asked: the kernel is run for its version)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        from capsmech.io.catalog import database_versions
+        from capsmech.workflow.paths import kernel_version
+
+        print(f"capsmech {__version__}")
+        print(f"kernel: {kernel_version()}")
+        for name, version in database_versions().items():
+            print(f"database {name}: {version}")
+        parser.exit()
+
+
 def build_parser(jobs: Sequence[str] = JOBS) -> argparse.ArgumentParser:
     """Return the argument parser of the ``capsmech`` command, with the subcommands of ``jobs``
     (modules of ``capsmech.cli``; all of them by default)."""
     parser = argparse.ArgumentParser(prog="capsmech", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"capsmech {__version__}")
+    parser.add_argument("--version", action=_VersionAction, nargs=0,
+                        help="print the versions of the package, the kernel and the shipped databases, and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for job in jobs:
         importlib.import_module(f"capsmech.cli.{job}").register(sub)

@@ -237,3 +237,23 @@ def offcentre_table_path() -> Path:
         The file of the catalog's ``'offcentre'`` entry.
     """
     return database_path(OFFCENTRE_TABLE)
+
+
+def database_versions() -> dict[str, str]:
+    """Each shipped database's ``grid_name`` and the kernel ``code_version`` that filled it.
+
+    Returns
+    -------
+    dict
+        Name -> ``'grid paper, kernel 0.3.5'`` (``'unreadable'`` for a damaged file), in catalog order.
+    """
+    versions = {}
+    for name in CATALOG:
+        try:
+            with h5py.File(database_path(name), "r") as f:
+                grid = decode_str(f.attrs.get("grid_name", "?"))
+                code = decode_str(f.attrs.get("code_version", "?"))
+            versions[name] = f"grid {grid}, kernel {code}"
+        except (OSError, TypeError, DatabaseError):
+            versions[name] = "unreadable"
+    return versions

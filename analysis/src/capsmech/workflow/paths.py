@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 from pathlib import Path
 
 #: Environment variable that, when set, names the kernel executable to use.
@@ -82,3 +83,18 @@ def capsim_executable() -> Path:
             "run `make build` to build the kernel"
         )
     return exe
+
+
+def kernel_version() -> str:
+    """``'capsim 0.3.5 (PATH)'`` for the kernel ``capsim_executable`` finds, or why there is none."""
+    try:
+        exe = capsim_executable()
+    except FileNotFoundError as err:
+        return f"capsim not available ({err})"
+    try:
+        done = subprocess.run([str(exe), "--version"], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return f"capsim at {exe} does not run ({err})"
+    if done.returncode != 0 or not done.stdout.startswith("capsim "):
+        return f"capsim at {exe} gives no version (older than 0.3.5? rebuild it: make build)"
+    return f"{done.stdout.strip()} ({exe})"
