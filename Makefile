@@ -104,7 +104,7 @@ test: setup
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope
 
 demo: setup
-	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --out demo/shear_NH_Ca0.05.h5
+	$(PY) -m capsmech.cli simulate --flow shear --law NH --ca 0.05 --level 3 --quiet --out demo/shear_NH_Ca0.05.h5
 	$(PY) -m capsmech.cli show demo/shear_NH_Ca0.05.h5 --plot demo/shear_NH_Ca0.05.png
 	$(PY) -m capsmech.cli fit-tube data/examples/tube_batch_NH.csv --database tube-paper \
 	    --law NH --law GH_nu0.5 --out demo/fit_tube_batch_NH.csv

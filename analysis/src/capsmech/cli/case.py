@@ -90,6 +90,45 @@ def cmd_show(case_path: str | Path, plot: str | Path | None = None) -> int:
     return 0
 
 
+#: The grid whose model choices a single case takes when the user gives none: the paper's, so that
+#: a case run by hand is comparable with (and as steady as) the shipped databases' cases.
+REFERENCE_GRID = "paper"
+
+
+def _flag_value(args: Sequence[str], flag: str) -> str | None:
+    for i, arg in enumerate(args):
+        if arg == flag and i + 1 < len(args):
+            return args[i + 1]
+        if arg.startswith(flag + "="):
+            return arg.split("=", 1)[1]
+    return None
+
+
+def database_choices(kernel_args: Sequence[str]) -> list[str]:
+    """The paper grid's model choices (integrator, bending regularisation) that ``kernel_args``
+    leave open, as kernel flags; printed when added. None for a namelist run, a branch, an
+    unreadable Ca_s or where the grid file is not at hand (an installed package)."""
+    flow, ca = _flag_value(kernel_args, "--flow"), _flag_value(kernel_args, "--ca")
+    if flow not in ("tube", "shear") or ca is None or "--help" in kernel_args or "-h" in kernel_args \
+            or _flag_value(kernel_args, "--namelist") is not None or _flag_value(kernel_args, "--branch-ca"):
+        return []
+    from capsmech.workflow.grid import GridError, load_grid, model_choice_flags
+    from capsmech.workflow.paths import repo_root
+
+    try:
+        Ca_s = float(ca)
+        grid = load_grid(repo_root() / "config" / f"{REFERENCE_GRID}.yaml")
+    except (ValueError, FileNotFoundError, GridError):
+        return []
+    flags = model_choice_flags(grid, flow, Ca_s)
+    added = [item for flag, value in zip(flags[::2], flags[1::2])
+             if _flag_value(kernel_args, flag) is None for item in (flag, value)]
+    if added:
+        print(f"capsmech: the {REFERENCE_GRID} database's settings for this case: {' '.join(added)} "
+              "(give the flags to choose otherwise)")
+    return added
+
+
 def cmd_simulate(kernel_args: Sequence[str]) -> int:
     """Run the capsim kernel with ``kernel_args``, streaming its output.
 
@@ -107,6 +146,7 @@ def cmd_simulate(kernel_args: Sequence[str]) -> int:
         The kernel's exit code (or 2 if it succeeded but its case file is unreadable).
     """
     exe = capsim_executable()
+    kernel_args = [*kernel_args, *database_choices(kernel_args)]
     out = out_path_from_args(kernel_args)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -473,6 +473,19 @@ def case_settings(grid: Mapping[str, Any], flow: str, Ca_s: float) -> tuple[tupl
     return tuple(sorted(settings.items()))
 
 
+#: Settings of a database grid that are model choices rather than resolution (the mesh level,
+#: the time span): a single case run to compare with the database needs them too.
+MODEL_CHOICES = ("integrator", "k_b")
+
+
+def model_choice_flags(grid: Mapping[str, Any], flow: str, Ca_s: float) -> list[str]:
+    """The kernel flags of ``grid``'s model choices for one case of ``flow`` at ``Ca_s``
+    (``['--integrator', 'implicit', '--kb', '0.0003']`` for a paper shear case below Ca_s 0.07)."""
+    settings = dict(case_settings(grid, flow, Ca_s))
+    return [item for key in MODEL_CHOICES if key in settings
+            for item in (SETTING_FLAGS[flow][key], str(settings[key]))]
+
+
 def grid_json(grid: Mapping[str, Any]) -> str:
     """Return the grid as canonical JSON (sorted keys): its provenance record and signature."""
     return json.dumps(grid, sort_keys=True, separators=(",", ":"))
