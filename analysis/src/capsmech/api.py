@@ -390,8 +390,10 @@ class Extraction:
     capsules : DataFrame
         One row per capsule passage: ``id``, ``good_frames``, ``frames``, ``L_z``, ``L_p``
         [um] with their spreads over the good frames, ``v_c`` [mm/s] with its standard error,
-        ``tube_radius`` [um], ``flag`` (``""`` measured, ``too_few_frames``, ``not_moving``)
-        and ``reason``; units in ``attrs["units"]``.
+        ``tube_radius`` [um] with its standard uncertainty ``tube_radius_sigma`` (NaN: walls
+        given), ``flag`` (``""`` measured, ``too_few_frames``, ``not_moving``,
+        ``not_steady``) and ``reason`` (for a measured independent event: why it has no
+        velocity); units in ``attrs["units"]``.
     frames : DataFrame
         One row per frame: index, label, passage (-1: none), flag (empty: measured) and the
         frame's lengths [px].
@@ -418,7 +420,8 @@ class Extraction:
 
 #: Columns of ``Extraction.capsules`` and their units (lengths as the measurement CSV has them).
 EXTRACTION_UNITS = {"id": "", "good_frames": "1", "frames": "1", "L_z": "um", "L_z_spread": "um", "L_p": "um",
-                    "L_p_spread": "um", "v_c": "mm/s", "v_c_se": "mm/s", "tube_radius": "um", "contour_noise": "um",
+                    "L_p_spread": "um", "v_c": "mm/s", "v_c_se": "mm/s", "tube_radius": "um", "tube_radius_sigma": "um",
+                    "contour_noise": "um",
                     "flag": "", "reason": ""}
 
 
@@ -435,7 +438,8 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
             max_asymmetry: float = 0.05, max_line_width: float = 10.0, min_frames: int = 3,
             progress: bool = False, background: str | Path | Any | None = None,
             walls: str | tuple[float, float] | None = None, channel_width: float | str | None = None,
-            frame_times: str | Path | Any | None = None, tilt: float | None = None) -> Extraction:
+            frame_times: str | Path | Any | None = None, tilt: float | None = None,
+            channel_width_tolerance: float = 0.02) -> Extraction:
     """Measure the capsules of a stack of frames of a tube: lengths, velocity, contours.
 
     Parameters
@@ -475,6 +479,10 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         between frames are honoured (new passage, velocity from the times).
     tilt : float, optional
         The channel's tilt [deg] when known; default: estimated from the walls.
+    channel_width_tolerance : float
+        The tolerance of ``channel_width``, a fraction of it (default 0.02): a width found
+        that differs by more than it plus twice its own uncertainty is a disagreement
+        (``Extraction.channel.width_disagrees``).
 
     Returns
     -------
@@ -536,19 +544,23 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         bar.update(done - bar.n)
 
     channel, results = extract_stack(stack, settings, advance, wall_rows, bg,
-                                     width_um / pixel_um if width_um else None, tilt, rate)
+                                     width_um / pixel_um if width_um else None, tilt, rate,
+                                     channel_width_tolerance=channel_width_tolerance)
     bar.close()
-    measurements = measure_capsules(results, rate, settings)
+    measurements = measure_capsules(results, rate, settings, independent_events=bool(channel.independent_events))
     ids = default_ids(capsule_id or Path(stack.labels[0].split("[")[0]).stem, len(measurements))
     rows = []
     for cap_id, cap in zip(ids, measurements):
-        flag = "" if cap.ok else ("too_few_frames" if "good frame" in cap.problem else "not_moving")
+        flag = "" if cap.ok else ("too_few_frames" if "good frame" in cap.problem else
+                                  "not_steady" if cap.problem.startswith("not steady") else "not_moving")
         rows.append({"id": cap_id, "good_frames": len(cap.good_frames), "frames": len(cap.frames),
                      "L_z": cap.L_z_px * pixel_um, "L_z_spread": cap.L_z_spread_px * pixel_um,
                      "L_p": cap.L_p_px * pixel_um, "L_p_spread": cap.L_p_spread_px * pixel_um,
                      "v_c": cap.v_c_px_s * pixel_um * 1e-3, "v_c_se": cap.v_c_se_px_s * pixel_um * 1e-3,
                      "tube_radius": channel.walls.radius_px * pixel_um,
-                     "contour_noise": cap.contour_noise_px * pixel_um, "flag": flag, "reason": cap.problem})
+                     "tube_radius_sigma": channel.walls.radius_sigma_px * pixel_um,
+                     "contour_noise": cap.contour_noise_px * pixel_um, "flag": flag,
+                     "reason": cap.problem or cap.note})
     frame_rows = [{"index": r.index, "label": r.label, "time_s": r.time_s, "passage": r.passage, "flag": r.flag,
                    "objects": r.objects, "kind": r.kind, "contour_at": r.contour_at, "extent_px": r.extent_px,
                    "outer_extent_px": r.outer_extent_px, "L_z_px": r.L_z_px, "L_p_px": r.L_p_px,

@@ -26,6 +26,9 @@ def check_options(args: argparse.Namespace) -> None:
     for option, value in (("--max-asymmetry", args.max_asymmetry), ("--max-line-width", args.max_line_width)):
         if not (math.isfinite(value) and value > 0):
             raise ExtractionError(f"{option}: need a positive finite number, got {value:g}")
+    tolerance = args.channel_width_tolerance
+    if not (math.isfinite(tolerance) and 0 <= tolerance < 50):
+        raise ExtractionError(f"--channel-width-tolerance: need a percentage from 0 to 50, got {tolerance:g}")
     out = Path(args.out)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
     contours = out.with_name(out.stem + "_contours")
@@ -68,7 +71,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
                         capsule_id=args.id, max_asymmetry=args.max_asymmetry, max_line_width=args.max_line_width,
                         min_frames=args.min_frames, progress=sys.stderr.isatty(), background=args.background,
                         walls=args.walls, channel_width=args.channel_width, frame_times=args.frame_times,
-                        tilt=args.tilt)
+                        tilt=args.tilt, channel_width_tolerance=args.channel_width_tolerance / 100)
     except ExtractionError as err:
         # A calibration neither the files nor the options give: the API names its parameter,
         # the command line its option.
@@ -83,8 +86,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
     out = Path(args.out)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
     write_frame_report(report, results)
+    sigma = f" +- {walls.radius_sigma_px:.2f}" if math.isfinite(walls.radius_sigma_px) else ""
     print(f"{len(stack)} frames of {stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px; tube radius "
-          f"{walls.radius_px:.2f} px = {walls.radius_px * pixel_um:.4g} um, axis at row {walls.axis_row:.2f}; "
+          f"{walls.radius_px:.2f}{sigma} px = {walls.radius_px * pixel_um:.4g} um, axis at row {walls.axis_row:.2f}; "
           f"pixel {pixel_um:g} um, {rate:g} frames/s")
     channel = found.channel
     print(f"channel levelled by {channel.tilt_deg:+.3f} deg; walls at rows {walls.top_row:.2f}, {walls.bottom_row:.2f} "
@@ -92,11 +96,16 @@ def cmd_extract(args: argparse.Namespace) -> int:
           f"background: {channel.background_source}")
     if channel.width_check:
         print(channel.width_check)
+    if channel.width_disagrees:
+        # On the screen even when the printout goes to a file: the tube radius may be wrong.
+        print(f"capsmech: warning: {channel.width_check}", file=sys.stderr)
     if channel.background_check:
         print(channel.background_check)
     if channel.geometry_check:
         print(channel.geometry_check)
     print(channel.flow_check)
+    if channel.independent_events:
+        print(channel.independent_events)
     if args.overlay:
         # The level/tilt/walls picture once, and every frame that shows an object, measured or not.
         shown = channel.background if channel.background is not None else channel.levelled(stack.frames[0])
@@ -118,6 +127,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
     print(f"{good} frames measured" + (", flagged: " + ", ".join(f"{n} {k}" for k, n in sorted(flags.items()))
                                        if flags else "")
           + (f"; {shared} objects measured in frames with several" if shared else "") + f" (per frame: {report})")
+    pieces = sorted({r.index for r in results for t in r.traces if t.dropped})
+    if pieces:
+        print(f"pieces cut by the frame's edge or in a wall's band not measured (frame{'s' if len(pieces) > 1 else ''} "
+              f"{', '.join(map(str, pieces))}): beside no whole capsule, not capsules of their own")
     capsules = found.capsules
     for row, cap in zip(records(capsules), found.measurements):
         if row["flag"]:
@@ -129,7 +142,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         return 1
     kept = [cap for cap in found.measurements if cap.ok]
     csv_path, _ = write_measurements(out, kept, results, walls, pixel_um, list(measured["id"]), mu,
-                                     source=" ".join(str(f) for f in args.frames), flow_direction=channel.flow_direction)
+                                     source=" ".join(str(f) for f in args.frames), flow_direction=channel.flow_direction,
+                                     channel=channel)
     print(format_table(records(measured), ["id", "good_frames", "L_z", "L_z_spread", "L_p", "L_p_spread", "v_c",
                                            "v_c_se"], capsules.attrs["units"]))
     if args.overlay:
@@ -168,6 +182,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     ext.add_argument("--channel-width",
                      help="channel width, e.g. 20um (bare numbers: um): checked against the walls found, and used "
                           "to place a wall outside the view")
+    ext.add_argument("--channel-width-tolerance", type=float, default=2.0, metavar="PERCENT",
+                     help="tolerance of --channel-width, in %% (default 2): a width found that differs by more than "
+                          "it plus twice the found width's uncertainty is a warning and says so in the CSV's "
+                          "width_check column")
     ext.add_argument("--frame-times", metavar="CSV",
                      help="time of each frame (a time_s column, optionally page): gaps between frames are honoured")
     ext.add_argument("--tilt", type=float, metavar="DEG",

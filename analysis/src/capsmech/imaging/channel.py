@@ -3,13 +3,18 @@
 Real channels are never quite horizontal (0.1-2.5 degrees in RT-DC recordings): a wall line
 that crosses rows leaves a trace in every per-row statistic and touches the image border. The
 tilt is found first, on the background image (walls and nothing else), and every frame is
-rotated level before anything is detected. The walls are then dark rows of the levelled
-background. Angles follow the image's axes: ``tilt_deg = atan(d row / d column)`` with rows
+rotated level before anything is detected. The walls are then found on the levelled
+background's row profile: where the glass shows as a band (a thin one, with or without a bright
+refraction line beside it, or a thick one), the wall is the band's liquid-side edge, located to a
+fraction of a pixel where the darkness changes fastest; where it shows as a thin line (the
+interface's own image), the line's centre. Each wall carries its uncertainty, from locating it
+again in strips of columns. Angles follow the image's axes: ``tilt_deg = atan(d row / d column)`` with rows
 counted downwards (a wall that descends to the right has a positive tilt).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -31,19 +36,25 @@ class Walls:
     Attributes
     ----------
     top_row, bottom_row : float
-        Rows of the walls (centres of their dark lines, or placed by the user).
+        Rows of the walls: the liquid-side edge of a band (the glass shown in its thickness)
+        or the centre of a thin line (the interface's own image), or placed by the user.
     source : str
         How they were found: ``detected``, ``given`` (user's rows) or
         ``one wall detected, the other placed at the channel width``.
     columns : (int, int) or None
         First and last column of the straight channel, where the detected wall lines lie at
         their rows (:func:`straight_columns`); None: the whole width.
+    top_sigma_px, bottom_sigma_px : float
+        Standard uncertainty of each row [px] (:func:`wall_uncertainty`); NaN where unknown
+        (rows given by the user).
     """
 
     top_row: float
     bottom_row: float
     source: str = "detected"
     columns: tuple[int, int] | None = None
+    top_sigma_px: float = math.nan
+    bottom_sigma_px: float = math.nan
 
     @property
     def radius_px(self) -> float:
@@ -59,6 +70,16 @@ class Walls:
     def width_px(self) -> float:
         """Channel width in pixels (wall to wall)."""
         return self.bottom_row - self.top_row
+
+    @property
+    def width_sigma_px(self) -> float:
+        """Standard uncertainty of the width [px] (the two walls' independent errors)."""
+        return math.hypot(self.top_sigma_px, self.bottom_sigma_px)
+
+    @property
+    def radius_sigma_px(self) -> float:
+        """Standard uncertainty of the tube radius [px]."""
+        return self.width_sigma_px / 2
 
 
 def _line_image(image: np.ndarray) -> np.ndarray:
@@ -272,9 +293,10 @@ def _spans(image: np.ndarray, bright: float, peaks: np.ndarray, strip_px: int = 
 
 #: A band is at least this much darker than the bright level (the darkening of an RT-DC
 #: channel's middle, up to 18 % against the bright bands beside its walls, is none), wider than
-#: a line (``wall_lines``' max width), and its edges are steps: the darkness goes from under
-#: 30 % to over 70 % of the band's within EDGE_PX px either side of the half-way row (the
-#: channel's middle darkens over 10 px and more).
+#: a line (``wall_lines``' max width), and one of its edges at least is a step: the darkness
+#: goes from under 30 % to over 70 % of the band's within EDGE_PX px either side of the half-way
+#: row (the channel's middle darkens over 10 px and more; the other edge of a band may run into
+#: more glass, a doubled wall's outer band).
 MIN_BAND_DARKNESS = 0.25
 EDGE_PX = 4
 
@@ -288,7 +310,8 @@ def dark_bands(background: np.ndarray, min_width_px: float = 12.0,
     The row profile (median over the columns) is median-filtered over ``2 min_width_px + 1``
     rows: a median keeps a band's edges in place and removes the lines narrower than the
     window; a run of rows darker than ``min_darkness`` longer than ``min_width_px`` is a band,
-    its edges where the unfiltered profile crosses half its median darkness.
+    its edges where the unfiltered profile crosses half its median darkness (:func:`find_walls`
+    moves them to the steepest point, :func:`_edge_row`).
     """
     image = np.asarray(background, dtype=np.float32)
     profile = np.median(image, axis=1)
@@ -306,7 +329,7 @@ def dark_bands(background: np.ndarray, min_width_px: float = 12.0,
         half = 0.5 * float(np.median(dark[idx]))
         middle = int(idx[idx.size // 2])
         first, last = _half_crossing(dark, half, middle, -1), _half_crossing(dark, half, middle, +1)
-        if _is_step(dark, half, first, -1) and _is_step(dark, half, last, +1):
+        if _is_step(dark, half, first, -1) or _is_step(dark, half, last, +1):
             bands.append((first, last))
     return bands
 
@@ -335,17 +358,199 @@ def _is_step(dark: np.ndarray, half: float, edge: float, step: int) -> bool:
     return bool(dark[outside] < 0.6 * half and dark[inside] > 1.4 * half)
 
 
-def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: float | None = None,
-               min_darkness: float = 0.04) -> Walls:
-    """The channel's two walls in a levelled background image.
+#: A flat-topped dark feature at least this wide at half its depth shows the glass in its
+#: thickness (a band): the wall is its liquid-side edge. A narrower one is a line, the
+#: interface's own image (how RT-DC chips and the package's renderer show a wall): the wall is
+#: its centre. 5.3 px: a 6 px band narrowed by a refraction line against it (5.6 px) is a band;
+#: the dclab recordings' wall lines are at most 5.2 px wide where they are flat-topped.
+BAND_MIN_WIDTH_PX = 5.55
+#: Bands up to this wide are found by :func:`thin_bands`; wider and deep ones by :func:`dark_bands`.
+THIN_BAND_MAX_WIDTH_PX = 25.0
+#: A band's darkness is flat-topped: its width at 80 % of its depth over its width at half depth
+#: is at least this (0.72 for a 6 px band blurred by 1 px; 0.54 for a line's Gaussian bell).
+PLATEAU_RATIO = 0.645
+#: Columns per strip over which an edge or a line is located again for its uncertainty.
+UNCERTAINTY_STRIP_PX = 32
+#: The locators' own resolution [px]: a parabola through pixel samples of a blurred step (or a
+#: centroid of a line) is biased by the step's sub-pixel phase, up to 0.06 px for a blur of 0.8 px
+#: and 0.04 px for 1 px (computed on exact erf steps); added to every wall's uncertainty.
+LOCATOR_RESOLUTION_PX = 0.05
 
-    The channel is the widest bright interval between consecutive dark lines or band edges
-    (:func:`dark_bands`: glass shown as a thick dark band, whose inner edge is the wall): beside
-    a doubled wall line it is the inner line that bounds it, a bright band between two lines of
-    one wall is narrower than the channel, and the inside of a dark band is no candidate. When
-    that interval reaches
-    the image's edge, the wall there is outside the view: it is placed at
-    ``channel_width_px`` from the other, when given.
+
+def _row_profile(image: np.ndarray) -> np.ndarray:
+    """Each row's trimmed mean over the columns (a speck or a notch does not move it; the mean
+    of 8-bit values is not quantised as their median is)."""
+    from scipy.stats import trim_mean
+
+    return np.asarray(trim_mean(np.asarray(image, dtype=np.float64), 0.2, axis=1), dtype=float)
+
+
+def _darkness(profile: np.ndarray) -> np.ndarray:
+    """``1 - I / bright`` of a row profile (bright: its 90th percentile); black padding rows get
+    the profile's median darkness (they are no line)."""
+    bright = float(np.percentile(profile, 90))
+    if bright <= 0:
+        raise ExtractionError("the frames are black")
+    dark = 1 - profile / bright
+    dark[profile <= 0.05 * bright] = float(np.median(dark))
+    return dark
+
+
+def thin_bands(background: np.ndarray, min_width_px: float = BAND_MIN_WIDTH_PX,
+               max_width_px: float = THIN_BAND_MAX_WIDTH_PX, min_darkness: float = 0.08) -> list[tuple[float, float]]:
+    """Dark bands from ``min_width_px`` to ``max_width_px`` wide at half their depth (a capillary's
+    glass in a thin wall, with or without a bright refraction line beside it), top to bottom, as
+    (first, last) rows of their edges (:func:`_edge_row`).
+
+    The darkness profile's slow part (a median over more than twice the widest band) is taken
+    off; a peak at least ``min_darkness`` deep is a band when its width between its half-depth
+    crossings is in range, unless it holds two minima (a doubled line: two interfaces, each a
+    line) or its top is no plateau (:data:`PLATEAU_RATIO`: a line blurred wide). Each side's
+    depth is counted from that side's own level (the liquid and the glass beyond the band, or a
+    refraction line against it, are not equally bright). A band is told from a line only where
+    its plateau is resolved: wider than about 5 times the blur.
+    """
+    from scipy.signal import find_peaks
+
+    dark = _darkness(_row_profile(background))
+    excess = dark - ndimage.median_filter(dark, size=4 * int(max_width_px) + 1, mode="nearest")
+    # Darker than the profile's slow level (the liquid's, mostly) too: the liquid between two
+    # refraction lines is a peak of the profile, not a band.
+    peaks, props = find_peaks(excess, height=min_darkness, prominence=min_darkness)
+    bands = []
+    for k, peak in enumerate(peaks):
+        sides = [_side_level(excess, int(peak), step, int(max_width_px) + 4, props["prominences"][k]) for step in (-1, +1)]
+        if excess[peak] - max(sides) < min_darkness:
+            continue
+        crossings = {}
+        for fraction in (0.5, 0.2):
+            crossings[fraction] = [_half_crossing(excess, excess[peak] - fraction * (excess[peak] - base), int(peak), step)
+                                   for base, step in zip(sides, (-1, +1))]
+        first, last = crossings[0.5]
+        if not min_width_px <= last - first <= max_width_px:
+            continue
+        inside = excess[int(math.ceil(first)):int(math.floor(last)) + 1]
+        minima, _ = find_peaks(inside, prominence=0.1 * props["prominences"][k])
+        if minima.size > 1:
+            continue
+        # A band's plateau: at a fifth of its depth below the darkest row it is still
+        # PLATEAU_RATIO of its width at half depth (a line's bell: 0.54 for a Gaussian).
+        if crossings[0.2][1] - crossings[0.2][0] < PLATEAU_RATIO * (last - first):
+            continue
+        bands.append((_edge_row(dark, first, +1), _edge_row(dark, last, -1)))
+    return bands
+
+
+def _side_level(excess: np.ndarray, peak: int, step: int, reach_px: int, depth: float) -> float:
+    """The level beside a dark peak ``depth`` deep, on one side (``step`` -1: above, +1: below):
+    walking out of the band, once past half its depth, where the darkness stops falling (by
+    less than 5 % of the depth from one row to the next, or rises: a refraction line's
+    trough, the liquid's or the glass's level; not a further feature), at most ``reach_px``
+    out. Before half the depth the walk is still on the band's plateau or edge."""
+    top = float(excess[peak])
+    r = peak
+    while 0 <= r + step < excess.size and abs(r + step - peak) <= reach_px:
+        fall = float(excess[r]) - float(excess[r + step])
+        if top - float(excess[r]) > 0.5 * depth and fall < 0.05 * depth:
+            break
+        r += step
+    return float(excess[r])
+
+
+def _edge_row(dark: np.ndarray, guess: float, into_band: int, reach_px: float = 2.5) -> float:
+    """Sub-pixel row of a band's edge near ``guess``: where the darkness changes fastest
+    (``into_band`` +1: it rises downwards, the band's upper edge; -1: its lower edge).
+
+    The steepest point, not the half-depth crossing: a bright refraction line against the
+    band's edge steepens the step there but moves a half-depth crossing, and so does a slow
+    illumination gradient. A parabola through the three differences around the steepest one.
+    """
+    slope = into_band * np.diff(dark)           # slope[i] lies at row i + 0.5
+    rows = np.arange(slope.size) + 0.5
+    near = np.nonzero(np.abs(rows - guess) <= reach_px)[0]
+    if near.size == 0:
+        return float(guess)
+    i = int(near[np.argmax(slope[near])])
+    if slope[i] <= 0 or i == 0 or i == slope.size - 1:
+        return float(guess)
+    a, b, c = slope[i - 1], slope[i], slope[i + 1]
+    denominator = a - 2 * b + c
+    shift = 0.5 * (a - c) / denominator if denominator < 0 else 0.0
+    return float(rows[i] + min(max(shift, -0.5), 0.5))
+
+
+def wall_uncertainty(background: np.ndarray, row: float, kind: str, band_px: float = 0.0,
+                     strip_px: int = UNCERTAINTY_STRIP_PX, columns: tuple[int, int] | None = None) -> float:
+    """Standard uncertainty [px] of a wall's row found on the whole width.
+
+    The wall is located again, alike, in strips of ``strip_px`` columns: the spread of the
+    strips' rows over the square root of their number (the noise, the chip's texture and a
+    residual tilt), and, for the edge of a band ``band_px`` wide (``kind`` ``upper edge`` or
+    ``lower edge``), half the
+    distance between the steepest point and the half-depth crossing of the whole profile (the
+    edge's shape: blur, a refraction line) and :data:`LOCATOR_RESOLUTION_PX`, added in quadrature.
+    ``kind`` ``line``: a line's centre. NaN when fewer than 3 strips locate it.
+    """
+    image = np.asarray(background, dtype=np.float32)
+    if columns is not None:
+        image = image[:, columns[0]:columns[1] + 1]
+    rows, cols = image.shape
+    n = max(1, cols // strip_px)
+    located = []
+    for s in range(n):
+        dark = _darkness(_row_profile(image[:, s * strip_px:(s + 1) * strip_px if s < n - 1 else cols]))
+        located.append(_locate(dark, row, kind))
+    found = np.array([r for r in located if math.isfinite(r)])
+    spread = float(np.std(found, ddof=1) / math.sqrt(found.size)) if found.size >= 3 else math.nan
+    shape = 0.0
+    if kind != "line":
+        dark = _darkness(_row_profile(image))
+        shape = 0.5 * abs(_half_depth_row(dark, row, +1 if kind == "upper edge" else -1, band_px) - row)
+    return float(math.sqrt(spread ** 2 + shape ** 2 + LOCATOR_RESOLUTION_PX ** 2)) if math.isfinite(spread) else math.nan
+
+
+def _locate(dark: np.ndarray, row: float, kind: str) -> float:
+    """A wall located again near ``row`` in a strip's darkness profile (NaN if it is not there)."""
+    if kind == "line":
+        lo = max(0, int(round(row)) - 2)
+        window = dark[lo:int(round(row)) + 3] - float(np.min(dark[max(0, lo - 4):int(round(row)) + 7]))
+        if window.size < 3:
+            return math.nan
+        peak = int(np.argmax(window))
+        return lo + _peak_centre(window, peak) if window[peak] > 0 else math.nan
+    return _edge_row(dark, row, +1 if kind == "upper edge" else -1, reach_px=1.5)
+
+
+def _half_depth_row(dark: np.ndarray, edge: float, into_band: int, band_px: float, reach_px: int = 4) -> float:
+    """Where the darkness crosses half-way between the level ``reach_px`` outside a band's edge
+    and the level in the band's middle (``band_px`` wide); the edge itself if it does not."""
+    rows = dark.size
+    e = int(round(edge))
+    outside = dark[min(max(e - into_band * reach_px, 0), rows - 1)]
+    inside = dark[min(max(int(round(edge + into_band * band_px / 2)), 0), rows - 1)]
+    half = 0.5 * (outside + inside)
+    best = edge
+    for r in range(max(0, e - reach_px), min(rows - 1, e + reach_px)):
+        a, b = dark[r] - half, dark[r + 1] - half
+        if a == b or (a > 0) == (b > 0):
+            continue
+        crossing = r + a / (a - b)
+        if best == edge or abs(crossing - edge) < abs(best - edge):
+            best = crossing
+    return float(best)
+
+
+def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: float | None = None,
+               min_darkness: float = 0.04, channel_width_sigma_px: float = 0.0) -> Walls:
+    """The channel's two walls in a levelled background image, each with its uncertainty.
+
+    The channel is the widest bright interval between consecutive dark lines or band edges:
+    glass shown as a band (:func:`thin_bands`, :func:`dark_bands`), whose liquid-side edge is
+    the wall, located where the darkness changes fastest (:func:`_edge_row`); beside a doubled
+    wall line it is the inner line that bounds it, a bright band between two lines of one wall
+    is narrower than the channel, and the inside of a band is no candidate. When that interval
+    reaches the image's edge, the wall there is outside the view: it is placed at
+    ``channel_width_px`` (uncertainty ``channel_width_sigma_px``) from the other, when given.
 
     Raises
     ------
@@ -353,10 +558,21 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
         When no wall line is found, or one wall is out of view and no width is given.
     """
     rows = np.asarray(background).shape[0]
-    bands = dark_bands(background)
-    band_edges = [edge for band in bands for edge in band if -0.5 < edge < rows - 0.5]
-    lines = sorted([row for row in wall_lines(background, min_darkness)
-                    if not any(first + 1 < row < last - 1 for first, last in bands)] + band_edges)
+    dark = _darkness(_row_profile(background))
+    bands = [(_edge_row(dark, first, +1) if first > -0.5 else first,
+              _edge_row(dark, last, -1) if last < rows - 0.5 else last) for first, last in dark_bands(background)]
+    bands += [band for band in thin_bands(background)
+              if not any(first - 1 < band[1] and band[0] < last + 1 for first, last in bands)]
+    bands.sort()
+    # An edge is kind 'upper edge' (a band below it) or 'lower edge', with its band's width; a
+    # line's centre, 'line'.
+    kinds = {edge: (kind, last - first) for first, last in bands
+             for edge, kind in ((first, "upper edge"), (last, "lower edge")) if -0.5 < edge < rows - 0.5}
+    # A line within a band, or touching it, is part of the glass's picture, not another wall.
+    for row in wall_lines(background, min_darkness):
+        if not any(first - 1 < row < last + 1 for first, last in bands):
+            kinds.setdefault(row, ("line", 0.0))
+    lines = sorted(kinds)
     hint = ("; give the walls' rows (--walls ROW1,ROW2) or, for a wall outside the view, "
             "the channel width (--channel-width)")
     if not lines:
@@ -369,16 +585,25 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
             gaps[i] = 0.0                 # inside the glass
     k = int(np.argmax(gaps))
     top, bottom = edges[k], edges[k + 1]
+
+    def sigma(row: float) -> float:
+        return wall_uncertainty(background, row, *kinds[row])
+
+    placed = "one wall detected, the other placed at the channel width"
     if 0 < k < len(edges) - 2:
-        walls = Walls(top, bottom)
+        walls = Walls(top, bottom, top_sigma_px=sigma(top), bottom_sigma_px=sigma(bottom))
     elif channel_width_px is None:
         seen = "top" if k > 0 else "bottom"
         raise ExtractionError(f"{label}: only the {seen} wall is in view (line at row "
                               f"{top if k > 0 else bottom:.1f}){hint}")
     elif k == 0 and len(edges) > 2:
-        walls = Walls(bottom - channel_width_px, bottom, "one wall detected, the other placed at the channel width")
+        seen_sigma = sigma(bottom)
+        walls = Walls(bottom - channel_width_px, bottom, placed, top_sigma_px=math.hypot(seen_sigma, channel_width_sigma_px),
+                      bottom_sigma_px=seen_sigma)
     elif k > 0:
-        walls = Walls(top, top + channel_width_px, "one wall detected, the other placed at the channel width")
+        seen_sigma = sigma(top)
+        walls = Walls(top, top + channel_width_px, placed, top_sigma_px=seen_sigma,
+                      bottom_sigma_px=math.hypot(seen_sigma, channel_width_sigma_px))
     else:
         raise ExtractionError(f"{label}: found no channel wall in the background{hint}")
     if walls.radius_px < 5:
@@ -470,3 +695,81 @@ def parse_walls(text: str) -> tuple[float, float]:
     if not (math.isfinite(a) and math.isfinite(b)) or abs(a - b) < 10:
         raise ExtractionError(f"--walls: {text!r}: the two rows must be finite and at least 10 px apart")
     return min(a, b), max(a, b)
+
+
+#: The tolerance of a given channel width when the user states none: a nominal width (a chip's
+#: design, a capillary's catalogue bore) is rarely better than 2 %.
+DEFAULT_WIDTH_TOLERANCE = 0.02
+
+
+@dataclass(frozen=True)
+class WidthCheck:
+    """The walls found against the channel width the user gave.
+
+    Attributes
+    ----------
+    text : str
+        For the printout: both widths, which one is used and why.
+    disagrees : bool
+        The two differ by more than both uncertainties: twice the found width's standard
+        uncertainty plus the given width's tolerance.
+    verdict : str
+        For the measurement CSV's ``width_check`` column: ``agrees``, ``disagrees (...)``,
+        ``walls given`` or ``placed (one wall in view)``.
+    """
+
+    text: str
+    disagrees: bool
+    verdict: str
+
+
+def check_width(walls: Walls, given_px: float, tolerance: float = DEFAULT_WIDTH_TOLERANCE) -> WidthCheck:
+    """Compare the walls' width with ``given_px`` (tolerance: a fraction of it).
+
+    The width found is used whenever both walls are in view: it is measured where the capsules
+    are, to a fraction of a pixel, while a given width is a nominal one (and carries the pixel
+    size's error too). A disagreement beyond both uncertainties is said, not mended: one of the
+    two (or the pixel size) is wrong, and only the user can tell which.
+    """
+    found = walls.width_px
+    diff = found - given_px
+    pct = 100 * diff / given_px
+    tol_px = tolerance * given_px
+    head = f"channel width {found:.1f} px found, {given_px:.1f} px given: {pct:+.1f} %"
+    if walls.source == "given":
+        far = abs(diff) > tol_px
+        return WidthCheck(head + (" (more than 10 % apart: check the walls or the width)" if abs(pct) > 10 else "")
+                          + "; the walls given are used", far,
+                          f"disagrees ({pct:+.1f} %, walls given)" if far else "agrees (walls given)")
+    if "placed" in walls.source:
+        return WidthCheck(f"channel width {given_px:.1f} px given (tolerance {100 * tolerance:g} %): used to place the "
+                          f"wall outside the view; not checked, one wall is in view", False,
+                          "placed (one wall in view)")
+    sigma = walls.width_sigma_px if math.isfinite(walls.width_sigma_px) else 0.0
+    allowed = 2 * sigma + tol_px
+    head = (f"channel width {found:.1f} +- {sigma:.1f} px found, {given_px:.1f} px given (tolerance "
+            f"{100 * tolerance:g} %): {pct:+.1f} %")
+    if abs(diff) > allowed:
+        return WidthCheck(head + f", beyond both uncertainties (+-{allowed:.1f} px): the width found is used (the walls "
+                          "as imaged, where the capsules are); check the pixel size, the walls on the overlay "
+                          "(--overlay) and the width given, or give the walls (--walls ROW1,ROW2)", True,
+                          f"disagrees (found {found:.1f} px, given {given_px:.1f} px: {pct:+.1f} %)")
+    return WidthCheck(head + ", within the uncertainties: the width found is used", False, "agrees")
+
+
+def check_axis(walls: Walls, object_rows: Sequence[float]) -> tuple[str, bool]:
+    """Where one wall was placed at the given width: the axis against the objects' own
+    symmetry line (the median row of their centroids). Returns the sentence and whether the two
+    differ by more than 1 px and twice their combined uncertainty."""
+    rows = np.asarray([r for r in object_rows if math.isfinite(r)], dtype=float)
+    if rows.size < 3:
+        return "the axis placed could not be checked against the objects (fewer than 3 traced)", False
+    line = float(np.median(rows))
+    error = 1.2533 * float(np.std(rows, ddof=1)) / math.sqrt(rows.size)      # the median's standard error
+    axis_sigma = walls.width_sigma_px / 2 if math.isfinite(walls.width_sigma_px) else 0.0
+    off = line - walls.axis_row
+    allowed = max(1.0, 2 * math.hypot(error, axis_sigma))
+    if abs(off) > allowed:
+        return (f"the objects' symmetry line (row {line:.1f}, {rows.size} objects) lies {off:+.1f} px from the axis "
+                f"placed at row {walls.axis_row:.1f}: the width given or the wall in view is off", True)
+    return f"the objects' symmetry line (row {line:.1f}, {rows.size} objects) confirms the axis placed ({off:+.1f} px)", False

@@ -12,16 +12,21 @@ Per stack (:func:`prepare`)
     2. Background (``background.stack_background``): the temporal median of the levelled
        stack with the passing objects masked out; a user's background image (levelled alike)
        replaces it; stacks of fewer than 5 frames fall back on each frame's per-row median.
-    3. Walls (``channel.find_walls``): the widest bright interval between dark lines of the
-       levelled background, or the user's rows; the channel width given by the user is
-       checked against the one found.
+    3. Walls (``channel.find_walls``): the widest bright interval between the glass's dark
+       lines and bands in the levelled background (a band's liquid-side edge, a line's centre),
+       each wall with its uncertainty, or the user's rows; the channel width given by the user
+       (with its tolerance) is checked against the one found (``channel.check_width``), and
+       where it placed a wall outside the view, the axis against the objects' symmetry line.
     4. Straight channel (``channel.straight_columns``): where the view shows an inlet or an
        outlet, the columns beyond which the walls leave their rows are cut off; objects are
        looked for between them only.
 Per frame (:func:`analyse_contrast`)
     1. Contrast c = 1 - I / background (flat field: walls, dirt and gradients divide out).
     2. Objects (``objects.find_objects``): c smoothed (1 px) above 6 noise deviations
-       inside the channel, fragments joined, specks dropped. None: ``no capsule``; one
+       inside the channel - the frame's, or where larger the stack's own at that pixel
+       (``background.temporal_noise``: its spread over up to 31 pairs of consecutive
+       frames, so that the dim rows beside a wall, a wall's flickering edge and shaking dirt
+       are no objects) - fragments joined, specks dropped. None: ``no capsule``; one
        whose pixels reach the image's left or right edge: ``touches the image border`` (the
        straight channel's end: ``touches the end of the straight channel``); more than one:
        ``N capsules`` (each is still traced and drawn).
@@ -35,17 +40,23 @@ Per frame (:func:`analyse_contrast`)
        Symmetry: the mean distance between the upper half and the mirrored lower half (both
        ways, the larger), over L_z / 2; above ``max_asymmetry`` the frame is ``asymmetric``.
 Per stack, after the frames (``tracking``)
-    Every traced object is measured on its own (``measurement.measure_trace``) and gets a
+    Every traced object is measured on its own (``measurement.measure_trace``). A stack whose
+    objects do not keep their size and step from frame to frame is a set of independent
+    events (``independent_events``; only for stacks without their own frame times): each
+    object is then one capsule of one snapshot, with no track across frames, no velocity and
+    no flow direction from the motion. In a film each object gets a
     track (``track_objects``: optimal assignment between frames, bridging up to
     ``TRACK_MEMORY_FRAMES`` missing frames; two frames of one passage with one object each are
-    always linked). The flow's direction is the sign of
+    always linked); a track made only of pieces cut by the frame's edge joins the capsule
+    beside it or is dropped with the reason (``settle_pieces``). The flow's direction is the sign of
     the objects' median step between consecutive frames (``flow_steps``, no direction
     assumed); with ``flow_direction='auto'`` frames moving in -x are mirrored and analysed again.
 Per capsule (:func:`measure_capsules`)
     Each track is a capsule, also when several are in view at once. Its lengths are the
     medians over its good objects, with their standard deviation as spread; v_c is the slope
     of the least-squares line through the contour's area centroid against the frames' times,
-    with its standard error. A track ends when the capsule is missing from more than
+    with its standard error; a capsule whose L_z still changes along its passage is not measured
+    (``steadiness``: "not steady"). A track ends when the capsule is missing from more than
     ``TRACK_MEMORY_FRAMES`` camera frames in a row (counted from the frames' times), or when
     the object jumps back against the flow.
 """
@@ -61,13 +72,24 @@ import numpy as np
 from scipy import ndimage
 
 from capsmech.imaging.background import (
+    MAX_NOISE_PAIRS,
     MIN_FRAMES_TEMPORAL,
     MIN_FREE_FRAMES,
     flat_field,
     row_background,
     stack_background,
+    temporal_noise,
 )
-from capsmech.imaging.channel import Walls, estimate_tilt, find_walls, level, straight_columns
+from capsmech.imaging.channel import (
+    DEFAULT_WIDTH_TOLERANCE,
+    Walls,
+    check_axis,
+    check_width,
+    estimate_tilt,
+    find_walls,
+    level,
+    straight_columns,
+)
 from capsmech.imaging.frames import (
     ExtractionError,
     FrameStack,
@@ -98,7 +120,10 @@ from capsmech.imaging.tracking import (
     flow_steps,
     frame_interval,
     gap_limit,
+    independent_events,
     measure_capsules,
+    settle_pieces,
+    track_events,
     track_objects,
 )
 
@@ -129,7 +154,13 @@ class Channel:
     background_source : str
         ``given``, ``temporal median`` or ``per-row median of each frame``.
     width_check : str
-        The detected width against the user's ``channel_width``, in words ('' if none given).
+        The detected width against the user's ``channel_width``, in words: which is used and
+        why ('' if none given; ``channel.check_width``); where a wall was placed at that width,
+        the axis against the objects' symmetry line too.
+    width_disagrees : bool
+        The two widths (or the placed axis and the objects) disagree beyond both uncertainties.
+    width_verdict : str
+        The check in a few words, for the measurement CSV ('' if no width was given).
     flow_direction : {'right', 'left'}
         The flow's direction in the frames as read ('left': they were mirrored to +x).
     flow_check : str
@@ -143,6 +174,9 @@ class Channel:
     geometry_check : str
         Where the channel is straight, in words, when not over the whole width ('' when it is):
         objects are looked for there only (``walls.columns``).
+    independent_events : str
+        Why the stack is a set of independent events, not a film ('' for a film):
+        ``tracking.independent_events``.
     """
 
     walls: Walls
@@ -151,10 +185,13 @@ class Channel:
     background_source: str
     width_check: str = ""
     flow_direction: str = "right"
+    width_disagrees: bool = False
+    width_verdict: str = ""
     flow_check: str = ""
     untrusted: np.ndarray | None = None
     background_check: str = ""
     geometry_check: str = ""
+    independent_events: str = ""
 
     def background_trusted_under(self, trace: TracedObject) -> bool:
         """Whether the background under a traced object's contour can be trusted: at most
@@ -188,7 +225,8 @@ class Channel:
 
 
 def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tuple[float, float] | Walls | None = None,
-            channel_width_px: float | None = None, tilt_deg: float | None = None) -> Channel:
+            channel_width_px: float | None = None, tilt_deg: float | None = None,
+            channel_width_tolerance: float = DEFAULT_WIDTH_TOLERANCE) -> Channel:
     """Level the stack, find its background and walls (see the module docstring).
 
     Parameters
@@ -204,6 +242,8 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
         lies outside the view.
     tilt_deg : float, optional
         The tilt, when known: no estimation (0 for frames known to be level).
+    channel_width_tolerance : float
+        The given width's tolerance, a fraction of it (default 2 %).
 
     Raises
     ------
@@ -242,7 +282,8 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
     elif walls is not None:
         found = Walls(float(walls[0]), float(walls[1]), "given")
     else:
-        found = find_walls(reference, label, channel_width_px)
+        found = find_walls(reference, label, channel_width_px,
+                           channel_width_sigma_px=channel_width_tolerance * (channel_width_px or 0.0))
     geometry = ""
     if found.columns is None:
         found = dataclasses.replace(found, columns=straight_columns(reference, found))
@@ -255,14 +296,10 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
                        f"{'s' if len(frames) != 1 else ''}, fewer than {MIN_FRAMES_TEMPORAL} for a temporal median):"
                        f"\nan object fainter than the chip's texture is not seen; give the empty channel's image "
                        f"(--background) to find it")
-    check = ""
-    if channel_width_px:
-        diff = found.width_px / channel_width_px - 1
-        check = (f"channel width {found.width_px:.1f} px found, {channel_width_px:.1f} px given: "
-                 f"{100 * diff:+.1f} %" + (" (more than 10 % apart: check the walls or the width)"
-                                            if abs(diff) > 0.10 else ""))
-    return Channel(found, tilt, levelled_bg, source, check, untrusted=untrusted, background_check=trust_check,
-                   geometry_check=geometry)
+    given = check_width(found, channel_width_px, channel_width_tolerance) if channel_width_px else None
+    return Channel(found, tilt, levelled_bg, source, given.text if given else "", untrusted=untrusted,
+                   background_check=trust_check, geometry_check=geometry,
+                   width_disagrees=given.disagrees if given else False, width_verdict=given.verdict if given else "")
 
 
 def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray:
@@ -283,7 +320,7 @@ def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray
 
 
 def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: str = "",
-                     settings: ExtractionSettings = DEFAULT_SETTINGS) -> FrameResult:
+                     settings: ExtractionSettings = DEFAULT_SETTINGS, noise: np.ndarray | None = None) -> FrameResult:
     """Find the capsule in one frame's flat-field contrast and measure its contour.
 
     Parameters
@@ -295,6 +332,10 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
     index, label : int, str
         Frame number and name, copied into the result.
     settings : ExtractionSettings
+    noise : 2-D array, optional
+        The stack's own noise of the smoothed contrast at each pixel
+        (``background.temporal_noise``): objects are detected against it where it is larger
+        than the frame's.
 
     Returns
     -------
@@ -308,7 +349,7 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
     smooth = ndimage.gaussian_filter(contrast, DETECTION_SMOOTHING_PX)
     inside = _inside(contrast.shape, walls)
     labels, mask, keep, threshold = find_objects(smooth, inside, settings.detection_sigmas, settings.min_area_px,
-                                                 (walls.top_row, walls.bottom_row))
+                                                 (walls.top_row, walls.bottom_row), noise_map=noise)
     result.objects = len(keep)
     if not keep:
         result.flag = "no capsule"
@@ -394,13 +435,14 @@ def extract(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETTINGS,
 def _analyse(stack: FrameStack, settings: ExtractionSettings, progress: Callable[[int, int], None] | None,
              walls: Walls | tuple[float, float] | None, background: np.ndarray | None,
              channel_width_px: float | None, tilt_deg: float | None,
-             rate: float | None) -> tuple[Channel, list[FrameResult]]:
+             rate: float | None, channel_width_tolerance: float = DEFAULT_WIDTH_TOLERANCE) -> tuple[Channel, list[FrameResult]]:
     """Every frame's analysis against the stack's channel, with times, focus and tracks."""
-    channel = prepare(stack, background, walls, channel_width_px, tilt_deg)
+    channel = prepare(stack, background, walls, channel_width_px, tilt_deg, channel_width_tolerance)
     times = stack.frame_times(rate) if (stack.times_s is not None or rate) else None
+    noise = _stack_noise(stack, channel)
     results = []
     for k, image in enumerate(stack.frames):
-        result = analyse_contrast(channel.contrast(image), channel.walls, k, stack.labels[k], settings)
+        result = analyse_contrast(channel.contrast(image), channel.walls, k, stack.labels[k], settings, noise)
         if times is not None:
             result.time_s = float(times[k])
         results.append(result)
@@ -413,10 +455,36 @@ def _analyse(stack: FrameStack, settings: ExtractionSettings, progress: Callable
         if r.objects == 1 and len(r.traces) == 1 and r.flag and not r.traces[0].flag:
             r.traces[0].flag = r.flag
     interval = frame_interval(results, rate)
+    # Frames with their own times (a recording's, a frame-times file) say which follow one another:
+    # a cytometer's events a few camera frames apart may show one cell, and are tracked as a film.
+    # Regular times given to a stack (a TIFF's frame interval) may hide independent events.
+    if stack.times_s is None and stack.frame_numbers is None:
+        channel.independent_events = independent_events(results, 0.25 * channel.walls.radius_px, interval)
+    if channel.independent_events:
+        track_events(results)
+        return channel, results
     assign_passages(results, jump_px=0.25 * channel.walls.radius_px, interval_s=interval)
     track_objects(results, max_step_px=channel.walls.width_px, max_cross_px=0.25 * channel.walls.radius_px,
                   interval_s=interval)
+    settle_pieces(results, interval, wall_rows=(channel.walls.top_row, channel.walls.bottom_row))
     return channel, results
+
+
+def _stack_noise(stack: FrameStack, channel: Channel) -> np.ndarray | None:
+    """The stack's own noise of the detection's contrast at each pixel (``background.temporal_noise``),
+    from up to :data:`background.MAX_NOISE_PAIRS` pairs of consecutive frames spread over the
+    stack. Only the pairs' differences are kept (bounded memory on large frames); the frames'
+    analysis computes their contrasts again (a few per cent of its time)."""
+    if len(stack) < 2:
+        return None
+    firsts = np.unique(np.linspace(0, len(stack) - 2, min(len(stack) - 1, MAX_NOISE_PAIRS)).round().astype(int))
+
+    def smooth(k: int) -> np.ndarray:
+        return ndimage.gaussian_filter(channel.contrast(stack.frames[k]), DETECTION_SMOOTHING_PX)
+
+    differences = np.stack([smooth(int(k) + 1) - smooth(int(k)) for k in firsts])
+    shape = (differences.shape[1], differences.shape[2])
+    return temporal_noise(differences, _inside(shape, channel.walls))
 
 
 #: The flag of an object over pixels whose stack background cannot be trusted.
@@ -452,7 +520,8 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
                   progress: Callable[[int, int], None] | None = None,
                   walls: Walls | tuple[float, float] | None = None, background: np.ndarray | None = None,
                   channel_width_px: float | None = None, tilt_deg: float | None = None,
-                  frame_rate: float | None = None, flow_direction: str | None = None) -> tuple[Channel, list[FrameResult]]:
+                  frame_rate: float | None = None, flow_direction: str | None = None,
+                  channel_width_tolerance: float = DEFAULT_WIDTH_TOLERANCE) -> tuple[Channel, list[FrameResult]]:
     """The stack's :class:`Channel` and every frame's analysis, with times, passages and tracks.
 
     The file's own background (``stack.background``) and nominal channel width
@@ -461,7 +530,9 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
     With ``flow_direction`` (default ``stack.flow_direction``) 'auto', frames whose objects move
     in -x are mirrored (``stack.frames`` too) and analysed again; 'right' or 'left' (the frames
     already mirrored by :func:`read_frames`) is checked against the motion, and a disagreement
-    said in ``Channel.flow_check``.
+    said in ``Channel.flow_check``. ``channel_width_tolerance``: see :func:`prepare`; where a
+    wall was placed at the channel width, the axis is checked against the objects' symmetry line
+    (``channel.check_axis``, said in ``Channel.width_check``).
     """
     direction = flow_direction or stack.flow_direction
     rate = frame_rate or stack.frame_rate
@@ -469,12 +540,17 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
         background = stack.background
     if channel_width_px is None and stack.channel_width_um and stack.pixel_size_um:
         channel_width_px = stack.channel_width_um / stack.pixel_size_um
-    channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt_deg, rate)
+    channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt_deg, rate,
+                                channel_width_tolerance)
     if background is not None and background is stack.background and stack.background_source:
         channel.background_source = stack.background_source
-    step = _motion(results, channel, rate)
+    step = math.nan if channel.independent_events else _motion(results, channel, rate)
     given = "left" if direction == "left" else "right"
-    if not math.isfinite(step) or abs(step) < MIN_FLOW_STEP_PX:
+    if channel.independent_events:
+        channel.flow_direction = given
+        channel.flow_check = (f"flow direction {given}: " + ("given" if direction != "auto" else "assumed")
+                              + " (independent events: no motion between frames to tell it)")
+    elif not math.isfinite(step) or abs(step) < MIN_FLOW_STEP_PX:
         channel.flow_direction = given
         channel.flow_check = (f"flow direction {given}: " + ("given" if direction != "auto" else "assumed")
                               + " (no object followed over consecutive frames)")
@@ -485,7 +561,8 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
         if isinstance(walls, Walls):
             walls = (walls.top_row, walls.bottom_row)
         tilt = -tilt_deg if tilt_deg is not None else None
-        channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt, rate)
+        channel, results = _analyse(stack, settings, progress, walls, background, channel_width_px, tilt, rate,
+                                    channel_width_tolerance)
         stack.flow_direction = channel.flow_direction = "left"
         channel.flow_check = (f"flow direction left: from the motion (objects move {-step:.2f} px a frame in -x; "
                               f"the frames were mirrored)")
@@ -497,6 +574,12 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
         channel.flow_check = (f"flow direction {given}: given, " + (
             "confirmed by the motion" if step > 0 else
             f"but the objects move the other way ({abs(step):.2f} px a frame): check --flow-direction"))
+    if "placed" in channel.walls.source:
+        sentence, off = check_axis(channel.walls, [r.centroid_y for r in results if r.objects == 1 and r.traces])
+        channel.width_check = f"{channel.width_check}; {sentence}" if channel.width_check else sentence
+        if off:
+            channel.width_disagrees = True
+            channel.width_verdict = "placed, axis off the objects' symmetry line"
     return channel, results
 
 

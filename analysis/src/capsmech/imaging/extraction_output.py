@@ -3,11 +3,15 @@
 Every file is written to a temporary name and renamed, so it is whole or absent.
 
 - Measurement CSV (the tube format of ``capsmech.io.measurements``, read by ``fit-tube``):
-  ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px],contour_noise [px]``;
+  ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px],contour_noise [px],
+  tube_radius_sigma [um][,width_check]``;
   comment lines above the header give, per capsule, its frames, the spread of the lengths
   over them and the standard error of v_c; ``contour_noise`` is one frame's tracing noise,
   from the spread of the capsule's contours over its good frames
-  (``capsmech.imaging.tracking.contour_noise``).
+  (``capsmech.imaging.tracking.contour_noise``); ``tube_radius_sigma`` the tube radius's
+  standard uncertainty from the walls' (``Walls.radius_sigma_px``; empty where unknown: walls
+  given); ``width_check``, only when a channel width was given, how it compares with the walls
+  found (``channel.WidthCheck.verdict``: ``agrees``, ``disagrees (...)``, ...).
 - Contour files (``<csv stem>_contours/<id>.txt``, named in the CSV relative to its
   directory): the mid-line contour of the capsule's representative frame, ``X\tY`` then two
   tab-separated columns in pixels, image coordinates of the frame as analysed (mirrored when
@@ -53,7 +57,8 @@ def contour_text(contour: np.ndarray) -> str:
 
 def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement], results: Sequence[FrameResult],
                        walls: Walls, pixel_size_um: float, ids: Sequence[str], mu_pa_s: float | None = None,
-                       source: str = "", flow_direction: str = "right") -> tuple[Path, list[Path]]:
+                       source: str = "", flow_direction: str = "right",
+                       channel: Channel | None = None) -> tuple[Path, list[Path]]:
     """Write the measurement CSV and the contour file of each measured capsule.
 
     Parameters
@@ -74,6 +79,9 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
         The frames' names, for the comment line.
     flow_direction : str
         'left' when the frames were mirrored (said in a comment).
+    channel : Channel, optional
+        The stack's channel: its check of a given width is written (a comment line and the
+        ``width_check`` column).
 
     Returns
     -------
@@ -86,9 +94,15 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     contour_files = []
     lines = io.StringIO()
     lines.write(f"# capsmech extract: {source}\n")
-    lines.write(f"# tube radius {walls.radius_px:.3f} px (walls at rows {walls.top_row:.3f}, {walls.bottom_row:.3f}), "
+    sigma = f" +- {walls.radius_sigma_px:.3f}" if math.isfinite(walls.radius_sigma_px) else ""
+    lines.write(f"# tube radius {walls.radius_px:.3f}{sigma} px (walls at rows {walls.top_row:.3f}, {walls.bottom_row:.3f}; "
+                f"{walls.source}), "
                 f"pixel size {pixel_size_um:g} um" + (", frames mirrored (flow in -x)" if flow_direction == "left" else "")
                 + "\n")
+    verdict = ""
+    if channel is not None and channel.width_verdict:
+        verdict = channel.width_verdict
+        lines.write(f"# {channel.width_check}\n")
     for cap_id, cap in zip(ids, capsules):
         lines.write(f"# {cap_id}: frames {cap.frames[0]}-{cap.frames[-1]}, {len(cap.good_frames)} measured; "
                     f"L_z {cap.L_z_px:.3f} +- {cap.L_z_spread_px:.3f} px, L_p {cap.L_p_px:.3f} +- "
@@ -98,7 +112,7 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "pixel_size [um]"]
     if mu_pa_s is not None:
         header.append("mu [Pa s]")
-    header += ["contour [px]", "contour_noise [px]"]
+    header += ["contour [px]", "contour_noise [px]", "tube_radius_sigma [um]"] + (["width_check"] if verdict else [])
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
         contour_path = contour_dir / f"{cap_id}.txt"
@@ -110,7 +124,8 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
                _g(cap.v_c_px_s * pixel_size_um * 1e-3), _g(walls.radius_px * pixel_size_um), _g(pixel_size_um)]
         if mu_pa_s is not None:
             row.append(_g(mu_pa_s))
-        row += [contour_path.relative_to(path.parent).as_posix(), _g(cap.contour_noise_px)]
+        row += [contour_path.relative_to(path.parent).as_posix(), _g(cap.contour_noise_px),
+                _g(walls.radius_sigma_px * pixel_size_um)] + ([verdict] if verdict else [])
         writer.writerow(row)
     return _write_text(path, lines.getvalue()), contour_files
 

@@ -64,6 +64,10 @@ class TracedObject:
     flag : str
         Why this object cannot be measured ('' when it can), whatever the other objects of
         its frame show: each object of a frame with several is measured on its own.
+    dropped : str
+        Why this object is no capsule's ('' when it is one's, or none was looked for): a piece
+        cut by the frame's edge or lying in a wall's band that joins no passage
+        (``tracking.settle_pieces``).
     """
 
     kind: str
@@ -80,6 +84,7 @@ class TracedObject:
     L_p_px: float = math.nan
     asymmetry: float = math.nan
     flag: str = ""
+    dropped: str = ""
 
     @property
     def contour_at(self) -> str:
@@ -148,13 +153,14 @@ def line_width(contrast: np.ndarray, peak: float) -> float:
 
 
 def find_objects(smooth: np.ndarray, inside: np.ndarray, detection_sigmas: float, min_area_px: int,
-                 wall_rows: tuple[float, ...] = (), wall_band_px: float = 6.0,
+                 wall_rows: tuple[float, ...] = (), wall_band_px: float = 6.0, noise_map: np.ndarray | None = None,
                  ) -> tuple[np.ndarray, np.ndarray, list[int], float]:
     """Dark objects of a smoothed contrast image, inside the channel.
 
     Pixels above ``detection_sigmas`` noise deviations (median absolute deviation inside the
-    channel), fragments closer than 2 px joined (one faint line breaks up), specks smaller
-    than ``min_area_px`` dropped. So are thin streaks along a wall (all their pixels within
+    channel; where the stack's own noise at each pixel, ``noise_map``, is larger, that one:
+    ``background.temporal_noise``), fragments closer than 2 px joined (one faint line breaks
+    up), specks smaller than ``min_area_px`` dropped. So are thin streaks along a wall (all their pixels within
     ``wall_band_px`` of a wall row, at most 4 px high): what is left of a wall line that moved
     by a fraction of a pixel between the background and the frame, not an object.
 
@@ -167,7 +173,7 @@ def find_objects(smooth: np.ndarray, inside: np.ndarray, detection_sigmas: float
     keep : list of int
         Labels of the objects kept.
     threshold : float
-        The detection threshold (contrast).
+        The frame's detection threshold (contrast; higher where ``noise_map`` is).
     """
     from skimage.measure import label as label_components
 
@@ -175,7 +181,10 @@ def find_objects(smooth: np.ndarray, inside: np.ndarray, detection_sigmas: float
     values = smooth[::2, ::2][inside[::2, ::2]]
     noise = 1.4826 * float(np.median(np.abs(values - np.median(values)))) if values.size else 0.0
     threshold = max(detection_sigmas * noise, 0.01)
-    mask = (smooth > threshold) & inside
+    if noise_map is not None:
+        mask = (smooth > np.maximum(threshold, detection_sigmas * noise_map)) & inside
+    else:
+        mask = (smooth > threshold) & inside
     joined = ndimage.binary_dilation(mask, iterations=2)
     labels, count = label_components(joined, return_num=True, connectivity=2)
     sizes = np.bincount(labels[mask].ravel(), minlength=count + 1)

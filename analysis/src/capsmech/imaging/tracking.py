@@ -14,6 +14,16 @@
   are in view at the same time.
 - The flow's direction (:func:`flow_steps`): the objects' steps between consecutive frames,
   matched without assuming a direction.
+- Film or events (:func:`independent_events`): a cytometer keeps only the frames with an event,
+  and a stack of them exported with regular frame times looks like a film. In a film, an
+  object keeps its size from frame to frame and its step from one frame to the next; the
+  snapshots of unrelated cells do neither. Events are each measured as one shape
+  (:func:`track_events`): no tracks across frames, no velocity.
+- Pieces (:func:`settle_pieces`): an object cut by the frame's edge (or the straight channel's
+  end) joins the track of a whole capsule seen beside it, or is dropped with the reason: a
+  piece is never a capsule of its own.
+- Steadiness (:func:`steadiness`): a capsule whose L_z still changes along its passage (its
+  trend over the frames against its scatter) is not measured as a steady shape.
 """
 from __future__ import annotations
 
@@ -34,7 +44,8 @@ class CapsuleMeasurement:
 
     Lengths in pixels; ``v_c_px_s`` in pixels per second; spreads are standard deviations
     over the good frames, ``v_c_se_px_s`` the standard error of the fitted slope. ``passage``
-    is the capsule's track number; ``trace`` its object in the ``representative`` frame.
+    is the capsule's track number; ``trace`` its object in the ``representative`` frame;
+    ``note`` what a measured capsule's numbers lack, in words (an independent event: no velocity).
     """
 
     passage: int
@@ -50,6 +61,7 @@ class CapsuleMeasurement:
     contour_noise_px: float = math.nan
     problem: str = ""
     trace: TracedObject | None = field(default=None, repr=False)
+    note: str = ""
 
     @property
     def ok(self) -> bool:
@@ -145,7 +157,8 @@ def _observations(results: Sequence[FrameResult]) -> dict[int, list[tuple[FrameR
 
 
 def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
-                     settings: ExtractionSettings = DEFAULT_SETTINGS) -> list[CapsuleMeasurement]:
+                     settings: ExtractionSettings = DEFAULT_SETTINGS,
+                     independent_events: bool = False) -> list[CapsuleMeasurement]:
     """Measure each capsule - each track (:func:`track_objects`) - over its good frames.
 
     Several capsules in view at once are each measured on their own: an object is a good
@@ -154,12 +167,20 @@ def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
     over the good observations, with their standard deviations; v_c is the least-squares slope
     of the contour's centroid against the frames' times (gaps honoured), with its standard error;
     ``contour_noise_px`` the tracing noise of one frame's contour, from the spread of the good
-    frames' contours (:func:`contour_noise`).
+    frames' contours (:func:`contour_noise`). A capsule whose L_z still changes along its passage
+    is not measured (:func:`steadiness`).
+
+    With ``independent_events`` (:func:`independent_events`), each object is a capsule of one
+    snapshot: its own lengths, no spread, no velocity (NaN, said in ``note``).
     """
+    if independent_events:
+        return [_measure_event(track, observed) for track, observed in sorted(_observations(results).items())]
     capsules = []
     for track, observed in sorted(_observations(results).items()):
         good = [(r, t) for r, t in observed if not t.flag]
-        cap = CapsuleMeasurement(track, [r.index for r, _ in observed], [r.index for r, _ in good])
+        # A frame counts once, also when pieces of the capsule joined its track there.
+        cap = CapsuleMeasurement(track, list(dict.fromkeys(r.index for r, _ in observed)),
+                                 list(dict.fromkeys(r.index for r, _ in good)))
         if len(good) < settings.min_good_frames:
             flags = sorted({t.flag.split(" (")[0] for _, t in observed if t.flag})
             cap.problem = (f"{len(good)} good frame(s) of {len(observed)} (need {settings.min_good_frames}); "
@@ -175,6 +196,8 @@ def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
         cap.v_c_px_s, cap.v_c_se_px_s = fit_velocity(times, np.array([t.centre[0] for _, t in good]))
         if not cap.v_c_px_s > 0:
             cap.problem = f"the capsule does not move with the flow (+x): v_c = {cap.v_c_px_s:.3g} px/s"
+        else:
+            cap.problem = steadiness(times, lz)
         # The frame whose lengths are nearest the medians shows the capsule the row describes.
         misfit = np.abs(lz - cap.L_z_px) / max(cap.L_z_px, 1) + np.abs(lp - cap.L_p_px) / max(cap.L_z_px, 1)
         best = int(np.argmin(misfit))
@@ -182,6 +205,204 @@ def measure_capsules(results: Sequence[FrameResult], frame_rate: float,
         cap.contour_noise_px = contour_noise([t.contour for _, t in good])
         capsules.append(cap)
     return capsules
+
+
+#: A trend of L_z over a passage is real beyond this many standard errors of its slope ...
+STEADY_SLOPE_SIGMAS = 4.0
+#: ... and when the change it makes over the passage exceeds this many times the frames' scatter
+#: about it (with many frames a tiny slope is significant, yet within the tracing's noise).
+STEADY_CHANGE_SCATTER = 2.0
+#: Fewest good frames for a trend.
+STEADY_MIN_FRAMES = 5
+
+
+def steadiness(times: np.ndarray, lengths: np.ndarray) -> str:
+    """Why a passage's shape is not steady ('' when it is, or too few frames tell).
+
+    The inversion reads a steady shape. A capsule still deforming along its passage (just
+    released from an inlet, or a flow that changes) shows a trend of L_z over its frames: the
+    least-squares slope, beyond :data:`STEADY_SLOPE_SIGMAS` standard errors, making a change
+    over the passage beyond :data:`STEADY_CHANGE_SCATTER` times the frames' scatter about it.
+    """
+    if lengths.size < STEADY_MIN_FRAMES or np.ptp(times) <= 0:
+        return ""
+    slope, error = fit_velocity(times, lengths)
+    residual = lengths - lengths.mean() - slope * (times - times.mean())
+    scatter = float(np.std(residual, ddof=2))
+    change = slope * float(np.ptp(times))
+    if abs(slope) > STEADY_SLOPE_SIGMAS * error and abs(change) > STEADY_CHANGE_SCATTER * scatter:
+        return (f"not steady: L_z changes by {change:+.2f} px over the {lengths.size} frames measured "
+                f"({abs(slope) / error:.0f} standard errors of the slope; scatter {scatter:.2f} px)")
+    return ""
+
+
+#: What an independent event's row lacks.
+EVENT_NOTE = "independent event: one snapshot, no velocity"
+
+
+def _measure_event(track: int, observed: list[tuple[FrameResult, TracedObject]]) -> CapsuleMeasurement:
+    """An independent event's object: its own lengths, no spread and no velocity."""
+    r, t = observed[0]
+    cap = CapsuleMeasurement(track, [r.index], [] if t.flag else [r.index], note=EVENT_NOTE)
+    if t.flag:
+        cap.problem = f"0 good frame(s) of 1 (an independent event): {t.flag}"
+        return cap
+    cap.L_z_px, cap.L_p_px = t.L_z_px, t.L_p_px
+    cap.representative, cap.trace = r.index, t
+    return cap
+
+
+#: In a film, one object's consecutive steps agree within this many px, or this fraction of the step.
+STEP_AGREEMENT_PX = 1.0
+STEP_AGREEMENT_FRACTION = 0.1
+#: ... and its extents along and across the flow within this fraction (plus 1 px) from frame to frame.
+SIZE_AGREEMENT = 0.05
+#: Links between consecutive frames needed to tell events from a film.
+MIN_LINKS_FOR_EVENTS = 3
+
+
+def _whole(trace: TracedObject) -> bool:
+    """Whether an object is whole: not cut by the frame's edge or the straight channel's end."""
+    return not trace.flag.startswith("touches")
+
+
+def _consecutive_links(results: Sequence[FrameResult], max_cross_px: float, interval_s: float,
+                       memory: int) -> list[tuple[TracedObject, TracedObject, int]]:
+    """Whole objects of frames at most ``memory + 1`` camera frames apart, matched by an optimal
+    assignment on their distance (no direction assumed, at most ``max_cross_px`` across):
+    (before, after, frames apart)."""
+    from scipy.optimize import linear_sum_assignment
+
+    links = []
+    for before, after in zip(results[:-1], results[1:]):
+        n = frames_apart(before, after, interval_s)
+        old, new = [t for t in before.traces if _whole(t)], [t for t in after.traces if _whole(t)]
+        if not old or not new or not 1 <= n <= memory + 1:
+            continue
+        dx = np.array([[c.centre[0] - p.centre[0] for c in new] for p in old])
+        dy = np.array([[c.centre[1] - p.centre[1] for c in new] for p in old])
+        cost = np.where(np.abs(dy) <= max_cross_px, np.hypot(dx, dy), 1e9)
+        links += [(old[i], new[j], n) for i, j in zip(*linear_sum_assignment(cost)) if cost[i, j] < 1e9]
+    return links
+
+
+def _sizes_agree(one: TracedObject, other: TracedObject) -> bool:
+    """Whether two objects' extents along and across the flow agree within :data:`SIZE_AGREEMENT`."""
+    pairs = ((one.extent_px, other.extent_px), (float(np.ptp(one.contour[:, 1])), float(np.ptp(other.contour[:, 1]))))
+    return all(abs(a - b) <= 1.0 + SIZE_AGREEMENT * max(a, b) for a, b in pairs)
+
+
+def independent_events(results: Sequence[FrameResult], max_cross_px: float, interval_s: float = math.nan,
+                       memory: int = TRACK_MEMORY_FRAMES) -> str:
+    """Why the stack is a set of independent events, not a film ('' when it is a film, or too
+    few frames follow one another to tell).
+
+    Consecutive frames' whole objects are matched (:func:`_consecutive_links`). In a film the
+    matched objects keep their size (:data:`SIZE_AGREEMENT`) and each makes the same step as
+    one frame before (:data:`STEP_AGREEMENT_PX`); unrelated cells, each at a place of its own,
+    do neither. Events: at least :data:`MIN_LINKS_FOR_EVENTS` links, and fewer than half of
+    them keeping their size, or fewer than half of the steps that follow one another agreeing.
+    """
+    links = _consecutive_links(results, max_cross_px, interval_s, memory)
+    if len(links) < MIN_LINKS_FOR_EVENTS:
+        return ""
+    sizes = sum(_sizes_agree(a, b) for a, b, _ in links)
+    step_into = {id(b): (b.centre[0] - a.centre[0]) / n for a, b, n in links}
+    pairs = agreeing = 0
+    for a, b, n in links:
+        if id(a) in step_into:
+            earlier, later = step_into[id(a)], (b.centre[0] - a.centre[0]) / n
+            pairs += 1
+            agreeing += abs(later - earlier) <= max(STEP_AGREEMENT_PX,
+                                                    STEP_AGREEMENT_FRACTION * max(abs(later), abs(earlier)))
+    if sizes >= len(links) / 2 and (pairs < 2 or agreeing >= pairs / 2):
+        return ""
+    return (f"independent events: the objects of consecutive frames do not move as one capsule ({sizes} of "
+            f"{len(links)} keep their size, {agreeing} of {pairs} steps agree with the step before); each object "
+            f"is measured as one shape: no tracks across frames, no velocity, no flow direction")
+
+
+def track_events(results: Sequence[FrameResult]) -> int:
+    """Independent events: every object its own track, every frame with objects its own passage;
+    return the number of tracks."""
+    tracks = passage = 0
+    for r in results:
+        r.passage = -1
+        if r.objects:
+            r.passage, passage = passage, passage + 1
+        for t in r.traces:
+            t.track, tracks = tracks, tracks + 1
+    return tracks
+
+
+#: Why a piece that joins no capsule's track is dropped.
+PIECE_DROPPED = ("a piece cut by the frame's edge or lying in a wall's band, beside no whole capsule: "
+                 "not a capsule of its own")
+#: The band along each wall, as a fraction of the tube radius, in which an object lying wholly
+#: is a piece (of a wall's texture, or of a capsule split by the wall's margin), not a capsule.
+WALL_BAND_FRACTION = 0.25
+
+
+def settle_pieces(results: Sequence[FrameResult], interval_s: float = math.nan,
+                  memory: int = TRACK_MEMORY_FRAMES, wall_rows: tuple[float, float] | None = None) -> None:
+    """Pieces join a capsule's track, or are dropped with the reason (``TracedObject.dropped``).
+
+    A piece: an object cut by the frame's edge or the straight channel's end, or one lying
+    wholly in a wall's band (``wall_rows``: the walls' rows; the band
+    :data:`WALL_BAND_FRACTION` of the tube radius wide). A capsule entering or leaving the view
+    is cut, and a cut ring may fall apart into arcs whose centres jump about: tracked on their
+    own, they would make capsules of their own and renumber the real one. A track made of pieces only joins the nearest track (in frames,
+    then along the flow) that holds a whole object at most ``memory + 1`` camera frames away,
+    the piece within one length of that object moved on by the track's step per frame and
+    across the channel where it lies (a piece of it, not of the next capsule entering far
+    behind it, nor a speck along the wall beside it); with none, its objects leave the tracks
+    (track -1) and say why.
+    """
+    observed = _observations(results)
+    band = WALL_BAND_FRACTION * abs(wall_rows[1] - wall_rows[0]) / 2 if wall_rows else 0.0
+
+    def piece(trace: TracedObject) -> bool:
+        rows = trace.contour[:, 1]
+        in_band = wall_rows is not None and any(
+            float(np.max(np.abs(rows - wall))) <= band for wall in wall_rows)
+        return in_band or not _whole(trace)
+
+    whole = {track: [(r, t) for r, t in obs if not piece(t)] for track, obs in observed.items()}
+    whole = {track: obs for track, obs in whole.items() if obs}
+    step = {track: _step_per_frame(seen, interval_s) for track, seen in whole.items()}
+    for track, obs in observed.items():
+        if track in whole:
+            continue
+        best: tuple[int, float, int] | None = None
+        for other, seen in whole.items():
+            for r, t in obs:
+                for q, u in seen:
+                    ahead = 0 if q.index == r.index else (
+                        frames_apart(q, r, interval_s) if q.index < r.index else -frames_apart(r, q, interval_s))
+                    miss = abs(t.centre[0] - u.centre[0] - ahead * step[other])
+                    key = (abs(ahead), miss, other)
+                    if (abs(ahead) <= memory + 1 and miss <= u.outer_extent_px and _rows_overlap(t, u)
+                            and (best is None or key < best)):
+                        best = key
+        for _, t in obs:
+            if best is not None:
+                t.track = best[2]
+            else:
+                t.track, t.dropped = -1, PIECE_DROPPED
+
+
+def _rows_overlap(one: TracedObject, other: TracedObject, margin_px: float = 2.0) -> bool:
+    """Whether two objects share rows (within ``margin_px``): a piece of a capsule lies across
+    the channel where the capsule does."""
+    return bool(one.contour[:, 1].min() <= other.contour[:, 1].max() + margin_px
+                and one.contour[:, 1].max() >= other.contour[:, 1].min() - margin_px)
+
+
+def _step_per_frame(seen: list[tuple[FrameResult, TracedObject]], interval_s: float) -> float:
+    """A track's median step per camera frame along x (0 with a single object)."""
+    steps = [(b.centre[0] - a.centre[0]) / max(1, frames_apart(p, q, interval_s))
+             for (p, a), (q, b) in zip(seen[:-1], seen[1:]) if q.index > p.index]
+    return float(np.median(steps)) if steps else 0.0
 
 
 def _distances_to(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:

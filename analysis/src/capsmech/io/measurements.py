@@ -26,7 +26,9 @@ contour, ``fit-tube`` measures the misfit H/a of the fitted profile and the cont
 asymmetry, and flags the capsule when either is too large. Optional ``contour_noise`` (a
 length): one contour's tracing noise measured across the video frames (``capsmech extract``
 writes it); the contour's chi2 then takes the larger of it and the noise of the contour's two
-halves (``capsmech.inversion.noise``).
+halves (``capsmech.inversion.noise``). Optional ``tube_radius_sigma`` (a length): the tube
+radius's standard uncertainty from the walls' positions (``capsmech extract`` writes it; read,
+not yet carried into G_s's interval).
 
 Shear (``fit-shear``)::
 
@@ -105,7 +107,8 @@ ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
 #: Column -> (kind, required) per flow.
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
                 "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
-                "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False)}
+                "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False),
+                "tube_radius_sigma": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
                  "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False)}
 UNITS: dict[str, Mapping[str, float | None]] = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
@@ -114,6 +117,9 @@ HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)
 #: A header cell read: column name, unit, scale to SI (None for id, and for px until a row's pixel_size).
 Column = tuple[str, str, float | None]
 FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
+#: Text columns ``capsmech extract`` writes for the reader of the file (not for the fit): skipped
+#: without the warning an unknown column gets.
+NOTE_COLUMNS = frozenset({"width_check"})
 #: Separators tried on the header line; decimal commas only go with ";".
 SEPARATORS = (",", ";", "\t")
 #: Most capsule rows a measurement file may hold (a batch; split a larger one).
@@ -190,7 +196,8 @@ def _parse_header(path: Path, line: int, row: list[str], flow: str) -> tuple[lis
         match = HEADER.match(cell)
         if not match or (match["name"] != "id" and match["name"] not in columns):
             parsed.append(None)
-            ignored.append(cell.strip() or f"(unnamed column {i + 1})")
+            if not (match and match["name"] in NOTE_COLUMNS):
+                ignored.append(cell.strip() or f"(unnamed column {i + 1})")
             continue
         name, unit = match["name"], _unit(match["unit"] or "")
         if name in seen:
