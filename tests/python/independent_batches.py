@@ -66,6 +66,14 @@ POOL_KEYS: dict[str, list[str]] = {
     "SK_C3": ["--law", "SK", "--C", "3"],
     "GH_nu0.35": ["--law", "GH", "--nu-s", "0.35"],
 }
+#: Membranes at strengths between or below the shipped effect levels (pre-stress 0.04-0.08):
+#: a pool of their own (``STRENGTH_POOL``), so that the main pool's keys stay those above.
+STRENGTH_KEYS: dict[str, list[str]] = {
+    "NH+prestress0.03": ["--law", "NH", "--prestress", "0.03"],
+}
+#: Made by ``python tests/python/independent_batches.py pool
+#: tests/data/independent_pool/strength_pool.npz --strengths``.
+STRENGTH_POOL = ROOT / "tests" / "data" / "independent_pool" / "strength_pool.npz"
 POOL_CAPSULES = 24
 N_MERIDIAN = 96
 A_OVER_L = (0.86, 0.99)
@@ -99,7 +107,7 @@ def latin_hypercube(n: int, seed: int, a_range: tuple[float, float] = A_OVER_L,
 def simulate(capsim: Path, key: str, a_over_l: float, ca: float, folder: Path) -> dict:
     """One steady capsule from the kernel: status, meridian (r, z) [l], L_z, L_p [l], v_c/V."""
     out = folder / f"{key}_{a_over_l:.6f}_{ca:.6f}.h5"
-    subprocess.run([str(capsim), "--flow", "tube", *POOL_KEYS[key], "--ca", repr(ca), "--a-over-l", repr(a_over_l),
+    subprocess.run([str(capsim), "--flow", "tube", *{**POOL_KEYS, **STRENGTH_KEYS}[key], "--ca", repr(ca), "--a-over-l", repr(a_over_l),
                     "--n-meridian", str(N_MERIDIAN), "--threads", "1", "--quiet", "--out", str(out)],
                    check=True, timeout=3600)
     with h5py.File(out) as f:
@@ -190,8 +198,9 @@ def _counter_clockwise(curve: np.ndarray) -> np.ndarray:
 
 
 def traced(section_px: np.ndarray, rng: np.random.Generator, contour_offset_px: float = 0.0,
-           ripple_px: float = 0.0) -> np.ndarray:
-    """A traced contour [px] of an exact section [px]: sampled, distorted and noisy (module)."""
+           ripple_px: float = 0.0, noise_px: float | None = None) -> np.ndarray:
+    """A traced contour [px] of an exact section [px]: sampled, distorted and noisy (module;
+    ``noise_px``, the noise's sigma, ``NOISE_PX`` by default)."""
     fine = _counter_clockwise(_resample(section_px, np.linspace(0, 1, 2000, endpoint=False)
                                         * np.sum(np.hypot(*np.diff(np.vstack([section_px, section_px[:1]]),
                                                                    axis=0).T))))
@@ -210,7 +219,7 @@ def traced(section_px: np.ndarray, rng: np.random.Generator, contour_offset_px: 
     noise[0] = rng.standard_normal()
     for k in range(1, count):
         noise[k] = NOISE_RHO * noise[k - 1] + math.sqrt(1 - NOISE_RHO ** 2) * rng.standard_normal()
-    points = points + NOISE_PX * noise[:, None] * _normals(points)
+    points = points + (NOISE_PX if noise_px is None else noise_px) * noise[:, None] * _normals(points)
     return np.round(points, 1)
 
 
@@ -236,9 +245,12 @@ class DrawnBatch:
 
 
 def draw_batch(pool: Pool, key: str, folder: Path, name: str, seed: int, n: int = 16,
-               contour_offset_px: float = 0.0, tube_radius_rel: float = 0.0, ripple_px: float = 0.0) -> DrawnBatch:
+               contour_offset_px: float = 0.0, tube_radius_rel: float = 0.0, ripple_px: float = 0.0,
+               noise_px: float | None = None, g_s: list[float] | None = None) -> DrawnBatch:
     """Draw n steady capsules of membrane ``key`` from the pool, trace and measure them with
-    fresh noise, write ``folder/name.csv`` and its contours; return it with the truth."""
+    fresh noise, write ``folder/name.csv`` and its contours; return it with the truth.
+    ``noise_px``: the tracing noise's sigma (``NOISE_PX`` by default); ``g_s``: each capsule's
+    G_s [N/m] in the drawn order (a batch of several materials; ``G_S`` for all by default)."""
     rng = np.random.default_rng(seed)
     k = pool.keys.index(key)
     chosen = rng.choice(pool.steady(key), size=min(n, len(pool.steady(key))), replace=False)
@@ -249,9 +261,9 @@ def draw_batch(pool: Pool, key: str, folder: Path, name: str, seed: int, n: int 
     for j, i in enumerate(sorted(chosen)):
         section = _closed_section(pool.r[k, i], pool.z[k, i]) * true_l_px
         section = section + [rng.uniform(150, 450), rng.uniform(100, 200)]
-        contour = traced(section, rng, contour_offset_px, ripple_px)
+        contour = traced(section, rng, contour_offset_px, ripple_px, noise_px)
         L_z, L_p = measured_lengths(contour)
-        mean_velocity = pool.Ca_s[i] * G_S / MU                        # m/s
+        mean_velocity = pool.Ca_s[i] * (G_S if g_s is None else g_s[j]) / MU           # m/s
         v_c = pool.vc_over_V[k, i] * mean_velocity * (1 + VELOCITY_NOISE * rng.standard_normal())
         capsule = f"c{j + 1:02d}"
         path = contours / f"{capsule}.txt"
@@ -266,7 +278,8 @@ def draw_batch(pool: Pool, key: str, folder: Path, name: str, seed: int, n: int 
                          "pixel_size [um]", "contour [px]"])
         writer.writerows(rows)
     truth = {"membrane": key, "contour_offset_px": contour_offset_px, "tube_radius_rel": tube_radius_rel,
-             "ripple_px": ripple_px, "G_s": G_S, "capsules": len(rows),
+             "ripple_px": ripple_px, "G_s": G_S if g_s is None else list(g_s[:len(rows)]),
+             "noise_px": NOISE_PX if noise_px is None else noise_px, "capsules": len(rows),
              "a_over_l": [float(pool.a_over_l[i]) for i in sorted(chosen)],
              "Ca_s": [float(pool.Ca_s[i]) for i in sorted(chosen)]}
     (folder / f"{name}_truth.json").write_text(json.dumps(truth, indent=1))
@@ -305,8 +318,11 @@ def main(argv: list[str] | None = None) -> int:
     make.add_argument("--workers", type=int, default=2)
     make.add_argument("--capsules", type=int, default=POOL_CAPSULES)
     make.add_argument("--deep", action="store_true", help="the deep parachutes' pool (DEEP_*) instead")
+    make.add_argument("--strengths", action="store_true", help="the off-level strengths' pool (STRENGTH_KEYS) instead")
     args = parser.parse_args(argv)
-    if args.deep:
+    if args.strengths:
+        make_pool(args.capsim, args.out, args.workers, args.capsules, keys=list(STRENGTH_KEYS))
+    elif args.deep:
         make_pool(args.capsim, args.out, args.workers, DEEP_CAPSULES, DEEP_SEED, DEEP_KEYS, DEEP_A_OVER_L, DEEP_CA_S)
     else:
         make_pool(args.capsim, args.out, args.workers, args.capsules)

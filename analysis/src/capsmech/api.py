@@ -216,8 +216,8 @@ def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict
     Returns
     -------
     PopulationVerdict
-        ``kind`` ('law', 'cannot_tell' or 'none'), ``best`` (the law, or None), ``candidates``
-        (the laws not told apart), ``reason``, ``g_s`` and ``g_s_interval`` [N/m], the
+        ``kind`` ('law', 'not_one_material', 'cannot_tell' or 'none'), ``best`` (the law, or None),
+        ``candidates`` (the laws not told apart), ``reason``, ``g_s`` and ``g_s_interval`` [N/m], the
         ``evidence`` per law (capsules fitted, median contour score, p-value against the
         reference law, G_s, drift), the capsules ``left_out`` and why;
         ``population_table(verdict)`` gives the evidence as a DataFrame and

@@ -31,7 +31,7 @@ def _levels(text: str, option: str) -> list[float]:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
     from capsmech.diagnosis.effect_grid import cost_text, write_grid
-    from capsmech.diagnosis.report import write_report
+    from capsmech.diagnosis.report import batch_heterogeneity, write_report
     from capsmech.diagnosis.sequential import SequentialDiagnosis
 
     levels = {option: _levels(getattr(args, option), option) for option in ("prestress_levels", "kb_levels")}
@@ -44,9 +44,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         raise MeasurementError("--profile: only with --simulate (it says where the simulations run)")
     database = as_database(args.database, "tube", "diagnose")
     effect_databases = list(args.effects_database) if args.effects_database else None
+    family_levels = _family_levels(args)
     simulated: dict[str, Path] = {}
+    extensions: list[str] = []
     while True:
-        outcome = _diagnose_batch(args, database, effect_databases, levels)
+        outcome = _diagnose_batch(args, database, effect_databases, levels, family_levels)
         sequence: SequentialDiagnosis | None
         if isinstance(outcome, SequentialDiagnosis):
             sequence, result = outcome, outcome.rounds[0]
@@ -54,8 +56,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             sequence, result = None, outcome
         rounds = sequence.rounds if sequence is not None else [result]
         needs = {r.needs["name"]: (r.name, r.needs) for one in rounds for r in one.results if r.needs is not None}
-        if not args.simulate or not needs or set(needs) <= set(simulated):
+        if not args.simulate:
             break
+        if not needs or set(needs) <= set(simulated):
+            # Nothing left to compute: a strength at an edge of its levels gets a level beyond it.
+            added = _extend_levels(rounds, levels, family_levels) if len(extensions) < MAX_LEVEL_EXTENSIONS else ""
+            if not added:
+                break
+            extensions.append(added)
+            print(f"capsmech diagnose: {added}", flush=True)
+            continue
         # Effects on demand: compute what the candidates need, then diagnose again with it.
         for name, (candidate, grid) in needs.items():
             if name not in simulated:
@@ -74,11 +84,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                      "candidate needs.\nRun: make database GRID=" + r.needs["name"])
             print(f"capsmech diagnose: candidate {r.name} needs {cost_text(r.needs, database, args.law)}: "
                   f"make database GRID={r.needs['name']} (grid written to {path}), or diagnose --simulate")
+    for one in rounds:
+        for r in one.results:
+            if r.edge and r.supported and r.name in LEVEL_OPTIONS:
+                print(f"capsmech diagnose: {r.name} = {r.theta:.3g} is not bracketed by its levels "
+                      f"({', '.join(f'{v:g}' for v in r.levels)})"
+                      + ("" if args.simulate else ": rerun with --simulate (it adds levels until they bracket it)"))
     for capsule, why in result.excluded:
         print(f"capsmech diagnose: left out {capsule}: {why}")
     for fit in result.offcentre:
         print(f"capsmech diagnose: off-centre {fit.summary}")
     print(f"verdict: {result.verdict}")
+    # A batch of several materials has no single G_s, whatever effect explains its shapes.
+    mixture = batch_heterogeneity(result)
+    if mixture is not None and not mixture.one_material:
+        print(f"capsmech diagnose: {mixture.line()}")
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):
             # The values each round was run with (the effects list holds the final ones).
@@ -105,13 +125,54 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Candidates whose levels --simulate extends, and the option (or law family) holding them.
+LEVEL_OPTIONS = {"prestress": "prestress_levels", "kb": "kb_levels", "SK_C": "SK_C", "GH_nu": "GH_nu"}
+#: Levels --simulate adds at most, one at a time, to bracket strengths at an edge of theirs.
+MAX_LEVEL_EXTENSIONS = 3
+
+
+def _level_list(name: str, levels: dict[str, list[float]], family_levels: dict[str, list[float]]) -> list[float]:
+    """The levels of a candidate (an option's or a law family's; empty when the databases'
+    own are used)."""
+    option = LEVEL_OPTIONS[name]
+    return levels[option] if option in levels else family_levels.get(option, [])
+
+
+def _extend_levels(rounds, levels: dict[str, list[float]], family_levels: dict[str, list[float]]) -> str:
+    """Add one level beyond the first supported strength found at an edge of its levels (the
+    last spacing continued; below the lowest level, half of it where the spacing would reach 0
+    or where the strength lies between the base law and the lowest level), in ``levels`` or
+    ``family_levels``; what was added, in words ("" when none)."""
+    for one in rounds:
+        for r in one.results:
+            if not (r.edge and r.supported) or r.name not in LEVEL_OPTIONS:
+                continue
+            current = sorted(_level_list(r.name, levels, family_levels))
+            if not current or (len(current) < 2 and r.edge != "base"):
+                continue
+            if r.edge == "high":
+                new = current[-1] + (current[-1] - current[-2])
+            elif r.edge == "base":
+                # Between the base law and the lowest level: a level halfway.
+                new = current[0] / 2
+            else:
+                new = current[0] - (current[1] - current[0])
+                new = new if new > 0 else current[0] / 2
+            option = LEVEL_OPTIONS[r.name]
+            (levels if option in levels else family_levels)[option] = sorted([*current, round(new, 6)])
+            where = ("lies between the base law and its lowest level" if r.edge == "base" else
+                     "sits at the edge of its levels")
+            return f"{r.name} = {r.theta:.3g} {where} {current}: adding the level {new:g} and diagnosing again"
+    return ""
+
+
 def _diagnose_batch(args: argparse.Namespace, database, effect_databases: list[str] | None,
-                    levels: dict[str, list[float]]):
+                    levels: dict[str, list[float]], family_levels: dict[str, list[float]]):
     """One diagnosis of the batch with the databases known so far."""
     try:
         return diagnose(args.measurements, database, args.law, effect_databases=effect_databases,
                         other_laws=args.other_law, prestress_levels=levels["prestress_levels"],
-                        kb_levels=levels["kb_levels"], family_levels=_family_levels(args),
+                        kb_levels=levels["kb_levels"], family_levels=family_levels,
                         candidates=args.candidate, max_effects=args.max_effects,
                         offcentre_table=None if args.offcentre_table == "none" else args.offcentre_table,
                         progress=sys.stderr.isatty())

@@ -70,6 +70,9 @@ def cmd_population(args: argparse.Namespace) -> int:
           "of no drift beyond drift_database, the steepest slope the database's own error can make; chi2_dof: the best shapes' chi2 per degree of freedom against the tracing noise (misfits "
           "noise above the limit that noise reaches at p = 0.01, 1.5-1.7 for 10-12 capsules)")
     print(verdict.line())
+    if verdict.heterogeneity is not None and verdict.kind != "not_one_material":
+        # The groups open a two-material verdict's line; otherwise the test is said here.
+        print(verdict.heterogeneity.line())
     if args.plot:
         print(f"wrote {save_figure(plot_population(results, verdict), args.plot)}")
     for out in args.out or []:

@@ -4,6 +4,7 @@ pre-stress or bending blended between database levels)."""
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -48,6 +49,37 @@ class Candidate:
     #: "capsules" (a measurement effect: changes the data, keeps the law it was built on) or
     #: "law" (a model effect: changes the law, keeps the data); what makes two effects compose.
     acts_on: str = "law"
+    #: The strengths that have a physical meaning (pre-stress and bending are >= 0): the fit
+    #: never extrapolates beyond them (``extrapolation_range``).
+    limits: tuple[float, float] = (-math.inf, math.inf)
+
+    @property
+    def continuous(self) -> bool:
+        """A strength fitted between its values (not a yes/no law group)."""
+        return self.parameter != "group" and len(self.values) > 2
+
+
+#: How far beyond its outermost values a continuous strength is fitted, as a fraction of the
+#: spacing of the two outermost values: the blend of the last two levels (or the measurement
+#: effect's formula) extended linearly. Half a spacing: far enough that a strength just beyond
+#: the levels (Skalak C = 10 above the levels 1-8) is no longer pinned at the last one, near
+#: enough that the linear extension stays close to the kernel's shapes (the blend's own error
+#: between two levels is largest halfway).
+EXTRAPOLATION = 0.5
+#: How far beyond its values a measurement effect is searched, in spacings: it is exact at any
+#: value (the data are changed, not a law extrapolated), so its values only say where to start.
+MEASUREMENT_REACH = 2.0
+
+
+def extrapolation_range(candidate: Candidate) -> tuple[float, float]:
+    """The strengths a continuous candidate is fitted over: its values' range extended by
+    ``EXTRAPOLATION`` of the outermost spacing on each side (``MEASUREMENT_REACH`` spacings for
+    a measurement effect), within its ``limits``."""
+    values = sorted(candidate.values)
+    reach = MEASUREMENT_REACH if candidate.acts_on == "capsules" else EXTRAPOLATION
+    low = values[0] - reach * (values[1] - values[0])
+    high = values[-1] + reach * (values[-1] - values[-2])
+    return max(low, candidate.limits[0]), min(high, candidate.limits[1])
 
 
 def contour_offset_candidate(base_law: str | BlendedLaw, max_px: float = 3.0, step_px: float = 0.75) -> Candidate:
@@ -115,7 +147,8 @@ def prestress_key(base_law: str, alpha: float) -> str:
 
 def interpolation_weights(levels: Sequence[float], value: float) -> list[tuple[int, float]]:
     """Weights of the levels whose blend is the law at ``value``: linear between the two
-    levels that bracket it, [(level index, weight)].
+    levels that bracket it, [(level index, weight)]; beyond the levels, the outermost two
+    extended linearly (a weight above 1 and one below 0: ``EXTRAPOLATION``).
 
     Linear, not a quadratic through three levels: an effect can change a shape abruptly
     between two levels (pre-stress removes the parachute between alpha = 0 and 0.04), and a
@@ -138,11 +171,40 @@ class BlendedLaw:
     def __str__(self) -> str:
         return " + ".join(f"{w:.3g} {key}" for key, w in zip(self.keys, self.weights))
 
-    def inverter(self, database) -> _BlendedInverter:
-        return _BlendedInverter([tube_inverter(database, key) for key in self.keys], self.weights)
+    def inverter(self, database) -> BlendedInverter:
+        return BlendedInverter([level_inverter(database, key) for key in self.keys], self.weights)
 
 
-class _BlendedInverter:
+#: Each database's level inverters, kept while the database lives (``level_inverter``).
+_LEVEL_INVERTERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def level_inverter(database, key: str) -> TubeInverter:
+    """The inverter of one level of a blend, made once per database: a diagnosis refits the
+    batch at some 15 strengths of each model effect, every one a blend of the same levels
+    whose lengths fits (``BlendedInverter.fit``) are then made once per capsule
+    (``_CachedFits``), not once per strength."""
+    inverters = _LEVEL_INVERTERS.setdefault(database, {})
+    if key not in inverters:
+        inverters[key] = _CachedFits(tube_inverter(database, key))
+    return inverters[key]
+
+
+class _CachedFits(TubeInverter):
+    """A TubeInverter whose ``fit`` remembers its answers (the same lengths, the same fit)."""
+
+    def __init__(self, inverter: TubeInverter) -> None:
+        self.__dict__.update(inverter.__dict__)
+        self._fits: dict[tuple[float, float, float | None, float | None], TubeFit] = {}
+
+    def fit(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> TubeFit:
+        key = (L_z, L_p, v_c, mu)
+        if key not in self._fits:
+            self._fits[key] = super().fit(L_z, L_p, v_c, mu)
+        return self._fits[key]
+
+
+class BlendedInverter:
     """The TubeInverter interface diagnose uses, for a BlendedLaw."""
 
     def __init__(self, inverters: Sequence[TubeInverter], weights: Sequence[float]) -> None:
@@ -163,6 +225,23 @@ class _BlendedInverter:
             return float(sum(w * getattr(f, name) for w, f in zip(self.weights, fits)))
 
         return TubeFit(G_s=blend("G_s"), a_over_l=blend("a_over_l"), Ca_s=blend("Ca_s"), vc_over_V=blend("vc_over_V"))
+
+    def start_fit(self, L_z: float, L_p: float) -> TubeFit:
+        """Where a contour fit of the blend starts: the blend's lengths fit, else the fit of the
+        first level (by weight) that reproduces the lengths at a point every level covers.
+
+        The blend's own fit needs every level to reproduce the lengths, and the base law (the
+        level at strength 0) cannot for the very capsules an effect changes; a start elsewhere
+        (the base fit, the nearest row of one level) can lie outside another level's nodes,
+        where the contour fit finds nothing and the strength was pinned at a level."""
+        blended = self.fit(L_z, L_p)
+        if blended.ok:
+            return blended
+        for k in np.argsort(self.weights)[::-1]:
+            fit = self.inverters[int(k)].fit(L_z, L_p)
+            if fit.ok and self.profile(fit.a_over_l, fit.Ca_s) is not None:
+                return fit
+        return blended
 
     def profile(self, a_over_l: float, Ca_s: float) -> np.ndarray | None:
         profiles = [p for p in (inverter.profile(a_over_l, Ca_s) for inverter in self.inverters) if p is not None]
@@ -205,8 +284,9 @@ def scalar_effect_candidate(base_law: str, effect: str, levels: Sequence[float] 
         return list(capsules), BlendedLaw([effect_key(base_law, effect, values[k]) for k, _ in weights],
                                           [w for _, w in weights])
 
+    # (the base law is the level at 0; a negative pre-stress or bending stiffness is no membrane)
     return Candidate(effect, parameter, "", values, 0.0, apply,
-                     laws=tuple(effect_key(base_law, effect, v) for v in values[1:]))
+                     laws=tuple(effect_key(base_law, effect, v) for v in values[1:]), limits=(0.0, math.inf))
 
 
 def prestress_candidate(base_law: str, levels: Sequence[float] = SCALAR_EFFECTS["prestress"][1]) -> Candidate:

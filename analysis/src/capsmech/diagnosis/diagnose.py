@@ -81,6 +81,7 @@ from capsmech.diagnosis.scoring import (
     capsules_prefer,
     compare_supported,
     evaluate_candidate,
+    g_s_half_width,
     noise_levels,
     rivals_of,
     score_batch,
@@ -103,6 +104,78 @@ NOT_ASSESSED: dict[str, str] = {
                            "contour's antisymmetric part, its lengths corrected by the offset's second-order "
                            "elongation before G_s",
 }
+
+
+#: The measurement that tells a measurement effect from its rivals (``separating_measurement``).
+SEPARATING_MEASUREMENTS: dict[str, str] = {
+    "tube_radius": "measure the tube radius independently (the empty capillary's bore on the same optics, or "
+                   "its specification)",
+    "contour_offset": "calibrate the contour offset (trace objects of known size, e.g. beads, with the same "
+                      "optics and settings)",
+}
+#: What tells model effects apart (pre-stress, bending, another law): how the shape changes
+#: with the capillary number.
+SEPARATING_MODEL_EFFECTS = "measure capsules over a wider range of flow rates (Ca_s)"
+
+
+def separating_measurement(names: Sequence[str]) -> str:
+    """The measurement that would separate tied candidates: for each measurement effect among
+    them, what measures it directly; for model effects only, a wider range of flow rates."""
+    known = [SEPARATING_MEASUREMENTS[n] for n in dict.fromkeys(names) if n in SEPARATING_MEASUREMENTS]
+    return " or ".join(known) if known else SEPARATING_MODEL_EFFECTS
+
+
+@dataclass
+class TiedGs:
+    """G_s after under each of the candidates a batch cannot tell apart (the chosen one first),
+    by one estimator (``contour_fits`` or ``lengths``), and one interval that covers them all:
+    whichever candidate is right, G_s lies in it (at the level of each one's interval)."""
+
+    estimator: str
+    names: list[str]
+    values: list[float]
+    intervals: list[tuple[float, float]]
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """The union of the candidates' intervals (NaN when one of them has none: a G_s
+        that only some of the rivals give covers nothing whichever is right)."""
+        if not self.intervals or not all(math.isfinite(v) for pair in self.intervals for v in pair):
+            return (math.nan, math.nan)
+        return (min(low for low, _ in self.intervals), max(high for _, high in self.intervals))
+
+    @property
+    def spread(self) -> float:
+        """Largest relative difference between the candidates' G_s."""
+        finite = [v for v in self.values if math.isfinite(v)]
+        return max(finite) / min(finite) - 1 if len(finite) > 1 and min(finite) > 0 else math.nan
+
+    def text(self) -> str:
+        each = ", ".join(f"{n} {v:.4g} [{lo:.4g}, {hi:.4g}]"
+                         for n, v, (lo, hi) in zip(self.names, self.values, self.intervals))
+        low, high = self.interval
+        whichever = (f"{low:.4g}-{high:.4g} N/m whichever it is" if math.isfinite(low) else
+                     "no interval covers them all (a candidate gives no G_s)")
+        return f"G_s after ({self.estimator.replace('_', ' ')}) under each: {each}: {whichever}"
+
+
+def tied_g_s(results: Sequence[CandidateResult]) -> list[TiedGs]:
+    """G_s after under each tied candidate, by the contour fits and by the lengths, each with its
+    interval (the capsules' scatter, the databases' accuracy and the strength's interval carried
+    into G_s: ``CandidateResult.g_s_systematic``)."""
+    out = []
+    for estimator in ("contour_fits", "lengths"):
+        values, intervals = [], []
+        for r in results:
+            if estimator == "contour_fits":
+                (mean, sd), n, systematic = r.g_s_after, r.capsules, r.g_s_systematic[1]
+            else:
+                (mean, sd, n), systematic = r.g_s_lengths_after, r.g_s_lengths_systematic[1]
+            half = g_s_half_width(sd, n, systematic)
+            values.append(mean)
+            intervals.append((mean - half, mean + half))
+        out.append(TiedGs(estimator, [r.name for r in results], values, intervals))
+    return out
 
 
 @dataclass
@@ -136,6 +209,19 @@ class Diagnosis:
         close = rivals_of(chosen, self.results, lambda r: r.bic_drop_common)
         return close + [r for r in self.results if r.supported and r is not chosen and r not in close
                         and not capsules_prefer(chosen, r)]
+
+    @property
+    def tied_g_s(self) -> list[TiedGs]:
+        """G_s after under the chosen candidate and each rival, by both estimators, with one
+        interval covering them (``tied_g_s``); empty without rivals."""
+        if self.chosen is None or not self.rivals:
+            return []
+        return tied_g_s([self.chosen, *self.rivals])
+
+    @property
+    def separating_measurement(self) -> str:
+        """What would tell the chosen candidate from its rivals (``separating_measurement``)."""
+        return separating_measurement([r.name for r in [self.chosen, *self.rivals] if r is not None])
 
     @property
     def kind(self) -> str:
@@ -185,8 +271,9 @@ class Diagnosis:
         rivals = ""
         if self.rivals:
             rivals = ("; these data cannot tell it from " + ", ".join(
-                f"{r.name} ({r.parameter} = {r.theta:.3g} {r.unit}, BIC drop {r.bic_drop_common:.1f})" for r in self.rivals)
-                + ": measure what separates them (the flow rate, the tube radius) to decide")
+                f"{r.name} ({strength_text(r)}, BIC drop {r.bic_drop_common:.1f})" for r in self.rivals)
+                + "; " + "; ".join(tie.text() for tie in self.tied_g_s)
+                + f"; to tell them apart, {self.separating_measurement}")
         prefix = "cannot tell which of these: " if self.rivals else ""
         return (prefix + f"{c.name}: {strength_text(c)}, "
                 f"BIC drop {c.bic_drop:.1f} ({c.bic_drop_common:.1f} on the capsules every supported candidate fits), "
@@ -200,8 +287,28 @@ def strength_text(result: CandidateResult) -> str:
     law group) has no strength and no interval."""
     if result.discrete:
         return "a yes/no candidate: no strength, no interval"
-    return (f"{result.parameter} = {result.theta:.3g} {result.unit} "
+    text = (f"{result.parameter} = {result.theta:.3g} {result.unit} "
             f"[{result.interval[0]:.3g}, {result.interval[1]:.3g}]").replace("  ", " ")
+    return text + (f", {edge_text(result)}" if result.edge else "")
+
+
+def edge_text(result: CandidateResult) -> str:
+    """That a strength sits at an edge of the candidate's values, in words (empty when the
+    values bracket its interval)."""
+    if not result.edge:
+        return ""
+    low, high = result.levels[0], result.levels[-1]
+    side = "above the highest" if result.edge == "high" else "below the lowest"
+    if result.edge == "base":
+        return (f"between the base law and the lowest level ({result.levels[1]:.3g}), where the blend with "
+                "the base law is the least accurate: a level in between would bracket it (diagnose --simulate "
+                "adds it)")
+    if result.acts_on == "capsules":
+        return (f"AT THE EDGE of the range searched ({low:.3g}-{high:.3g}, extended by half a step): the "
+                "strength may lie further out")
+    return (f"AT THE EDGE of the levels ({low:.3g}-{high:.3g}): the interval reaches {side} level, where the "
+            "law is extrapolated linearly; a level beyond would bracket it (diagnose --simulate adds levels "
+            "until they do)")
 
 
 def batch_fit(capsules: Sequence[Capsule], score: BatchScore) -> GoodnessOfFit | None:

@@ -15,15 +15,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
-from capsmech.diagnosis.diagnose import Diagnosis
+from capsmech.diagnosis.diagnose import Diagnosis, TiedGs
 from capsmech.diagnosis.goodness import GoodnessOfFit
-from capsmech.diagnosis.scoring import CandidateResult
+from capsmech.diagnosis.report import batch_heterogeneity
+from capsmech.diagnosis.scoring import G_S_LEVEL, CandidateResult, g_s_half_width
 from capsmech.diagnosis.sequential import SequentialDiagnosis
-
-#: Level of the G_s intervals (Student t on the capsules' mean).
-G_S_LEVEL = 0.95
 
 
 def _number(value: float) -> float | None:
@@ -43,9 +40,8 @@ def g_s_interval(mean: float, sd: float, n: int, systematic: float = 0.0, level:
     added in quadrature as for the strengths' intervals."""
     if n < 2 or not (math.isfinite(mean) and math.isfinite(sd)):
         return {"value": None, "interval": None, "capsules": n}
-    statistical = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
     systematic = float(systematic) if math.isfinite(systematic) else 0.0
-    half = math.hypot(statistical, systematic)
+    half = g_s_half_width(sd, n, systematic, level)
     return {"value": mean, "interval": [mean - half, mean + half], "sd": sd, "systematic": systematic,
             "capsules": n, "level": level}
 
@@ -61,6 +57,8 @@ def candidate_record(result: CandidateResult) -> dict[str, Any]:
         "strength": None if result.discrete else _number(result.theta),
         "interval": None if result.discrete else [_number(v) for v in result.interval],
         "interval_systematic": None if result.discrete else _number(result.systematic),
+        "levels": None if result.discrete else [_number(v) for v in result.levels],
+        "at_edge": (result.edge or None) if not result.discrete else None,
         "capsules": result.capsules, "chi2_base": _number(result.chi2_base), "chi2": _number(result.chi2),
         "bic_drop": _number(result.bic_drop), "cv_gain": _number(result.cv_gain),
         "cv_p_value": _number(result.cv_p_value),
@@ -78,7 +76,16 @@ def _effect(result: CandidateResult, theta: float, interval: tuple[float, float]
     if result.discrete:
         return {"name": result.name, "strength": None, "interval": None, "unit": None}
     return {"name": result.name, "parameter": result.parameter, "strength": _number(theta),
-            "interval": [_number(v) for v in interval], "unit": result.unit}
+            "interval": [_number(v) for v in interval], "unit": result.unit, "at_edge": result.edge or None}
+
+
+def _tie(tie: TiedGs) -> dict[str, Any]:
+    """G_s after under each tied candidate and the interval covering them all."""
+    low, high = tie.interval
+    return {"interval": [_number(low), _number(high)] if math.isfinite(low) else None,
+            "level": G_S_LEVEL, "spread": _number(tie.spread),
+            "candidates": [{"name": n, "value": _number(v), "interval": [_number(lo), _number(hi)]}
+                           for n, v, (lo, hi) in zip(tie.names, tie.values, tie.intervals)]}
 
 
 def _fit(fit: GoodnessOfFit | None) -> dict[str, Any] | None:
@@ -134,13 +141,23 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
         before = g_s_interval(*values[0]) if values and math.isfinite(values[0][0]) else None
         after = g_s_interval(*values[1]) if kind == "effect" and len(values) > 1 else None
         g_s[name] = {"before": before, "after": after}
+    # A tie still answers: G_s after under each tied candidate, and one interval covering them.
+    tied_round = next((r for r in ([*outcome.rounds] if isinstance(outcome, SequentialDiagnosis) else [first])
+                       if r.rivals), None)
+    if kind == "cannot_tell" and tied_round is not None:
+        for tie in tied_round.tied_g_s:
+            g_s[tie.estimator]["tied"] = _tie(tie)
+        record["separating_measurement"] = tied_round.separating_measurement
     record["g_s"] = g_s
     if kind != "effect":
         record["g_s_after_reason"] = (
             "no effect found: G_s is the base law's (before)" if kind == "none" else
-            "cannot_tell: G_s after depends on which of the tied candidates is right (see candidates)"
-            if kind == "cannot_tell" else
+            "cannot_tell: G_s after depends on which of the tied candidates is right: under each, and one "
+            "interval covering them all, in g_s.<estimator>.tied" if kind == "cannot_tell" else
             f"{kind}: no candidate leaves the batch consistent with its noise, so no G_s after is supported")
+    # One material or several, on the contour fits' per-capsule G_s (capsmech.diagnosis.report).
+    mixture = batch_heterogeneity(first)
+    record["heterogeneity"] = mixture.as_dict() if mixture is not None else None
     record["candidates"] = [candidate_record(r) for r in first.results]
     record["left_out"] = [{"id": capsule, "reason": why} for capsule, why in first.excluded]
     if first.base is not None:

@@ -19,6 +19,7 @@ import numpy as np
 if TYPE_CHECKING:
     from capsmech.diagnosis.diagnose import Diagnosis
     from capsmech.diagnosis.scoring import CandidateResult
+    from capsmech.inversion.heterogeneity import Heterogeneity
 
 
 def _shown(diagnosis: Diagnosis) -> CandidateResult | None:
@@ -106,6 +107,19 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
     return written
 
 
+def batch_heterogeneity(diagnosis: Diagnosis) -> Heterogeneity | None:
+    """One material or several (``capsmech.inversion.heterogeneity``) on the per-capsule G_s of
+    the contour fits: after the chosen effect, else the base law's. The contour fits carry no
+    per-capsule uncertainty, so the mixture test stands alone. Capsules are named by their
+    rank among those diagnosed (the file's order, less those left out). None without a fit."""
+    from capsmech.inversion.heterogeneity import heterogeneity
+
+    score = diagnosis.chosen.after if diagnosis.chosen is not None else diagnosis.base
+    if score is None or not len(score.g_s):
+        return None
+    return heterogeneity([f"capsule {k + 1}" for k in range(len(score.g_s))], score.g_s)
+
+
 def _lengths(summary: tuple[float, float, int]) -> str:
     """G_s by lengths (mean, sd, capsules) in words."""
     mean, sd, n = summary
@@ -157,6 +171,11 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
                   "Mean residual profile over the capsules [px] (front pole to rear pole, "
                   f"{len(fit.profile)} points, ± standard error): "
                   + ", ".join(f"{v:+.2f}±{e:.2f}" for v, e in zip(fit.profile, fit.profile_error)) + ".", ""]
+    mixture = batch_heterogeneity(diagnosis)
+    if mixture is not None:
+        lines += ["## One material or several", "",
+                  f"On the contour fits' G_s (capsmech.inversion.heterogeneity; capsules by rank among those "
+                  f"diagnosed): {'**' + mixture.line() + '**' if not mixture.one_material else mixture.line()}.", ""]
     compared = sorted((r for r in diagnosis.results if r.supported and math.isfinite(r.bic_drop_common)),
                       key=lambda r: -r.bic_drop_common)
     if len(compared) > 1:

@@ -12,7 +12,14 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import minimize_scalar
 
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
+from capsmech.diagnosis.candidates import (
+    EXTRAPOLATION,
+    BlendedInverter,
+    BlendedLaw,
+    Candidate,
+    DatabaseSet,
+    extrapolation_range,
+)
 from capsmech.diagnosis.goodness import MODEL_FLOOR_REL, GoodnessOfFit
 from capsmech.inversion.fitting import database_g_s_shifts, tube_inverter
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
@@ -37,6 +44,8 @@ PROFILE_RISE = 4.0
 MIN_BIC_DROP = 6.0
 #: Significance of the cross-validated improvement (one-sided Wilcoxon signed-rank test).
 CV_ALPHA = 0.05
+#: Level of the G_s intervals (Student t on the capsules' mean).
+G_S_LEVEL = 0.95
 
 
 
@@ -115,6 +124,16 @@ class CandidateResult(Evidence):
     #: The same for G_s by lengths (``g_s_lengths_before`` and ``g_s_lengths_after``).
     g_s_lengths_systematic: tuple[float, float] = (0.0, 0.0)
 
+    #: The candidate's values in order (for a model effect, the database levels it is blended
+    #: between, the base law's 0 first) and whether the strength sits at an edge of them: ""
+    #: (bracketed), "low", "high" or "base" (between the base law and the lowest level:
+    #: ``edge_of_levels``).
+    levels: tuple[float, ...] = ()
+    edge: str = ""
+    #: As the candidate's (``Candidate.acts_on``): "capsules" for a measurement effect, whose
+    #: values are a search range rather than simulated levels.
+    acts_on: str = "law"
+
     @property
     def discrete(self) -> bool:
         """A yes/no candidate (another law group: parameter ``group``), with no strength to fit."""
@@ -132,11 +151,14 @@ def contour_fit(prepared: PreparedContour, inverter: TubeInverter, tube_radius: 
                         lambda distance: float(np.sum((distance / sigma) ** 2)), 0.05)
 
 
-def _nearest_row(inverter: TubeInverter, L_z: float, L_p: float) -> dict[str, float]:
-    """The database row nearest to the lengths (L_z, L_z - L_p), each scaled by its spread."""
+def _nearest_row(inverter: TubeInverter | BlendedInverter, L_z: float, L_p: float) -> dict[str, float]:
+    """The database row nearest to the lengths (L_z, L_z - L_p), each scaled by its spread,
+    among the rows where the law has a profile (a blend's levels need not share their nodes)."""
     t = inverter.table
     q = np.column_stack([t.L_z, t.L_z - t.L_p])
-    k = int(np.argmin(np.sum(((q - [L_z, L_z - L_p]) / q.std(axis=0)) ** 2, axis=1)))
+    order = np.argsort(np.sum(((q - [L_z, L_z - L_p]) / q.std(axis=0)) ** 2, axis=1))
+    k = next((int(j) for j in order if inverter.profile(float(t.a_over_l[j]), float(t.Ca_s[j])) is not None),
+             int(order[0]))
     return {"a_over_l": float(t.a_over_l[k]), "Ca_s": float(t.Ca_s[k])}
 
 
@@ -149,7 +171,8 @@ def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[d
     for capsule in capsules:
         l = capsule["tube_radius"]
         L_z, L_p = capsule["L_z"] / l, capsule["L_p"] / l
-        fit = inverter.fit(L_z, L_p)
+        # (a blend of levels starts from a level's fit where the blend has none: ``start_fit``)
+        fit = inverter.start_fit(L_z, L_p) if isinstance(inverter, BlendedInverter) else inverter.fit(L_z, L_p)
         if fit.ok:
             rows.append({"a_over_l": fit.a_over_l, "Ca_s": fit.Ca_s})
         elif math.isfinite(L_z) and math.isfinite(L_p):
@@ -222,7 +245,9 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
     rows = _central_fits(capsules, inverter)
     if starts is not None:
         for i, row in enumerate(rows):
-            if row.get("fallback") and math.isfinite(starts.a_over_l[i]):
+            # (a start the law does not cover would leave the contour fit outside: no fit)
+            if (row.get("fallback") and math.isfinite(starts.a_over_l[i])
+                    and inverter.profile(float(starts.a_over_l[i]), float(starts.Ca_s[i])) is not None):
                 row.update(a_over_l=float(starts.a_over_l[i]), Ca_s=float(starts.Ca_s[i]))
     n = len(capsules)
     chi2, g_s, delta = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
@@ -298,6 +323,80 @@ def _g_s_summary(score: BatchScore, keep: np.ndarray) -> tuple[tuple[float, floa
     return summary, p
 
 
+def _extend_beyond_levels(candidate: Candidate, grid: dict[float, BatchScore], usable: np.ndarray,
+                          evaluate: Callable[[float], BatchScore]) -> None:
+    """While the batch's chi2 is lowest at an end of the values evaluated, evaluate the strength
+    ``EXTRAPOLATION`` of the outer spacing beyond it, within the ``extrapolation_range``, and add
+    it to ``grid`` (when every usable capsule is fitted there): the minimum can then lie beyond
+    the levels instead of being pinned at the last one (Skalak C = 10 was read as 8 [6.8, 9.2]
+    with the levels 1-8)."""
+    values = sorted(candidate.values)
+    steps = (EXTRAPOLATION * (values[1] - values[0]), EXTRAPOLATION * (values[-1] - values[-2]))
+    low_end, high_end = extrapolation_range(candidate)
+    while True:
+        values = sorted(grid)
+        k = int(np.argmin([grid[v].chi2[usable].sum() for v in values]))
+        if k == 0 and values[0] > low_end + 1e-9 * steps[0]:
+            beyond = max(values[0] - steps[0], low_end)
+        elif k == len(values) - 1 and values[-1] < high_end - 1e-9 * steps[1]:
+            beyond = min(values[-1] + steps[1], high_end)
+        else:
+            return
+        score = evaluate(beyond)
+        if not np.all(np.isfinite(score.chi2[usable])):
+            return
+        grid[round(beyond, 12)] = score
+
+
+def _refine(grid: dict[float, BatchScore], usable: np.ndarray, evaluate: Callable[[float], BatchScore],
+            refine_evaluations: int) -> np.ndarray:
+    """Refine the strength: a bounded 1D minimisation of the batch's chi2 on each side of the
+    lowest grid point, up to its grid neighbours; returns the capsules the criteria use.
+
+    Every evaluation is kept (``evaluate`` caches them), so that the minimum chi2 the criteria
+    compare is computed, not extrapolated (a parabola through three grid points misplaces a
+    sharp minimum: on the pre-stress batches by 20-40 % of the level spacing). Each side is
+    searched separately: a blended law is piecewise in the strength, kinked at the levels, and
+    one search across the kink stays on one side.
+
+    A blend of two levels has a profile only where both levels have nodes, so a capsule fitted
+    at both levels can be left unfitted between them; a strength where a usable capsule is not
+    fitted is never the minimum, which pinned the strength at a level (pre-stress 0.03 read as
+    0.04 or 0.02). Such capsules are then left out and the search repeated, once, when at
+    least three quarters of the usable capsules remain."""
+    for _ in range(2):
+        failed = _search_sides(grid, usable, evaluate, refine_evaluations)
+        kept = usable & ~failed
+        if not failed.any() or kept.sum() < max(3, 0.75 * usable.sum()):
+            return usable
+        usable = kept
+    return usable
+
+
+def _search_sides(grid: dict[float, BatchScore], usable: np.ndarray, evaluate: Callable[[float], BatchScore],
+                  refine_evaluations: int) -> np.ndarray:
+    """One search of ``_refine`` (both sides of the lowest grid point); returns the usable
+    capsules left unfitted at some strength it evaluated."""
+    failed = np.zeros_like(usable)
+
+    def batch_chi2(theta: float) -> float:
+        chi2 = evaluate(float(theta)).chi2
+        missing = usable & ~np.isfinite(chi2)
+        if missing.any():
+            failed[missing] = True
+            return 1e30
+        return float(chi2[usable].sum())
+
+    values = np.array(sorted(grid))
+    k = int(np.argmin([grid[v].chi2[usable].sum() for v in values]))
+    low, high = values[max(k - 1, 0)], values[min(k + 1, len(values) - 1)]
+    for side in ((low, values[k]), (values[k], high)):
+        if side[1] > side[0]:
+            minimize_scalar(batch_chi2, bounds=side, method="bounded",
+                            options={"xatol": REFINE_XATOL * (side[1] - side[0]), "maxiter": refine_evaluations})
+    return failed
+
+
 def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet,
                        base_law: str | BlendedLaw,
                        sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour],
@@ -313,44 +412,29 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
         same = all(c.contour is o.contour for c, o in zip(changed, capsules))
         return score_batch(changed, database, law, sigma, prepared if same else None, starts=base)
 
-    scores = [base if value == candidate.neutral else refit(float(value)) for value in values]
-    table = np.array([s.chi2 for s in scores])                  # (values, capsules)
-    usable = np.all(np.isfinite(table), axis=0) & np.isfinite(base.chi2)
-    result.capsules = int(usable.sum())
-    if result.capsules < 3:
-        result.note = f"only {result.capsules} capsules fitted at every {candidate.parameter}: not assessed"
+    grid = {float(value): base if value == candidate.neutral else refit(float(value)) for value in values}
+    usable = np.all([np.isfinite(score.chi2) for score in grid.values()], axis=0) & np.isfinite(base.chi2)
+    if usable.sum() < 3:
+        result.note = f"only {int(usable.sum())} capsules fitted at every {candidate.parameter}: not assessed"
         return result
-    table = table[:, usable]
-    grid_values = values.copy()
-    # Refine: a bounded 1D minimisation of the batch's chi2 between the grid neighbours of the
-    # lowest grid point, every evaluation kept in the table, so that the minimum chi2 the
-    # criteria compare is computed, not extrapolated (a parabola through three grid points
-    # misplaces a sharp minimum: on the pre-stress batches by 20-40 % of the level spacing).
-    if len(values) > 2 and refine_evaluations > 0:
-        k = int(np.argmin(table.sum(axis=1)))
-        low, high = values[max(k - 1, 0)], values[min(k + 1, len(values) - 1)]
-        extras: list[tuple[float, BatchScore]] = []
+    off_grid: dict[float, BatchScore] = {}
 
-        def batch_chi2(theta: float) -> float:
-            extra = refit(float(theta))
-            if not np.all(np.isfinite(extra.chi2[usable])):
-                return 1e30  # outside what every capsule can be fitted at: never the minimum
-            extras.append((float(theta), extra))
-            return float(extra.chi2[usable].sum())
+    def evaluate(theta: float) -> BatchScore:
+        key = round(float(theta), 12)
+        if key not in off_grid:
+            off_grid[key] = refit(key)
+        return off_grid[key]
 
-        # Each side of the best grid value separately: a blended law is piecewise in the
-        # strength, kinked at the levels, and one search across the kink stays on one side.
-        for side in ((low, values[k]), (values[k], high)):
-            if side[1] > side[0]:
-                minimize_scalar(batch_chi2, bounds=side, method="bounded",
-                                options={"xatol": REFINE_XATOL * (side[1] - side[0]), "maxiter": refine_evaluations})
-        for theta, extra in extras:
-            if np.any(np.isclose(values, theta, rtol=0, atol=1e-12)):
-                continue
-            order = np.argsort(np.append(values, theta), kind="stable")
-            values = np.append(values, theta)[order]
-            table = np.vstack([table, extra.chi2[usable]])[order]
-            scores = [(scores + [extra])[j] for j in order]
+    if candidate.continuous and refine_evaluations > 0:
+        _extend_beyond_levels(candidate, grid, usable, evaluate)
+        usable = _refine(grid, usable, evaluate, refine_evaluations)
+    result.capsules = int(usable.sum())
+    # Every strength evaluated at which each usable capsule was fitted, in order.
+    points = {**{v: s for v, s in off_grid.items() if np.all(np.isfinite(s.chi2[usable]))}, **grid}
+    values = np.array(sorted(points))
+    scores = [points[v] for v in values]
+    table = np.array([score.chi2[usable] for score in scores])   # (values, capsules)
+    grid_values = np.array(sorted(grid))
     total = table.sum(axis=1)
     k = int(np.argmin(total))
     theta, chi2_min = float(values[k]), float(total[k])
@@ -394,6 +478,10 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     result.interval = (theta - math.hypot(theta - statistical[0], systematic),
                        theta + math.hypot(statistical[1] - theta, systematic))
     result.systematic = systematic
+    result.acts_on = candidate.acts_on
+    if candidate.continuous:
+        result.levels = tuple(sorted(float(v) for v in candidate.values))
+        result.edge = edge_of_levels(candidate, theta, result.interval)
     result.cv_gain = float(gains.mean())
     result.cv_gain_error = float(gains.std(ddof=1) / np.sqrt(n))
     # Paired, one-sided: do held-out capsules fit better? (Wilcoxon: the gains are far from normal.)
@@ -429,6 +517,45 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     result.g_s_lengths_systematic = (floor_before, math.hypot(floor_after, lengths_change))
     result.g_s_systematic = (floor_before, math.hypot(floor_after, contour_change))
     return result
+
+
+def edge_of_levels(candidate: Candidate, theta: float, interval: tuple[float, float]) -> str:
+    """Whether a strength sits at an edge of the candidate's values: "high" when the estimate is
+    at or beyond the highest value or (a model effect) its interval reaches past it, "low"
+    likewise at the lowest, "base" when a model effect's estimate lies between the base law
+    (its neutral value, a physical limit) and the lowest simulated level, "" when the levels
+    bracket it.
+
+    Beyond a model effect's levels the law is extrapolated, so its interval must lie within
+    them. Between the base law and the lowest level the blend is the least accurate (pre-stress
+    removes the parachute there: the blend of alpha 0 and 0.04 misses the kernel's 0.02 shape
+    by 1.2-5.3 px where the blend of 0.04 and 0.08 misses 0.06 by 0.3-1.9 px, at l = 100 px),
+    and alpha = 0.03 read 0.0315-0.0364 on three batches, two intervals missing it. A
+    measurement effect is exact at any value (its values are only where the search starts), so
+    only its estimate counts. An end that is a physical limit (``Candidate.limits``) is no edge."""
+    values = sorted(candidate.values)
+    tolerance = 1e-6 * (values[-1] - values[0])
+    model = candidate.acts_on == "law"
+    high = theta >= values[-1] - tolerance or (model and interval[1] > values[-1])
+    low = theta <= values[0] + tolerance or (model and interval[0] < values[0])
+    if values[-1] < candidate.limits[1] and high:
+        return "high"
+    if values[0] > candidate.limits[0] and low:
+        return "low"
+    if model and values[0] == candidate.neutral == candidate.limits[0] and theta < values[1] - tolerance:
+        return "base"
+    return ""
+
+
+def g_s_half_width(sd: float, n: int, systematic: float = 0.0, level: float = G_S_LEVEL) -> float:
+    """Half-width [N/m] of the interval of a mean G_s over n capsules: the Student-t half-width
+    of their scatter (standard deviation ``sd``) and the ``systematic`` half-width (the
+    databases' accuracy, and the uncertainty of an effect's strength G_s was computed at)
+    added in quadrature, as for the strengths' intervals. NaN with fewer than 2 capsules."""
+    if n < 2 or not math.isfinite(sd):
+        return math.nan
+    statistical = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
+    return math.hypot(statistical, float(systematic) if math.isfinite(systematic) else 0.0)
 
 
 def _half_change(ends: Sequence[float]) -> float:

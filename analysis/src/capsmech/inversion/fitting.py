@@ -7,7 +7,12 @@ for a/l, Ca_s, v_c/V and G_s, the number of valid fits, where the capsule has a 
 misfit H/a at the central fit and the law's best shape on it (``a_over_l_shape``,
 ``Ca_s_shape``, ``H_over_a_shape``, and ``G_s_shape``, ``Delta_shape`` there: the contour fit of
 ``capsmech.inversion.shape_fit``; ``chi2_shape``, the contour's chi2 there against its own
-tracing noise, 14 degrees of freedom when the law's shape is the capsule's;
+tracing noise, 14 degrees of freedom when the law's shape is the capsule's; ``G_s_shape_error``,
+the contour fit's own uncertainty of ``G_s_shape`` (one standard deviation, from the fitted
+point's covariance, ``capsmech.inversion.shape_fit``: it grows with the capsule's tracing noise;
+the velocity's error is not in it); ``tracing_noise``, the contour's noise measured about a
+smooth curve (``capsmech.io.contours.contour_tracing_noise``), which also sets the asymmetry
+flag's limit;
 ``G_s_database_error``, what the database's own accuracy moves G_s by: NaN
 where the law fits no lengths, the contour is asymmetric or the fit ends on the database's
 edge), and a flag with its reason when the
@@ -42,12 +47,13 @@ from capsmech.inversion.inverters import (
 )
 from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
-from capsmech.inversion.shape_fit import fit_shape
+from capsmech.inversion.shape_fit import COVARIANCE_STEP, ShapeFit, fit_shape
 from capsmech.inversion.sharp_edge import interpolated_accuracy, is_steady_root, smooth_accuracy
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
     contour_asymmetry,
+    contour_tracing_noise,
     profile_misfit,
 )
 from capsmech.io.database import Database, ShearDatabase, TubeDatabase
@@ -59,7 +65,8 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
                      "valid_fits": "1", "H_over_a": "1", "a_over_l_shape": "1",
                      "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1",
-                     "chi2_shape": "1", "G_s_database_error": "N/m", "asymmetry": "1", "size_residual": "1",
+                     "chi2_shape": "1", "G_s_shape_error": "N/m", "tracing_noise": "m",
+                     "G_s_database_error": "N/m", "asymmetry": "1", "size_residual": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
@@ -144,8 +151,10 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
         # The contour's symmetry does not depend on the law: measured once per capsule, over
         # the radius of the capsule's volume-equivalent size estimated from the contour itself.
         asymmetry, asymmetry_limit, axis_y = float("nan"), MAX_ASYMMETRY, None
+        tracing_noise = float("nan")
         if capsule.contour is not None:
             asymmetry, asymmetry_limit, axis_y = contour_asymmetry(capsule.contour, capsule["pixel_size"])
+            tracing_noise = contour_tracing_noise(capsule.contour)
         for law in laws:
             fits = FiveFits({name: five[law].row(j * len(capsules) + k)
                              for j, (name, _, _) in enumerate(FIVE_FITS)})
@@ -158,6 +167,7 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "H_over_a": float("nan"), "a_over_l_shape": float("nan"),
                                    "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"),
                                    "G_s_shape": float("nan"), "Delta_shape": float("nan"), "chi2_shape": float("nan"),
+                                   "G_s_shape_error": float("nan"), "tracing_noise": tracing_noise,
                                    "G_s_database_error": float("nan"), "asymmetry": asymmetry,
                                    "size_residual": float("nan"), "size_residual_error": float("nan"),
                                    "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
@@ -193,6 +203,7 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                     if has_velocity:
                         row["G_s_shape"] = mu * v_c / (ca_shape * inverters[law].velocity_ratio(a_shape,
                                                                                                              ca_shape))
+                        row["G_s_shape_error"] = row["G_s_shape"] * shape_log_g_s_error(inverters[law], shape)
             if central.ok and has_velocity:
                 row["G_s_database_error"] = database_g_s_error(inverters[law], l_z, l_p, v_c, mu, central)
             if central.ok and math.isfinite(capsule["V"]) and math.isfinite(v_c):
@@ -202,7 +213,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
             if asymmetry > asymmetry_limit:
                 row["flag"], row["reason"] = "asymmetric", (
                     f"asymmetric contour: its halves differ by {asymmetry:.4f} a (> {asymmetry_limit:.4f} a, "
-                    "1 % of a or one pixel), not an axisymmetric centred capsule")
+                    "the largest of 1 % of a, one pixel and twice the contour's tracing noise), not an axisymmetric "
+                    "centred capsule")
             elif fits.n_valid == 0:
                 row["reason"] = fits.fits["fit1"].flag or "no valid fit"
                 row["flag"] = inverter_flag_code(row["reason"])
@@ -216,6 +228,21 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 row["flag"], row["reason"] = "no_velocity", "no v_c or mu: G_s not computed"
             rows.append(row)
     return rows
+
+
+def shape_log_g_s_error(inverter: TubeInverter, shape: ShapeFit) -> float:
+    """The contour fit's standard deviation of ln G_s: G_s = mu v_c / (Ca_s v_c/V(a/l, Ca_s)),
+    so d ln G_s = -d ln Ca_s - d ln(v_c/V), propagated from the fitted point's covariance
+    (NaN without one)."""
+    if shape.covariance is None:
+        return math.nan
+    a, ca = shape.a_over_l, shape.Ca_s
+    step = COVARIANCE_STEP
+    ratio = [math.log(inverter.velocity_ratio(a + da, ca * math.exp(dc)))
+             for da, dc in ((step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step))]
+    gradient = np.array([-(ratio[0] - ratio[1]) / (2 * step), -1.0 - (ratio[2] - ratio[3]) / (2 * step)])
+    variance = float(gradient @ shape.covariance @ gradient)
+    return math.sqrt(variance) if math.isfinite(variance) and variance >= 0 else math.nan
 
 
 def database_g_s_shifts(inverter: TubeInverter, L_z: float, L_p: float, v_c: float, mu: float,

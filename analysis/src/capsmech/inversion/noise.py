@@ -14,6 +14,11 @@ Shared by the law verdict (``fit-tube``'s ``chi2_shape``, tested by
   meridian elements), more from a sharp parachute edge to the rear pole
   (``capsmech.inversion.sharp_edge.profile_floor``): a capsule is not called misfitted for what
   the databases cannot resolve;
+- the noise is each capsule's own, measured on its contour (or across its frames): a noisily
+  traced capsule gets a larger sigma, so its chi2 stays that of noise and its contour fit's
+  uncertainty (``capsmech.inversion.shape_fit``) grows. The asymmetry screen scales with the
+  noise measured about a smooth curve instead (``capsmech.io.contours.contour_tracing_noise``),
+  since the halves' difference holds the very asymmetry it screens for;
 - with the fit's two parameters removed, ``DOF`` degrees of freedom; and since sigma is itself
   estimated (from ``NOISE_DOF`` effectively independent points), chi2 / DOF follows an
   F(DOF, NOISE_DOF) distribution when the model is right, not a chi2. A batch's total is

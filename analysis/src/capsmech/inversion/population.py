@@ -104,7 +104,7 @@ named only if it also survives the drift test and every other law). Then:
 JSON (``capsmech.inversion.population_report``: ``verdict_dict``, ``write_verdict_json``;
 ``capsmech population --json FILE``)::
 
-    {"verdict": "law" | "none" | "cannot_tell",
+    {"verdict": "law" | "not_one_material" | "none" | "cannot_tell",
      "law": "NH" | null,                       # the law when verdict == "law"
      "candidates": ["GH_nu0.5", "SK_C1"],       # the law, the laws not told apart, or []
      "G_s": 0.0400 | null,                      # N/m, verdict == "law" only
@@ -126,6 +126,19 @@ JSON (``capsmech.inversion.population_report``: ``verdict_dict``, ``write_verdic
      "capsules": {"measured": 10, "used": 10,
                   "left_out": [{"id": "s003", "reason": "asymmetric contour: ..."}]}}
 
+One material or several
+------------------------
+The verdict's law's per-capsule G_s are then tested for one material against two
+(:mod:`capsmech.inversion.heterogeneity`: their scatter against each capsule's own uncertainty,
+``G_s_shape_error``, and one component against a two-component mixture of ln G_s by BIC). Two
+materials make ``kind = 'not_one_material'``: the law is still named, but no single G_s; the
+two groups with their G_s, intervals and members are in ``heterogeneity`` (JSON:
+``"heterogeneity": {"verdict": "not one material", "groups": [{"G_s": .., "G_s_interval": [..],
+"members": [..]}, ..], "chi2": .., "chi2_p": .., "bic_gain": .., ...}``). Where the capsules
+have their own uncertainties, the interval of the mean G_s is never narrower than they allow
+(the Student-t half-width uses the larger of the scatter's standard error and the weighted
+mean's): noisy tracing widens it.
+
 Numbers that cannot be computed are null (never NaN). ``status`` is one of 'verdict',
 'candidate', 'fits < half', 'drifts', 'misfits noise', 'worse contours', 'no verdict' (too few
 capsules).
@@ -142,6 +155,7 @@ from numpy.typing import ArrayLike
 from scipy import stats
 
 from capsmech.errors import CapsmechError
+from capsmech.inversion.heterogeneity import Heterogeneity, heterogeneity
 from capsmech.inversion.noise import DOF, GOODNESS_ALPHA, chi2_test
 from capsmech.io.contours import MAX_H_OVER_A
 
@@ -360,9 +374,9 @@ class PopulationVerdict:
     Attributes
     ----------
     kind : str
-        'law', 'cannot_tell' or 'none'.
+        'law', 'not_one_material', 'cannot_tell' or 'none'.
     best : str or None
-        The law when ``kind == 'law'``.
+        The law when ``kind`` is 'law' or 'not_one_material'.
     candidates : tuple of str
         The law, or the laws that cannot be told apart; empty for 'none'.
     reason : str
@@ -389,6 +403,9 @@ class PopulationVerdict:
         contour) or 'lengths' (at the length fit); see ``ESTIMATORS``.
     g_s_systematic : float
         The database's share of the verdict's interval [N/m] (NaN without a verdict).
+    heterogeneity : Heterogeneity or None
+        One material or several, on the reference law's per-capsule G_s (None where it has
+        no G_s).
     """
 
     kind: str
@@ -407,6 +424,7 @@ class PopulationVerdict:
     g_s_interval: tuple[float, float] | None = None
     estimator: str = "lengths"
     g_s_systematic: float = math.nan
+    heterogeneity: Heterogeneity | None = None
 
     def line(self) -> str:
         """The verdict on one line (what ``capsmech population`` prints)."""
@@ -418,6 +436,9 @@ class PopulationVerdict:
                      if interval is not None else "")
             return (f"verdict: {self.best}, G_s = {self.g_s:.4g} +- {self.g_s_std:.2g} N/m by {self.estimator} "
                     f"({where}{self.reason})")
+        if self.kind == "not_one_material":
+            # The reason opens with the groups (capsmech.inversion.heterogeneity).
+            return f"verdict: {self.best}, {self.reason}"
         if self.kind == "cannot_tell":
             names = " from ".join([", ".join(self.candidates[:-1]), self.candidates[-1]])
             where = (f"; G_s {self.g_s_interval[0]:.4g}-{self.g_s_interval[1]:.4g} N/m whichever it is"
@@ -442,17 +463,22 @@ def flag_of(row: Mapping[str, Any]) -> str:
     return str(flag)
 
 
-def _mean_interval(values: np.ndarray, systematic: float = 0.0) -> tuple[float, float, tuple[float, float]]:
+def _mean_interval(values: np.ndarray, systematic: float = 0.0,
+                   errors: np.ndarray | None = None) -> tuple[float, float, tuple[float, float]]:
     """(mean, std, 95 % interval of the mean), NaN where fewer than 2 values. The interval's
     half-width is the Student-t one and a systematic half-width (an error every value shares)
-    in quadrature."""
+    in quadrature; where every value has its own standard deviation (``errors``), the Student
+    t multiplies the larger of the scatter's standard error and that of the weighted mean."""
     if len(values) == 0:
         return math.nan, math.nan, (math.nan, math.nan)
     mean = float(values.mean())
     if len(values) < 2:
         return mean, math.nan, (math.nan, math.nan)
     std = float(values.std(ddof=1))
-    half = math.hypot(float(stats.t.ppf(1 - ALPHA / 2, len(values) - 1)) * std / math.sqrt(len(values)), systematic)
+    standard_error = std / math.sqrt(len(values))
+    if errors is not None and len(errors) == len(values) and np.all(np.isfinite(errors) & (errors > 0)):
+        standard_error = max(standard_error, float(np.sum(errors ** -2.0)) ** -0.5)
+    half = math.hypot(float(stats.t.ppf(1 - ALPHA / 2, len(values) - 1)) * standard_error, systematic)
     return mean, std, (mean - half, mean + half)
 
 
@@ -548,6 +574,8 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
     drift_notes: dict[str, str] = {}
     g_stats = {}
     g_systematic: dict[str, float] = {}
+    # Each law's per-capsule G_s with their ids and the contour fits' own uncertainties.
+    per_capsule: dict[str, tuple[list[str], np.ndarray, np.ndarray]] = {}
     for law in laws:
         if estimator == "contour fits":
             mine = [table[cid][law] for k, cid in enumerate(used) if math.isfinite(chi2[law][k])]
@@ -560,7 +588,10 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
         errors = np.array([number_of(r.get("G_s_database_error")) for r in mine])
         shared = errors[np.isfinite(g)]
         g_systematic[law] = float(np.mean(shared[np.isfinite(shared)])) if np.any(np.isfinite(shared)) else 0.0
-        g_stats[law] = _mean_interval(g[np.isfinite(g)], g_systematic[law])
+        own = np.array([number_of(r.get("G_s_shape_error")) if estimator == "contour fits" else math.nan
+                        for r in mine])
+        g_stats[law] = _mean_interval(g[np.isfinite(g)], g_systematic[law], own[np.isfinite(g)])
+        per_capsule[law] = ([str(r["id"]) for r in mine], g, own)
         try:
             drifts[law] = law_drift(law, delta, g, errors)
         except ValueError as exc:
@@ -663,6 +694,18 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
                       f"that drifts with Delta ({details})")
 
     reference = best or (candidates[0] if candidates else (eligible[0] if eligible else (order[0] if order else None)))
+    # One material or several, on the reference law's G_s: a mixed batch gets no single G_s.
+    mixture = None
+    if reference is not None and np.any(np.isfinite(per_capsule[reference][1])):
+        mean_g = g_stats[reference][0]
+        mixture = heterogeneity(*per_capsule[reference],
+                                systematic_rel=g_systematic[reference] / mean_g if mean_g > 0 else 0.0)
+    if mixture is not None and not mixture.one_material and kind in ("law", "cannot_tell"):
+        reason = f"{mixture.line()}; " + reason
+        if kind == "law":
+            kind, g_s, interval = "not_one_material", math.nan, None
+        else:
+            interval = None
     evidence = {}
     # The verdict and the candidates first, then by contour score.
     for law in sorted(order, key=lambda law: (law not in candidates, order.index(law))):
@@ -678,4 +721,5 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
                              reason=reason, evidence=evidence, drifts=drifts, p_better=p_better, reference=reference,
                              measured=len(ids), used=n, left_out=left_out, g_s=g_s, g_s_std=g_s_std,
                              g_s_interval=interval, estimator=estimator,
-                             g_s_systematic=g_systematic[best] if best is not None else math.nan)
+                             g_s_systematic=g_systematic[best] if best is not None else math.nan,
+                             heterogeneity=mixture)

@@ -109,7 +109,9 @@ def verdict_dict(verdict: PopulationVerdict) -> dict[str, Any]:
             "units": {"G_s": "N/m", "drift": "1/Delta", "score": "1"},
             "laws": laws,
             "capsules": {"measured": verdict.measured, "used": verdict.used,
-                         "left_out": [{"id": cid, "reason": why} for cid, why in verdict.left_out]}}
+                         "left_out": [{"id": cid, "reason": why} for cid, why in verdict.left_out]},
+            # One material or several (capsmech.inversion.heterogeneity), on the reference law's G_s.
+            "heterogeneity": verdict.heterogeneity.as_dict() if verdict.heterogeneity is not None else None}
 
 
 def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:

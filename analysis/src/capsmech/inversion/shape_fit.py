@@ -35,6 +35,15 @@ fit. The fit is reported by the paper's measure, H/a (``capsmech.io.contours.pro
 at the fitted parameters, over the fitted a. A fit that ends on the edge of the database (a
 step of ``EDGE_STEP`` in a/l or ln Ca_s leaves it) has its minimum outside what the database
 knows: no fit (NaN, with the reason).
+
+Uncertainty
+-----------
+The fitted point's covariance in (a/l, ln Ca_s) is the linearised least-squares one of the
+chi2's residual profile (``CHI2_POINTS`` points, each of variance sigma^2 plus the databases'
+accuracy there, sigma the contour's own tracing noise): (J^T W J)^-1, J the residuals'
+derivatives by central differences (``COVARIANCE_STEP``), scaled up by chi2 / DOF where the
+shape misses the contour by more than the noise. Noisy tracing thus widens a capsule's
+interval rather than discarding the capsule; the velocity's own error is not in it.
 """
 from __future__ import annotations
 
@@ -46,8 +55,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from capsmech.inversion.inverters import Fit, TubeInverter, profile_elongation
-from capsmech.inversion.noise import contour_chi2
+from capsmech.inversion.noise import CHI2_POINTS, DOF, contour_chi2
 from capsmech.inversion.residuals import PreparedContour
+from capsmech.inversion.sharp_edge import profile_floor
 from capsmech.io.contours import profile_misfit
 
 #: Points of the residual profile along the meridian in the fit's objective.
@@ -60,6 +70,10 @@ XATOL = 1e-3
 FATOL = 1e-3
 #: The objective outside the database.
 OUTSIDE = 1e12
+#: Step in a/l and ln Ca_s of the central differences behind the fitted point's covariance
+#: (about 0.5 px on a 100 px tube radius: far above the residual's resolution, within the
+#: profiles' linear range).
+COVARIANCE_STEP = 5e-3
 
 
 @dataclass
@@ -80,6 +94,9 @@ class ShapeFit(Fit):
         The contour's chi2 at the fitted profile against its own tracing noise and the
         databases' accuracy (``capsmech.inversion.noise.contour_chi2``; ``DOF`` = 14 degrees of
         freedom when the law's shape is the capsule's; NaN when flagged).
+    covariance : np.ndarray or None
+        Covariance (2, 2) of (a/l, ln Ca_s) at the fitted point (module: Uncertainty); None
+        when flagged or when a step of ``COVARIANCE_STEP`` leaves the database.
     """
 
     a_over_l: float = math.nan
@@ -87,6 +104,7 @@ class ShapeFit(Fit):
     H_over_a: float = math.nan
     Delta: float = math.nan
     chi2: float = math.nan
+    covariance: np.ndarray | None = None
 
 
 def on_database_edge(inverter: TubeInverter, a_over_l: float, Ca_s: float, step: float = EDGE_STEP) -> bool:
@@ -157,8 +175,35 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
     if meridian is None:   # not reached: on_database_edge checked the point's neighbours and the objective the point
         return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
-    chi2, _ = contour_chi2(prepared, meridian * tube_radius,
-                           float(np.ptp(contour[:, 0])) if length is None else length, frames_noise, tube_radius)
+    length = float(np.ptp(contour[:, 0])) if length is None else length
+    chi2, sigma = contour_chi2(prepared, meridian * tube_radius, length, frames_noise, tube_radius)
+    variance = sigma ** 2 + profile_floor(meridian * tube_radius, length, CHI2_POINTS, tube_radius) ** 2
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
-                    Delta=profile_elongation(meridian, a_fit), chi2=chi2)
+                    Delta=profile_elongation(meridian, a_fit), chi2=chi2,
+                    covariance=fit_covariance(prepared, inverter, tube_radius, (a_fit, ca_fit), variance, chi2))
+
+
+def fit_covariance(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float,
+                   point: tuple[float, float], variance: np.ndarray, chi2: float) -> np.ndarray | None:
+    """Covariance (2, 2) of (a/l, ln Ca_s) at a fitted ``point`` (a/l, Ca_s): (J^T W J)^-1 of the
+    ``CHI2_POINTS`` residuals of the prepared contour, W their inverse ``variance`` [contour
+    units^2], scaled by chi2 / DOF where above 1; None where a step leaves the database or the
+    residuals do not constrain both parameters."""
+    if not (np.all(np.isfinite(variance)) and np.all(variance > 0)):
+        return None
+    columns = []
+    for da, dc in ((COVARIANCE_STEP, 0.0), (0.0, COVARIANCE_STEP)):
+        sides = []
+        for sign in (1.0, -1.0):
+            meridian = inverter.profile(point[0] + sign * da, point[1] * math.exp(sign * dc))
+            if meridian is None:
+                return None
+            sides.append(prepared.residual(meridian * tube_radius, points=CHI2_POINTS)[1])
+        columns.append((sides[0] - sides[1]) / (2 * COVARIANCE_STEP))
+    jacobian = np.column_stack(columns)
+    information = jacobian.T @ (jacobian / variance[:, None])
+    if not np.all(np.isfinite(information)) or np.linalg.det(information) <= 0:
+        return None
+    inflation = max(1.0, chi2 / DOF) if math.isfinite(chi2) else 1.0
+    return np.linalg.inv(information) * inflation
 

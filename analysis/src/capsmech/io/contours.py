@@ -41,6 +41,19 @@ MAX_H_OVER_A = 0.06
 #: gives ~0.01 a (the best axis takes up half of the difference).
 MAX_ASYMMETRY = 0.01
 ASYMMETRY_PIXELS = 1.0
+#: ... or by more than this many times the contour's own tracing noise (``contour_tracing_noise``):
+#: a symmetric capsule traced with noise of 1.35-2 px has halves that differ by 1.2-1.3 times
+#: that estimate on average, at most 1.6 (the independent generator's NH, GH, SK, pre-stressed,
+#: bending and deep-parachute contours, 144 at each noise), so noisy tracing widens the capsule's
+#: uncertainty instead of discarding it; one half 15 % wider than the other under +-1 px of
+#: noise (2.2 times) and an off-centre capsule (0.04-0.07 a) stay flagged. Below about 0.6 px
+#: of noise the one-pixel limit is the larger.
+ASYMMETRY_NOISE_FACTOR = 2.0
+#: Fourier harmonics of the smooth closed curve the tracing noise is measured about: one per
+#: ``POINTS_PER_HARMONIC`` contour points, within ``NOISE_HARMONICS`` (fewer would leave a
+#: parachute's rim in the residual, more would absorb the noise).
+POINTS_PER_HARMONIC = 8
+NOISE_HARMONICS = (6, 40)
 #: Points each curve is resampled to before distances are measured, so that the distance
 #: measures the curves and not their sampling.
 RESAMPLE_POINTS = 1000
@@ -199,6 +212,37 @@ def symmetry_axis(contour: np.ndarray) -> tuple[float, float]:
     return float(best.x), float(best.fun)
 
 
+def contour_tracing_noise(contour: np.ndarray) -> float:
+    """The contour's tracing noise [its units]: the rms normal residual of its points about a
+    smooth closed curve, a Fourier series in arclength (``POINTS_PER_HARMONIC``), over the
+    residual's degrees of freedom. It needs neither the capsule's symmetry nor a model, so an
+    asymmetric shape does not count as noise (the halves' difference of
+    ``capsmech.inversion.noise`` does). Noise correlated along the contour is partly taken up by
+    the smooth curve: on the independent generator's contours (normal noise, AR(1) rho 0.5 at
+    2.5 px steps) it reads 0.74-0.84 of the noise's sigma. NaN for fewer than 4 points a
+    harmonic."""
+    points = np.asarray(contour, dtype=float)
+    step = np.hypot(*np.diff(np.vstack([points, points[:1]]), axis=0).T)
+    points = points[step > 0]
+    step = step[step > 0]
+    harmonics = int(np.clip(len(points) // POINTS_PER_HARMONIC, *NOISE_HARMONICS))
+    unknowns = 2 * harmonics + 1
+    if len(points) < 2 * unknowns:
+        return math.nan
+    t = 2 * np.pi * np.concatenate([[0.0], np.cumsum(step[:-1])]) / step.sum()
+    k = np.arange(1, harmonics + 1)
+    basis = np.column_stack([np.ones_like(t), np.cos(np.outer(t, k)), np.sin(np.outer(t, k))])
+    slope = np.column_stack([np.zeros_like(t), -k * np.sin(np.outer(t, k)), k * np.cos(np.outer(t, k))])
+    # The normal equations (the basis is near-orthogonal at near-uniform arclength steps), summed
+    # by einsum: an SVD least-squares solve of this size stalls for tenths of a second when the
+    # BLAS threads compete with other processes.
+    coefficients = np.linalg.solve(np.einsum("ni,nj->ij", basis, basis), np.einsum("ni,nk->ik", basis, points))
+    tangent = slope @ coefficients
+    tangent /= np.hypot(*tangent.T)[:, None]
+    normal_residual = np.sum((points - basis @ coefficients) * tangent[:, ::-1] * [1.0, -1.0], axis=1)
+    return float(np.sqrt(np.sum(normal_residual ** 2) / (len(points) - unknowns)))
+
+
 def contour_asymmetry(contour: np.ndarray, pixel_size: float = math.nan) -> tuple[float, float, float]:
     """How far a contour is from mirror symmetry about its best axis, and the flag's limit.
 
@@ -208,7 +252,8 @@ def contour_asymmetry(contour: np.ndarray, pixel_size: float = math.nan) -> tupl
         The mirror distance (``symmetry_axis``) over the radius of the capsule's
         volume-equivalent size estimated from the contour itself; the limit above which the
         contour is flagged asymmetric (``MAX_ASYMMETRY``, or ``ASYMMETRY_PIXELS`` pixels when
-        ``pixel_size`` is known and that is larger); the axis y0.
+        ``pixel_size`` is known, or ``ASYMMETRY_NOISE_FACTOR`` times the contour's own tracing
+        noise, ``contour_tracing_noise``, whichever is largest); the axis y0.
     """
     axis_y, mirror_distance = symmetry_axis(contour)
     radius = volume_radius(contour, axis_y)
@@ -218,6 +263,9 @@ def contour_asymmetry(contour: np.ndarray, pixel_size: float = math.nan) -> tupl
         return math.inf, limit, axis_y
     if math.isfinite(pixel_size):
         limit = max(MAX_ASYMMETRY, ASYMMETRY_PIXELS * pixel_size / radius)
+    noise = contour_tracing_noise(contour)
+    if math.isfinite(noise):
+        limit = max(limit, ASYMMETRY_NOISE_FACTOR * noise / radius)
     return mirror_distance / radius, limit, axis_y
 
 
