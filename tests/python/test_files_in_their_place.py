@@ -88,3 +88,12 @@ def test_a_field_beyond_the_csv_limit_is_one_line_naming_the_file(tmp_path: Path
 def test_a_database_too_small_to_fit_against_is_a_user_error(tmp_path: Path) -> None:
     line = one_error_line(capsmech("fit-tube", str(EXAMPLE), "--database", "tube-smoke", "--law", "NH", cwd=tmp_path))
     assert "steady rows" in line and "at least" in line
+
+
+@pytest.mark.parametrize("cell", ["-1e30806632", "inf", "1e400"])
+def test_an_infinite_result_cell_is_refused_by_population(tmp_path: Path, cell: str) -> None:
+    """fit-tube writes 'nan' for no value, never an infinity: such a cell is damage, named by line and field."""
+    results = tmp_path / "r.csv"
+    results.write_text(f"id,law,Delta [1],G_s [N/m],flag\na,NH,0.1,{cell},\nb,NH,0.1,0.04,\n")
+    line = one_error_line(capsmech("population", "r.csv", cwd=tmp_path))
+    assert "r.csv:2: field 'G_s'" in line and "infinite" in line

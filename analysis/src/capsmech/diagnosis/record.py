@@ -21,6 +21,7 @@ from capsmech.diagnosis.goodness import GoodnessOfFit
 from capsmech.diagnosis.report import batch_heterogeneity
 from capsmech.diagnosis.scoring import G_S_LEVEL, CandidateResult, g_s_half_width
 from capsmech.diagnosis.sequential import SequentialDiagnosis
+from capsmech.io.atomic import write_text_atomically
 
 
 def _number(value: float) -> float | None:
@@ -167,8 +168,4 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
 
 def write_json(outcome: Diagnosis | SequentialDiagnosis, path: str | Path, batch: str = "") -> Path:
     """Write ``diagnosis_record`` to ``path`` whole (temporary name, then renamed)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(diagnosis_record(outcome, batch), indent=1) + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return write_text_atomically(path, json.dumps(diagnosis_record(outcome, batch), indent=1) + "\n")

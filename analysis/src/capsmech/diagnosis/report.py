@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from capsmech.io.atomic import write_text_atomically
+
 if TYPE_CHECKING:
     from capsmech.diagnosis.diagnose import Diagnosis
     from capsmech.diagnosis.scoring import CandidateResult
@@ -199,7 +201,4 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
                   "criteria": "Criterion per candidate"}
         for name, path in write_figures(diagnosis, out.with_suffix("")).items():
             lines += [f"![{titles[name]}]({path.name})", ""]
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text("\n".join(lines), encoding="utf-8")
-    tmp.replace(out)
-    return out
+    return write_text_atomically(out, "\n".join(lines))

@@ -28,22 +28,19 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from capsmech.imaging.extraction import CapsuleMeasurement, Channel, FrameResult, Walls
+from capsmech.io.atomic import atomic_path, write_text_atomically
 
 
 def _write_text(path: Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary name (whole or not at all)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text_atomically(path, text)
 
 
 def _g(value: float, digits: int = 6) -> str:
@@ -184,9 +181,8 @@ def write_overlay(path: str | Path, image: np.ndarray, frame: FrameResult, walls
     ax.set_axis_off()
     fig.text(0.01, 1 - 0.3 / fig.get_figheight(), title, fontsize=9, va="center")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path
 
 
@@ -210,9 +206,8 @@ def _figure(image: np.ndarray, title: str):
 def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path
 
 

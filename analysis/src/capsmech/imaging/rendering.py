@@ -15,7 +15,6 @@ positions and any blur are rendered without supersampling.
 """
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,6 +22,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import erf
+
+from capsmech.io.atomic import atomic_path
 
 #: Curve points are placed at most this far apart (px) before distances are taken.
 _SAMPLE_SPACING_PX = 0.05
@@ -254,7 +255,6 @@ def write_tiff_stack(path: str | Path, frames: np.ndarray, pixel_size_um: float 
         resolution = (1 / pixel_size_um, 1 / pixel_size_um)
     if frame_rate is not None:
         metadata["finterval"] = 1 / frame_rate
-    tmp = path.with_name(path.name + ".tmp")
-    tifffile.imwrite(tmp, frames, imagej=True, metadata=metadata, resolution=resolution)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(tmp, frames, imagej=True, metadata=metadata, resolution=resolution)
     return path

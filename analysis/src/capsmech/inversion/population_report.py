@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,6 +25,7 @@ from capsmech.inversion.population import (
     flag_of,
     number_of,
 )
+from capsmech.io.atomic import write_text_atomically
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -118,14 +118,7 @@ def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:
     """Write ``verdict_dict(verdict)`` to ``path`` whole or not at all (temporary file renamed)."""
     path = Path(path)
     text = json.dumps(verdict_dict(verdict), indent=2, allow_nan=False) + "\n"
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return write_text_atomically(path, text)
 
 
 def read_results(path: str | Path) -> list[dict[str, Any]]:

@@ -17,6 +17,7 @@ Latin-1). Values stay the strings the file holds; ``population`` converts them.
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,6 +41,13 @@ def _kind_hint(names: list[str]) -> str:
     if "D12" in names or "L1" in names:
         return " (it looks like a shear file or fit-shear's results: population compares tube fits)"
     return " (expected the results that `capsmech fit-tube --out RESULTS.csv` writes)"
+
+
+def _cells(path: Path, number: int, text: str) -> list[str]:
+    try:
+        return next(csv.reader([text]), [])
+    except csv.Error as err:
+        raise ResultsFileError(f"{path}:{number}: {err} (no field of a results file is that long)") from None
 
 
 def read_results_csv(path: str | Path, required: Sequence[str] = REQUIRED) -> list[dict[str, str]]:
@@ -67,8 +75,7 @@ def read_results_csv(path: str | Path, required: Sequence[str] = REQUIRED) -> li
     """
     path = Path(path)
     lines = split_lines(read_text(path, MAX_RESULTS_BYTES, "results file", ResultsFileError))
-    rows = ((number, row) for number, text in enumerate(lines, start=1) if text.strip()
-            for row in csv.reader([text]))
+    rows = ((number, _cells(path, number, text)) for number, text in enumerate(lines, start=1) if text.strip())
     first = next(rows, None)
     if first is None:
         raise ResultsFileError(f"{path}: empty: no header line (expected fit-tube's results)")
@@ -88,9 +95,13 @@ def read_results_csv(path: str | Path, required: Sequence[str] = REQUIRED) -> li
         for name, is_number, cell in zip(names, numeric, row):
             if is_number and cell.strip():
                 try:
-                    float(cell)
+                    value = float(cell)
                 except ValueError:
                     raise ResultsFileError(f"{path}:{number}: field {name!r}: {cell!r} is not a number") from None
+                # fit-tube writes 'nan' for no value, never an infinity: '-1e30806632' is damage.
+                if math.isinf(value):
+                    raise ResultsFileError(f"{path}:{number}: field {name!r}: {cell[:40]!r} is infinite once read "
+                                           "(no result is)")
         out.append(dict(zip(names, row)))
     if not out:
         raise ResultsFileError(f"{path}: no result rows after the header")
