@@ -97,3 +97,24 @@ def test_an_infinite_result_cell_is_refused_by_population(tmp_path: Path, cell: 
     results.write_text(f"id,law,Delta [1],G_s [N/m],flag\na,NH,0.1,{cell},\nb,NH,0.1,0.04,\n")
     line = one_error_line(capsmech("population", "r.csv", cwd=tmp_path))
     assert "r.csv:2: field 'G_s'" in line and "infinite" in line
+
+
+FILM = ROOT / "data" / "examples" / "frames" / "capsule_NH.tif"
+
+
+@pytest.mark.parametrize("capsule_id", ["../../ESCAPED", "{absolute}", "a/b", "..", ".hidden", "x" * 101])
+def test_an_id_that_is_not_a_plain_name_is_refused_before_any_file(tmp_path: Path, capsule_id: str) -> None:
+    """An id names its contour file: ``--id ../../ESCAPED`` wrote outside the output folders."""
+    work = tmp_path / "a" / "b"
+    work.mkdir(parents=True)
+    given = capsule_id.format(absolute=tmp_path / "abs")
+    line = one_error_line(capsmech("extract", str(FILM), "--id", given, "--out", "m.csv", cwd=work))
+    assert "--id" in line and "cannot be an id" in line
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["a", "a/b"]
+
+
+def test_a_plain_id_names_the_contour_file_inside_the_output_folder(tmp_path: Path) -> None:
+    done = capsmech("extract", str(FILM), "--id", "cap.01-x", "--out", "m.csv", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    names = sorted(p.name for p in (tmp_path / "m_contours").iterdir())
+    assert names and all(n == "cap.01-x.txt" or n.startswith("cap.01-x-") for n in names)

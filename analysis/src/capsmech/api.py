@@ -506,7 +506,7 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         read_frame_times,
         read_frames,
     )
-    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, RATE_UNITS_HZ, default_ids
+    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, RATE_UNITS_HZ, check_id, default_ids
 
     paths = [frames] if isinstance(frames, (str, Path)) else list(frames)
     pixel_um = _quantity(pixel_size, "pixel_size", PIXEL_UNITS_UM, "um")
@@ -548,7 +548,8 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
                                      channel_width_tolerance=channel_width_tolerance)
     bar.close()
     measurements = measure_capsules(results, rate, settings, independent_events=bool(channel.independent_events))
-    ids = default_ids(capsule_id or Path(stack.labels[0].split("[")[0]).stem, len(measurements))
+    ids = default_ids(check_id(capsule_id) if capsule_id else Path(stack.labels[0].split("[")[0]).stem,
+                      len(measurements))
     rows = []
     for cap_id, cap in zip(ids, measurements):
         flag = "" if cap.ok else ("too_few_frames" if "good frame" in cap.problem else
@@ -613,7 +614,7 @@ def extract_shear(frames: str | Path | Sequence[str | Path], pixel_size: float |
     from tqdm import tqdm
 
     from capsmech.errors import ExtractionError
-    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM
+    from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, check_id, default_ids
     from capsmech.imaging.frames import read_frames
     from capsmech.imaging.shear_plane import ShearSettings, measure_stack
 
@@ -634,7 +635,8 @@ def extract_shear(frames: str | Path | Sequence[str | Path], pixel_size: float |
 
     try:
         return measure_stack(stack.frames, stack.labels, float(pixel_um), settings,
-                             stem=capsule_id or Path(stack.labels[0].split("[")[0]).stem, one_capsule=one_capsule,
+                             stem=check_id(capsule_id) if capsule_id else default_ids(
+                                 Path(stack.labels[0].split("[")[0]).stem, 1)[0], one_capsule=one_capsule,
                              background=bg, progress=advance)
     finally:
         bar.close()

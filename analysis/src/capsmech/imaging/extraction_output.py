@@ -28,11 +28,13 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from capsmech.errors import ExtractionError
 from capsmech.imaging.extraction import CapsuleMeasurement, Channel, FrameResult, Walls
 from capsmech.io.atomic import atomic_path, write_text_atomically
 
@@ -112,7 +114,7 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     header += ["contour [px]", "contour_noise [px]", "tube_radius_sigma [um]"] + (["width_check"] if verdict else [])
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
-        contour_path = contour_dir / f"{cap_id}.txt"
+        contour_path = contour_dir / f"{check_id(cap_id, 'id')}.txt"
         contour = cap.trace.contour if cap.trace is not None else by_index[cap.representative].contour
         assert contour is not None  # the representative frame is a measured one
         _write_text(contour_path, contour_text(contour))
@@ -271,8 +273,6 @@ def parse_quantity(text: str, option: str, units: dict[str, float], default_unit
     """
     import re
 
-    from capsmech.imaging.extraction import ExtractionError
-
     match = re.match(_QUANTITY, str(text))
     unit = ((match["unit"] or "") if match else "").strip()
     key = unit if unit in units else unit.lower()
@@ -286,6 +286,21 @@ def parse_quantity(text: str, option: str, units: dict[str, float], default_unit
     return value
 
 
+#: A capsule id names its contour file (``<csv stem>_contours/<id>.txt``): a plain file name,
+#: never a path, so that no id can put a file outside the output's folder.
+ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,99}")
+
+
+def check_id(capsule_id: str, option: str = "--id") -> str:
+    """``capsule_id`` if it is a plain name (:data:`ID_PATTERN`), else an ExtractionError."""
+    if not ID_PATTERN.fullmatch(capsule_id):
+        raise ExtractionError(f"{option}: {capsule_id!r} cannot be an id: it names the capsule's contour file, so "
+                              "it is 1-100 letters, digits and . _ + - starting with a letter or digit")
+    return capsule_id
+
+
 def default_ids(stem: str, count: int) -> list[str]:
-    """Capsule ids: the stem alone for one capsule, else stem-1, stem-2, ..."""
+    """Capsule ids: the stem alone for one capsule, else stem-1, stem-2, ... (a file name's
+    characters that are no id's become '_')."""
+    stem = re.sub(r"[^A-Za-z0-9._+-]", "_", stem)[:90].lstrip("._+-") or "capsule"
     return [stem] if count == 1 else [f"{stem}-{k + 1}" for k in range(count)]
