@@ -48,7 +48,7 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@pytest.mark.parametrize("what", ["population --json"])
+@pytest.mark.parametrize("what", ["population --json", "population --out"])
 def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, results: Path, what: str) -> None:
     option = what.split()[1]
     target = tmp_path / "disk" / ("verdict.json" if option == "--json" else "verdict.csv")

@@ -45,6 +45,7 @@ from scipy.special import erf
 from skimage.measure import EllipseModel, label, regionprops
 
 from capsmech.errors import ExtractionError
+from capsmech.io.atomic import atomic_path, write_text_atomically
 from capsmech.io.measurements import Capsule
 
 #: Coverage factor of the stated uncertainties (two standard deviations: about 95 %).
@@ -601,9 +602,11 @@ class ShearExtraction:
                  "theta": c.theta_deg, "theta_err": c.theta_err_deg} for c in self.capsules]
 
     def measurements(self, shear_rate: float, mu: float) -> list[Capsule]:
-        """The capsules as ``fit_shear`` takes them (SI units: m, 1/s, Pa s; theta as its size)."""
+        """The capsules as ``fit_shear`` takes them (SI units: m, 1/s, Pa s; theta as its size;
+        D12_err, at ``COVERAGE``, as the CSV that ``write_shear_measurements`` writes has it)."""
         return [Capsule(c.id, {"L1": c.L1_px * self.pixel_size_um * 1e-6, "L2": c.L2_px * self.pixel_size_um * 1e-6,
-                               "theta": math.radians(abs(c.theta_deg)), "shear_rate": shear_rate, "mu": mu}, line=0)
+                               "theta": math.radians(abs(c.theta_deg)), "shear_rate": shear_rate, "mu": mu,
+                               "D12_err": c.D12_err if 0 <= c.D12_err < 1 else math.nan}, line=0)
                 for c in self.capsules]
 
 
@@ -689,10 +692,7 @@ def _cell(value: object) -> str:
 
 def _write(path: Path, lines: list[str]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return write_text_atomically(path, "\n".join(lines) + "\n")
 
 
 def write_report(path: str | Path, rows: Sequence[dict[str, object]]) -> Path:
@@ -705,17 +705,21 @@ def write_report(path: str | Path, rows: Sequence[dict[str, object]]) -> Path:
 def write_shear_measurements(path: str | Path, extraction: ShearExtraction, shear_rate: float, mu: float,
                              report: str | Path | None = None, source: str = "") -> Path:
     """The measurement CSV that ``fit-shear`` reads (``capsmech.io.measurements``: id, L1, L2,
-    theta, shear_rate [1/s], mu [Pa s]); the uncertainties are in the report, named in a comment."""
+    theta, shear_rate [1/s], mu [Pa s], D12_err at ``COVERAGE``, which fit-shear turns into G_s's
+    spread); every uncertainty is in the report, named in a comment."""
     lines = [f"# capsmech extract-shear{': ' + source if source else ''}"]
     if report is not None:
         lines.append(f"# ellipses, D12 and theta with their uncertainties ({COVERAGE:g} sigma): {report}")
-    lines.append("id,L1 [um],L2 [um],theta [deg],shear_rate [1/s],mu [Pa s]")
+    lines.append(f"# D12_err: D12's uncertainty at {COVERAGE:g} standard deviations")
+    lines.append("id,L1 [um],L2 [um],theta [deg],shear_rate [1/s],mu [Pa s],D12_err [1]")
     um = extraction.pixel_size_um
     for cap in extraction.capsules:
         # fit-shear reads theta as the inclination in (0, 90) deg: its size; the sign is the screen's.
         theta = abs(cap.theta_deg)
         lines.append(",".join([_cell(cap.id), f"{cap.L1_px * um:.6g}", f"{cap.L2_px * um:.6g}",
-                               f"{theta:.6g}" if 0 < theta < 90 else "", f"{shear_rate:.6g}", f"{mu:.6g}"]))
+                               f"{theta:.6g}" if 0 < theta < 90 else "", f"{shear_rate:.6g}", f"{mu:.6g}",
+                               # An error of 1 or more says nothing of D12 in [0, 1): left empty.
+                               _cell(float(cap.D12_err)) if 0 <= cap.D12_err < 1 else ""]))
     return _write(Path(path), lines)
 
 
@@ -751,7 +755,6 @@ def write_shear_overlay(path: str | Path, extraction: ShearExtraction, frame: in
     ax.set_title(f"frame {frame}: {objects[0][1].source if objects else ''}", fontsize=8)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, format="png")
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path

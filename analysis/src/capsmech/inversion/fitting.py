@@ -3,7 +3,9 @@ and ``capsmech fit-shear`` wrap.
 
 ``fit_tube(capsules, database, laws)`` returns one result row per (capsule, law): the five
 fits of paper section 4.2 reduced to a mean and a spread (half the range of the valid fits)
-for a/l, Ca_s, v_c/V and G_s, the number of valid fits, where the capsule has a contour its
+for a/l, Ca_s, v_c/V and G_s (where the capsule states its tube radius's uncertainty,
+``tube_radius_sigma``, what the fits at l +- sigma_l move a/l, Ca_s and G_s by is added to the
+spreads in quadrature, and G_s's share is ``G_s_tube_radius_error``), the number of valid fits, where the capsule has a contour its
 misfit H/a at the central fit and the law's best shape on it (``a_over_l_shape``,
 ``Ca_s_shape``, ``H_over_a_shape``, and ``G_s_shape``, ``Delta_shape`` there: the contour fit of
 ``capsmech.inversion.shape_fit``; ``chi2_shape``, the contour's chi2 there against its own
@@ -18,7 +20,8 @@ where the law fits no lengths, the contour is asymmetric or the fit ends on the 
 edge), and a flag with its reason when the
 capsule cannot be fitted (outside the database, no valid fit): ``flag`` is a short code
 (``FLAG_CODES``; empty when the capsule is fitted) and ``reason`` says why in words.
-``fit_shear`` does the same from D12 (paper section 4.3). Rows are plain dicts of floats and
+``fit_shear`` does the same from D12 (paper section 4.3), with ``G_s_spread`` from D12's
+stated uncertainty (``D12_err``) where the capsule has one. Rows are plain dicts of floats and
 strings, in SI units (G_s in N/m), ready for ``write_results`` (CSV and HDF5, written whole or
 not at all); the public API (``capsmech.fit_tube``) turns them into a DataFrame.
 """
@@ -26,7 +29,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -49,6 +51,7 @@ from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import COVARIANCE_STEP, ShapeFit, fit_shape
 from capsmech.inversion.sharp_edge import interpolated_accuracy, is_steady_root, smooth_accuracy
+from capsmech.io.atomic import atomic_path
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
     MAX_H_OVER_A,
@@ -62,15 +65,16 @@ from capsmech.io.measurements import Capsule
 #: Result columns and their units.
 TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "a_over_l": "1", "a_over_l_spread": "1", "Ca_s": "1", "Ca_s_spread": "1",
-                     "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "a": "m", "Delta": "1",
+                     "vc_over_V": "1", "G_s": "N/m", "G_s_spread": "N/m", "G_s_tube_radius_error": "N/m",
+                     "a": "m", "Delta": "1",
                      "valid_fits": "1", "H_over_a": "1", "a_over_l_shape": "1",
                      "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1",
                      "chi2_shape": "1", "G_s_shape_error": "N/m", "tracing_noise": "m",
                      "G_s_database_error": "N/m", "asymmetry": "1", "size_residual": "1",
                      "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
                      "reason": ""}
-SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
-                      "G_s": "N/m", "G_s_database_error": "N/m", "flag": "", "reason": ""}
+SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "D12_err": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
+                      "G_s": "N/m", "G_s_spread": "N/m", "G_s_database_error": "N/m", "flag": "", "reason": ""}
 
 #: The codes of a result row's ``flag`` column (empty: fitted), and what each means.
 FLAG_CODES = {
@@ -142,6 +146,7 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
     laws = list(laws) if laws is not None else list(database.laws)
     inverters = {law: tube_inverter(database, law) for law in laws}
     five = _five_fits_many(capsules, inverters)
+    radius_moved = _tube_radius_fits_many(capsules, inverters)
     rows = []
     for k, capsule in enumerate(tqdm(capsules, desc="fitting", unit="capsule", disable=not progress, leave=False)):
         l = capsule["tube_radius"]
@@ -162,7 +167,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "a_over_l": fits.mean("a_over_l"), "a_over_l_spread": fits.spread("a_over_l"),
                                    "Ca_s": fits.mean("Ca_s"), "Ca_s_spread": fits.spread("Ca_s"),
                                    "vc_over_V": fits.mean("vc_over_V"), "G_s": fits.mean("G_s"),
-                                   "G_s_spread": fits.spread("G_s"), "a": fits.mean("a_over_l") * l,
+                                   "G_s_spread": fits.spread("G_s"), "G_s_tube_radius_error": float("nan"),
+                                   "a": fits.mean("a_over_l") * l,
                                    "Delta": float("nan"), "valid_fits": fits.n_valid,
                                    "H_over_a": float("nan"), "a_over_l_shape": float("nan"),
                                    "Ca_s_shape": float("nan"), "H_over_a_shape": float("nan"),
@@ -173,6 +179,8 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                                    "vc_residual": float("nan"), "vc_residual_error": float("nan"), "flag": "",
                                    "reason": ""}
             central = fits.fits["fit1"]
+            if k in radius_moved[law]:
+                _add_tube_radius_error(row, fits, *radius_moved[law][k])
             meridian = inverters[law].profile(central.a_over_l, central.Ca_s) if central.ok else None
             if meridian is not None:
                 row["Delta"] = profile_elongation(meridian, central.a_over_l)
@@ -277,11 +285,60 @@ def database_g_s_error(inverter: TubeInverter, L_z: float, L_p: float, v_c: floa
     return math.hypot(*database_g_s_shifts(inverter, L_z, L_p, v_c, mu, fit))
 
 
-def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]) -> dict[str, TubeFits]:
+def _tube_radius_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter]
+                           ) -> dict[str, dict[int, tuple[FiveFits, FiveFits]]]:
+    """The five fits of every capsule that states its tube radius's uncertainty sigma_l
+    (``tube_radius_sigma``, finite and positive), redone with the radius at l + sigma_l and at
+    l - sigma_l: ``result[law][k]`` is that pair for capsule k, the fits a refit of the capsule
+    with its tube radius moved would give. The lengths are measured in l, so an error of l
+    moves L_z/l and L_p/l together, as no fit of the five does. Capsules without the column
+    are not refitted."""
+    moved = [k for k, c in enumerate(capsules)
+             if math.isfinite(c["tube_radius_sigma"]) and c["tube_radius_sigma"] > 0]
+    if not moved:
+        return {law: {} for law in inverters}
+    chosen = [capsules[k] for k in moved]
+    l = np.array([c["tube_radius"] for c in chosen], dtype=float)
+    sigma = np.array([c["tube_radius_sigma"] for c in chosen], dtype=float)
+    wider, narrower = _five_fits_many(chosen, inverters, l + sigma), _five_fits_many(chosen, inverters, l - sigma)
+    return {law: {k: (_five_of(wider[law], j, len(chosen)), _five_of(narrower[law], j, len(chosen)))
+                  for j, k in enumerate(moved)} for law in inverters}
+
+
+def _five_of(fits: TubeFits, k: int, capsules: int) -> FiveFits:
+    """Capsule k's five fits out of ``_five_fits_many``'s result for ``capsules`` capsules."""
+    return FiveFits({name: fits.row(j * capsules + k) for j, (name, _, _) in enumerate(FIVE_FITS)})
+
+
+def _add_tube_radius_error(row: dict[str, Any], fits: FiveFits, wider: FiveFits, narrower: FiveFits) -> None:
+    """Add what the tube radius's uncertainty moves a/l, Ca_s and G_s by (the means of the
+    five fits, ``fits`` at l, ``wider`` and ``narrower`` at l +- sigma_l) to their spreads, in
+    quadrature, and write G_s's share in ``G_s_tube_radius_error``: half the change between
+    l + sigma_l and l - sigma_l (one standard deviation), or the change from l of the side that
+    has a valid fit where the other leaves the database (spreads unchanged where neither is
+    known)."""
+    for name, spread in (("a_over_l", "a_over_l_spread"), ("Ca_s", "Ca_s_spread"), ("G_s", "G_s_spread")):
+        ends = [value for value in (wider.mean(name), narrower.mean(name)) if math.isfinite(value)]
+        if len(ends) == 2:
+            change = 0.5 * abs(ends[0] - ends[1])
+        elif len(ends) == 1 and math.isfinite(fits.mean(name)):
+            change = abs(ends[0] - fits.mean(name))
+        else:
+            continue
+        if math.isfinite(row[spread]):
+            row[spread] = math.hypot(row[spread], change)
+        if name == "G_s":
+            row["G_s_tube_radius_error"] = change
+
+
+def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter],
+                    tube_radius: np.ndarray | None = None) -> dict[str, TubeFits]:
     """The five fits of every capsule with every law, in one ``fit_many`` call per law:
     ``result[law].row(j * len(capsules) + k)`` is fit j of ``FIVE_FITS`` for capsule k, what
-    ``inverters[law].five_fits`` gives (v_c and mu only where both are finite)."""
-    l = np.array([c["tube_radius"] for c in capsules], dtype=float)
+    ``inverters[law].five_fits`` gives (v_c and mu only where both are finite); lengths in
+    ``tube_radius`` where given (one per capsule), else in each capsule's own."""
+    l = (np.array([c["tube_radius"] for c in capsules], dtype=float) if tube_radius is None
+         else np.asarray(tube_radius, dtype=float))
     l_z = np.array([c["L_z"] for c in capsules], dtype=float) / l
     l_p = np.array([c["L_p"] for c in capsules], dtype=float) / l
     v_c = np.array([c["v_c"] for c in capsules], dtype=float)
@@ -298,19 +355,47 @@ def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInvert
 
 def fit_shear_rows(capsules: Sequence[Capsule], database: ShearDatabase, laws: Iterable[str] | None = None
                    ) -> list[dict[str, Any]]:
-    """Fit every sheared capsule (semi-axes L1, L2, shear rate, viscosity) with every law."""
+    """Fit every sheared capsule (semi-axes L1, L2, shear rate, viscosity) with every law.
+
+    Where the capsule states D12's uncertainty (``D12_err``), ``G_s_spread`` is the largest
+    change of G_s between the fit and the refits at D12 - D12_err and D12 + D12_err
+    (``shear_g_s_spread``), so that G_s +- G_s_spread holds both; NaN without the column, or
+    where neither refit is inside the database.
+    """
     laws = list(laws) if laws is not None else list(database.laws)
     inverters = {law: shear_inverter(database, law) for law in laws}
     rows = []
     for capsule in capsules:
         l1, l2 = capsule["L1"], capsule["L2"]
+        d12_err = capsule["D12_err"]
         for law in laws:
             fit = inverters[law].fit(L1=l1, L2=l2, shear_rate=capsule["shear_rate"], mu=capsule["mu"])
-            rows.append({"id": capsule.id, "law": law, "D12": (l1 - l2) / (l1 + l2), "Ca_s": fit.Ca_s,
-                         "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s,
-                         "G_s_database_error": fit.G_s * fit.database_error_rel,
+            spread = math.nan
+            if fit.ok and math.isfinite(d12_err):
+                spread = shear_g_s_spread(inverters[law], capsule, fit.G_s)
+            rows.append({"id": capsule.id, "law": law, "D12": (l1 - l2) / (l1 + l2), "D12_err": d12_err,
+                         "Ca_s": fit.Ca_s, "L3_over_a": fit.L3_over_a, "a": fit.a, "G_s": fit.G_s,
+                         "G_s_spread": spread, "G_s_database_error": fit.G_s * fit.database_error_rel,
                          "flag": inverter_flag_code(fit.flag) if fit.flag else "", "reason": fit.flag})
     return rows
+
+
+def shear_g_s_spread(inverter: ShearInverter, capsule: Capsule, g_s: float) -> float:
+    """The largest change of a sheared capsule's G_s [N/m] (``g_s``, its fit) when D12 moves by
+    its stated uncertainty ``D12_err`` either way, with the ellipse's area (sqrt(L1 L2), what the
+    outline pins best) kept: the refits go through the shear inverter (Ca_s and L3/a, hence a,
+    at the moved D12). NaN where neither moved D12 is inside the database."""
+    size = math.sqrt(capsule["L1"] * capsule["L2"])
+    d12 = (capsule["L1"] - capsule["L2"]) / (capsule["L1"] + capsule["L2"])
+    changes = []
+    for moved in (d12 - capsule["D12_err"], d12 + capsule["D12_err"]):
+        if not 0 <= moved < 1:
+            continue
+        ratio = math.sqrt((1 + moved) / (1 - moved))
+        other = inverter.fit(L1=size * ratio, L2=size / ratio, shear_rate=capsule["shear_rate"], mu=capsule["mu"])
+        if other.ok and math.isfinite(other.G_s):
+            changes.append(abs(other.G_s - g_s))
+    return max(changes) if changes else math.nan
 
 
 def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: str | Path,
@@ -318,29 +403,28 @@ def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: st
     """Write result rows to ``out`` (.csv: units in the header; .h5: one dataset per column
     with a ``units`` attribute), through a temporary file renamed when complete."""
     out = Path(out)
-    tmp = out.with_name(out.name + ".tmp")
-    if out.suffix == ".csv":
-        with open(tmp, "w", newline="", encoding="utf-8") as stream:
-            writer = csv.writer(stream)
-            writer.writerow([f"{k} [{u}]" if u else k for k, u in units.items()])
-            for row in rows:
-                writer.writerow([_cell(row[k]) for k in units])
-    elif out.suffix in (".h5", ".hdf5"):
-        with h5py.File(tmp, "w") as f:
-            for key, unit in units.items():
-                values = [row[key] for row in rows]
-                if unit == "" :
-                    data = np.array([str(v) for v in values], dtype=h5py.string_dtype())
-                else:
-                    data = np.array(values, dtype=float)
-                ds = f.create_dataset(key, data=data)
-                ds.attrs["units"] = unit
-            if provenance is not None:
-                f.attrs["database"] = str(provenance.path)
-                f.attrs["database_code_version"] = str(provenance.provenance.get("code_version", ""))
-    else:
+    if out.suffix not in (".csv", ".h5", ".hdf5"):
         raise ValueError(f"{out}: results go to .csv or .h5")
-    os.replace(tmp, out)
+    with atomic_path(out) as tmp:
+        if out.suffix == ".csv":
+            with open(tmp, "w", newline="", encoding="utf-8") as stream:
+                writer = csv.writer(stream)
+                writer.writerow([f"{k} [{u}]" if u else k for k, u in units.items()])
+                for row in rows:
+                    writer.writerow([_cell(row[k]) for k in units])
+        else:
+            with h5py.File(tmp, "w") as f:
+                for key, unit in units.items():
+                    values = [row[key] for row in rows]
+                    if unit == "":
+                        data = np.array([str(v) for v in values], dtype=h5py.string_dtype())
+                    else:
+                        data = np.array(values, dtype=float)
+                    ds = f.create_dataset(key, data=data)
+                    ds.attrs["units"] = unit
+                if provenance is not None:
+                    f.attrs["database"] = str(provenance.path)
+                    f.attrs["database_code_version"] = str(provenance.provenance.get("code_version", ""))
     return out
 
 

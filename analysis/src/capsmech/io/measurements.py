@@ -27,8 +27,8 @@ asymmetry, and flags the capsule when either is too large. Optional ``contour_no
 length): one contour's tracing noise measured across the video frames (``capsmech extract``
 writes it); the contour's chi2 then takes the larger of it and the noise of the contour's two
 halves (``capsmech.inversion.noise``). Optional ``tube_radius_sigma`` (a length): the tube
-radius's standard uncertainty from the walls' positions (``capsmech extract`` writes it; read,
-not yet carried into G_s's interval).
+radius's standard uncertainty from the walls' positions (``capsmech extract`` writes it;
+``fit-tube`` carries it into the spreads of a/l, Ca_s and G_s, ``capsmech.inversion.fitting``).
 
 Shear (``fit-shear``)::
 
@@ -37,7 +37,9 @@ Shear (``fit-shear``)::
 
 required ``id``, ``L1``, ``L2`` (semi-axes in the shear plane), ``shear_rate``, ``mu``;
 optional ``theta`` (inclination of the major axis to the flow direction, in (0, 90) deg, unit
-``deg`` or ``rad``), which ``diagnose-shear`` uses when given.
+``deg`` or ``rad``), which ``diagnose-shear`` uses when given; optional ``D12_err``
+(dimensionless, unit ``1`` or none): D12's uncertainty, which ``fit-shear`` turns into G_s's
+spread (``capsmech extract-shear`` writes it, at two standard deviations).
 
 Units: lengths m, mm, um (or µm), nm, px (with a ``pixel_size`` column); velocities m/s, mm/s,
 um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Micro may be written ``u``, the micro sign
@@ -103,6 +105,7 @@ VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
 VISCOSITY_UNITS = {"Pa s": 1.0, "Pa.s": 1.0, "mPa s": 1e-3, "mPa.s": 1e-3, "cP": 1e-3}
 RATE_UNITS = {"1/s": 1.0, "s^-1": 1.0}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
+DIMENSIONLESS_UNITS = {"": 1.0, "1": 1.0}
 
 #: Column -> (kind, required) per flow.
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
@@ -110,9 +113,12 @@ TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius":
                 "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False),
                 "tube_radius_sigma": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
-                 "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False)}
+                 "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False),
+                 "D12_err": ("number", False)}
 UNITS: dict[str, Mapping[str, float | None]] = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
-         "angle": ANGLE_UNITS}
+         "angle": ANGLE_UNITS, "number": DIMENSIONLESS_UNITS}
+#: Columns where zero is a measurement (no rear dimple; an exact value), not a slip.
+ZERO_ALLOWED = frozenset({"L_p", "tube_radius_sigma", "D12_err"})
 HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 #: A header cell read: column name, unit, scale to SI (None for id, and for px until a row's pixel_size).
 Column = tuple[str, str, float | None]
@@ -301,7 +307,7 @@ def _parse_row(path: Path, line: int, row: list[str], parsed: list[Column | None
             raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
         if not math.isfinite(value):
             raise MeasurementError(f"{path}:{line}: field {name!r} is {cell} (not finite)")
-        if value < 0 or (value == 0 and name != "L_p"):
+        if value < 0 or (value == 0 and name not in ZERO_ALLOWED):
             raise MeasurementError(f"{path}:{line}: field {name!r} must be positive, got {cell}")
         raw[name] = (value, unit, scale)
     return capsule_id, raw, contour_cell
@@ -415,6 +421,8 @@ def read_measurements(path: str | Path, flow: str | None = None, contours_anywhe
             raise MeasurementError(f"{path}:{capsule.line}: field 'L_p' must be smaller than L_z")
         if flow == "shear" and capsule["L2"] > capsule["L1"]:
             raise MeasurementError(f"{path}:{capsule.line}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
+        if flow == "shear" and capsule["D12_err"] >= 1:
+            raise MeasurementError(f"{path}:{capsule.line}: field 'D12_err' must be below 1 (D12 lies in [0, 1))")
         if flow == "shear" and capsule["theta"] >= math.pi / 2:
             raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
                                    "inclination to the flow direction)")
