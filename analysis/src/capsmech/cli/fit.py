@@ -24,7 +24,7 @@ from capsmech.io.measurements import read_measurements
 
 #: Columns printed (all are written to --out).
 SHOWN = {"tube": ["id", "law", "a_over_l", "Ca_s", "G_s", "G_s_spread", "flag"],
-         "shear": ["id", "law", "D12", "Ca_s", "a", "G_s", "flag"]}
+         "shear": ["id", "law", "D12", "Ca_s", "a", "G_s", "G_s_spread", "flag"]}
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
