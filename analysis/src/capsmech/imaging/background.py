@@ -90,7 +90,9 @@ def stack_background(frames: Sequence[np.ndarray]) -> StackBackground | None:
     A plain temporal median keeps whatever lies in a pixel in at least half the frames - a
     slow capsule that covers the same pixels all along its passage. So each frame's objects
     are found first against its own per-row median (object-free where the capsule fills less
-    than half of a row), masked, and the median is taken over the frames left. A pixel masked
+    than half of a row; times the lamp's trend along the rows where there is one), masked
+    with what their outlines enclose (a capsule's interior, often a little brighter than the
+    liquid), and the median is taken over the frames left. A pixel masked
     in every frame is a static object (dirt: the plain temporal median is right there), a
     part of a slow capsule (the per-row median is the background there), or neither to tell -
     then the background there is not trusted (``StackBackground.untrusted``): see
@@ -114,17 +116,32 @@ def stack_background(frames: Sequence[np.ndarray]) -> StackBackground | None:
     plain = np.median(stack, axis=0)
     rows = np.median(stack, axis=2, keepdims=True)
     safe_rows = np.maximum(rows, max(float(rows.max()) * 1e-3, 1e-6))
+    # Each frame's rows times the lamp's trend along them: against the rows alone an
+    # illumination gradient along the flow sets the image's ends off by several per cent, the
+    # noise estimate with them - the liquid there is then masked as an object while a capsule's
+    # slightly brighter interior passes for the empty channel, and the median keeps it. The
+    # trend is used where it explains a good part of the residual's spread (a lamp's gradient),
+    # not where it would only follow the objects of a short stack.
     residual = ndimage.gaussian_filter(stack / safe_rows - 1, (0, 1, 1))
     sigma = max(noise_level(residual[:, ::2, ::2]), 1e-4)
-    masks = ndimage.binary_dilation(np.abs(residual) > OBJECT_SIGMAS * sigma,
-                                    structure=np.ones((1, 3, 3), bool), iterations=OBJECT_MARGIN_PX)
+    trend = _column_trend(stack / safe_rows)
+    levelled = ndimage.gaussian_filter(stack / (safe_rows * trend) - 1, (0, 1, 1))
+    if noise_level(levelled[:, ::2, ::2]) < TREND_NOISE_FALL * sigma:
+        residual, sigma = levelled, max(noise_level(levelled[:, ::2, ::2]), 1e-4)
+    else:
+        trend = np.ones_like(trend)
+    deviant = np.abs(residual) > OBJECT_SIGMAS * sigma
+    interiors = _interiors(deviant)
+    masks = ndimage.binary_dilation(deviant | interiors, structure=np.ones((1, 3, 3), bool),
+                                    iterations=OBJECT_MARGIN_PX)
     masked = np.where(masks, np.nan, stack)
     covered = masks.all(axis=0)
     background = _nanmedian_first_axis(np.where(covered[None], 0.0, masked))
     free = len(stack) - masks.sum(axis=0)
     vouched = np.zeros_like(covered)
     if covered.any():
-        fill, vouched = _covered_background(stack, masks, covered, plain, rows)
+        row_level = np.median(rows, axis=0)[:, :1] * trend[0]
+        fill, vouched = _covered_background(stack, masks, covered, plain, row_level, interiors)
         background = np.where(covered, fill, background)
     return StackBackground(background.astype(np.float32), free, (free < MIN_FREE_FRAMES) & ~vouched, len(stack))
 
@@ -207,8 +224,83 @@ def flat_field(image: np.ndarray, background: np.ndarray) -> np.ndarray:
     return out
 
 
+def _interiors(masks: np.ndarray) -> np.ndarray:
+    """What each frame's object outlines enclose (the holes of its mask, ``masks`` not included).
+
+    A capsule's interior is often slightly brighter than the liquid, a few per cent: too little
+    to pass the threshold, enough to set a pixel's median off where the liquid's frames are
+    masked for another reason (static dirt, deviant against the rows in every frame it shows)
+    and the capsule's are not. An interior is a hole of the frame's mask, the image's left and
+    right borders closing the outline of an object cut by them; a hole that reaches both (the
+    channel between two wall lines) is no object's.
+    """
+    columns = masks.shape[2]
+    # The free pixels' regions, each frame on its own: one labelling of the whole stack.
+    in_plane = np.zeros((3, 3, 3), bool)
+    in_plane[1] = ndimage.generate_binary_structure(2, 1)
+    labels, count = ndimage.label(~masks, structure=in_plane)
+    enclosed = np.ones(count + 1, bool)
+    enclosed[0] = False
+    enclosed[np.unique(labels[:, [0, -1], :])] = False
+    for n, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is not None and box[2].start == 0 and box[2].stop == columns:
+            enclosed[n] = False
+    return enclosed[labels]
+
+
+#: The lamp's trend along the rows is divided out when the noise estimate falls below this
+#: fraction of the one against the rows alone (a 5-25 % gradient: 0.4-0.5; none: 0.9-1).
+TREND_NOISE_FALL = 0.75
+#: Columns over which the lamp's trend along the rows is smoothed (a median): wider than an
+#: object's pixels in a column's median, narrower than an illumination gradient.
+TREND_COLUMNS = 31
+
+
+def _column_trend(ratio: np.ndarray) -> np.ndarray:
+    """The lamp's smooth trend along the rows, (1, 1, columns): each column's median over the
+    frames and rows of ``ratio`` (the frames over their rows' medians), median-filtered over
+    :data:`TREND_COLUMNS` columns. An object covers a minority of a column's rows and frames."""
+    columns = ratio.shape[2]
+    per_column = np.median(ratio[:, ::2].reshape(-1, columns), axis=0)
+    trend = ndimage.median_filter(per_column, size=TREND_COLUMNS, mode="nearest")
+    trend = np.where(np.isfinite(trend) & (trend > 0.2), trend, 1.0)
+    return trend.astype(np.float32)[None, None, :]
+
+
+def _seen_around_passages(stack: np.ndarray, interiors: np.ndarray, covered: np.ndarray,
+                          noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """Covered pixels that are static features an object passed over, and their level.
+
+    Dirt is deviant against the rows in every frame it shows, so it is covered wherever an
+    object's interior passed over it. It shows, steady, in frames both before and after that
+    passage: its level is the median over the frames outside any interior. (A capsule's
+    membrane that sits over a pixel does not come back to it after its interior has passed.)
+    """
+    static = np.zeros_like(covered)
+    level_map = np.zeros(covered.shape, dtype=np.float32)
+    inside = interiors[:, covered]
+    passed = inside.any(axis=0)
+    if not passed.any():
+        return static, level_map
+    n = len(stack)
+    frame = np.arange(n)[:, None]
+    first = np.where(passed, np.argmax(inside, axis=0), n)
+    last = np.where(passed, n - 1 - np.argmax(inside[::-1], axis=0), -1)
+    around = passed & (~inside & (frame < first)).any(axis=0) & (~inside & (frame > last)).any(axis=0)
+    if not around.any():
+        return static, level_map
+    values = np.where(inside[:, around], np.nan, stack[:, covered][:, around])
+    level_now = np.maximum(_nanmedian_first_axis(values), 1e-6)
+    spread = 1.4826 * _nanmedian_first_axis(np.abs(values - level_now)) / level_now
+    steady = spread <= STEADY_SIGMAS * noise
+    candidates = np.flatnonzero(covered.ravel())[np.flatnonzero(around)[steady]]
+    static.ravel()[candidates] = True
+    level_map.ravel()[candidates] = level_now[steady]
+    return static, level_map
+
+
 def _covered_background(stack: np.ndarray, masks: np.ndarray, covered: np.ndarray, plain: np.ndarray,
-                        rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                        row_level: np.ndarray, interiors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The background where every frame's mask covers a pixel: the plain median or the row median;
     and which covered pixels it can vouch for.
 
@@ -225,6 +317,10 @@ def _covered_background(stack: np.ndarray, masks: np.ndarray, covered: np.ndarra
       (then whatever every frame shows is static), or it does not border pixels masked in many
       (a third or more) but not all frames. The edges of a wall line flicker in many frames:
       rows beside a wall line do not count.
+
+    Dirt that an object's interior passed over, seen steady before and after the passage, is
+    static whatever moves beside it: the median of the frames outside the interior
+    (:func:`_seen_around_passages`).
 
     Vouched for: a static region (the plain median), and a region beside the motion of an
     object (the row's median: the walls are level, and the object moves on, as the pixels
@@ -260,7 +356,7 @@ def _covered_background(stack: np.ndarray, masks: np.ndarray, covered: np.ndarra
     for row in wall_lines(plain):
         partial[max(0, int(row) - 4):int(row) + 6] = False
     parts, count = label_components(covered, return_num=True, connectivity=2)
-    row_level = np.broadcast_to(np.median(rows, axis=0)[:, :1], plain.shape)
+    row_level = np.broadcast_to(row_level, plain.shape)
     out = plain.copy()
     vouched = covered.copy()
     for k in range(1, count + 1):
@@ -270,4 +366,6 @@ def _covered_background(stack: np.ndarray, masks: np.ndarray, covered: np.ndarra
         if beside_motion or steady[part].mean() < 0.5:
             out[part] = row_level[part]
             vouched[part] = beside_motion
-    return out, vouched
+    static, static_level = _seen_around_passages(stack, interiors, covered, noise)
+    out = np.where(static, static_level, out)
+    return out, vouched | static
