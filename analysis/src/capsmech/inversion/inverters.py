@@ -209,6 +209,9 @@ class TubeInverter:
         self._tree = cKDTree(self._q / self._q_scale)
         self._p_scaled = self._p / self._p_scale
         self._p_tree = cKDTree(self._p_scaled)
+        # Columns of the scaled parameters and of the lengths, for gathers by neighbour index.
+        self._p_u, self._p_v = self._p_scaled[:, 0].copy(), self._p_scaled[:, 1].copy()
+        self._q_z, self._q_zp = self._q[:, 0].copy(), self._q[:, 1].copy()
         self._hull = Delaunay(self._p / self._p_scale)
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
         #: The largest turn of each row's profile (triangle_turns), measured when first asked.
@@ -279,9 +282,10 @@ class TubeInverter:
         ``fit`` stays the reference; here every step of it runs on all the capsules still
         iterating (per-capsule convergence masks), the small weighted least-squares systems
         stacked (``_weighted_lstsq_many``). A capsule whose parameter-space refinement has not
-        converged after its 30 steps (~1 %: the iteration cycles between neighbour sets) and
-        where it stops depends on round-off (shifting its start by 1e-8 moves its end by
-        more than 1e-9) is fitted by ``fit`` itself, as is one whose Newton step is not finite.
+        converged after its 30 steps (~2 %: the iteration cycles between neighbour sets, and
+        where it stops depends on round-off), or whose Newton step is not finite, is fitted
+        with ``fit``'s own arithmetic, stacked (``_fit_exact_many``: bit for bit ``fit``'s
+        result); what that leaves (a non-finite step) goes to ``fit`` itself.
 
         Parameters
         ----------
@@ -358,18 +362,9 @@ class TubeInverter:
         scaled, refine_coefficients, refine_centre, moving, bad = self._refine_many(q_star, first / self._p_scale, todo)
         fallback |= bad
         # A refinement still moving after its 30 steps (it cycles between neighbour sets) ends
-        # wherever its path does. Where that end is robust (the same refinement started
-        # 1e-8 away on either side ends within 1e-9 of it) round-off cannot change it and
-        # the batch result stands; elsewhere ``fit`` itself gives the capsule.
-        moving &= ~fallback
-        if moving.any():
-            stable = moving.copy()
-            for sign in (1.0, -1.0):
-                start_shifted = first / self._p_scale * (1 + sign * _ROBUSTNESS_SHIFT)
-                shifted, *_, still_bad = self._refine_many(q_star, start_shifted, moving)
-                gap = np.abs(shifted - scaled).max(axis=1) / np.maximum(np.abs(scaled).max(axis=1), 1.0)
-                stable &= ~still_bad & (gap < _ROBUSTNESS_GAP)
-            fallback |= moving & ~stable
+        # wherever its path does, and round-off can move that end: such a capsule gets
+        # ``fit``'s own arithmetic (``_fit_exact_many``, below).
+        fallback |= moving
         todo &= ~fallback
         q, _ = _quadratic_value_and_jacobian_many(refine_coefficients, scaled - refine_centre)
         refined = todo & ~np.any(np.abs(q - q_star) > tolerance[:, None], axis=1)
@@ -395,12 +390,107 @@ class TubeInverter:
         out.vc_over_V[good] = self._velocity(p[ok] / self._p_scale)
         if has_modulus:
             out.G_s[good] = mu_all[good] * v_c_all[good] / (out.Ca_s[good] * out.vc_over_V[good])
-        for i in rows[fallback]:
+        # The capsules that need ``fit``'s result get its arithmetic stacked (a loop over ``fit``
+        # was ~30 % of the batch's time, and re-running the cycling refinements from shifted
+        # starts to tell which ends round-off can move ~10 %); ``fit`` takes what is left.
+        exact = rows[fallback]
+        p_exact, outcome = self._fit_exact_many(L_z[exact], L_p[exact])
+        done = outcome == _EXACT_OK
+        good = exact[done]
+        out.a_over_l[good] = p_exact[done, 0]
+        out.Ca_s[good] = np.exp(p_exact[done, 1])
+        out.vc_over_V[good] = self._velocity(p_exact[done] / self._p_scale)
+        if has_modulus:
+            out.G_s[good] = mu_all[good] * v_c_all[good] / (out.Ca_s[good] * out.vc_over_V[good])
+        for j in np.flatnonzero(outcome == _EXACT_NO_ROOT):
+            out.flag[exact[j]] = "no parameters of the database reproduce these lengths (local fit has no root)"
+        for j in np.flatnonzero(outcome == _EXACT_INCONSISTENT):
+            out.flag[exact[j]] = ("no consistent parameters: the lengths' nearest database points lie on different "
+                                  "branches and the local forward map around the first root does not reproduce them")
+        for j in np.flatnonzero(outcome == _EXACT_OUTSIDE):
+            out.flag[exact[j]] = (f"outside the database: fitted a/l = {p_exact[j, 0]:.3f}, "
+                                  f"Ca_s = {np.exp(p_exact[j, 1]):.3g} lie outside its grid")
+        for i in exact[outcome == _EXACT_LEFT]:
             one = self.fit(float(L_z[i]), float(L_p[i]), float(v_c_all[i]) if has_modulus else None,
                            float(mu_all[i]) if has_modulus else None)
             out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
             out.flag[i] = one.flag
         return out
+
+    def _fit_exact_many(self, L_z: np.ndarray, L_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``fit``'s own arithmetic on a stack of valid lengths (m,): (p = (a/l, ln Ca_s) (m, 2),
+        outcome (m,): ``_EXACT_OK``, a flag's ``_EXACT_NO_ROOT``, ``_EXACT_INCONSISTENT``,
+        ``_EXACT_OUTSIDE`` (p: the point outside), or ``_EXACT_LEFT``). Every operation is
+        ``fit``'s, elementwise or one LAPACK call per capsule (``_lstsq_stack``), so the result is
+        ``fit``'s bit for bit; a capsule with a non-finite step is left to ``fit``. For the
+        capsules whose result round-off decides (a refinement cycling between neighbour sets)."""
+        m = len(L_z)
+        p_out = np.full((m, 2), np.nan)
+        outcome = np.full(m, _EXACT_OK)
+        if m == 0:
+            return p_out, outcome
+        q_star = np.column_stack([L_z, L_z - L_p])
+        done = np.ones(m, dtype=bool)
+        # Local forward map around each q* (``_local_forward_map``).
+        distance, index = self._tree.query(q_star / self._q_scale, k=self.n_neighbours)
+        p = self._p[index]
+        centre = p[:, 0]
+        x_points = (p - centre[:, None, :]) / self._p_scale
+        d_max = 1.01 * distance.max(axis=1) + 1e-300
+        weight = (1 - (distance / d_max[:, None]) ** 2) ** 2
+        sqrt_w = np.sqrt(weight)[..., None]
+        coefficients = _lstsq_stack(sqrt_w * _quadratic_basis_stack(x_points), sqrt_w * self._q[index])
+        x = np.zeros((m, 2))
+        active = np.ones(m, dtype=bool)
+        for _ in range(50):
+            live = np.flatnonzero(active)
+            if live.size == 0:
+                break
+            x[live], norm = _damped_newton_step_stack(coefficients[live], x[live], q_star[live], 0.5)
+            outcome[live[~np.isfinite(norm)]] = _EXACT_LEFT
+            active[live[~(norm >= 1e-12)]] = False
+        done &= outcome == _EXACT_OK
+        q = _quadratic_value_stack(coefficients, x)
+        tolerance = 1e-6 * np.abs(q_star).max(axis=1)
+        no_root = done & np.any(np.abs(q - q_star) > tolerance[:, None], axis=1)
+        outcome[no_root] = _EXACT_NO_ROOT
+        done &= ~no_root
+        first = centre + x * self._p_scale
+        # Refinement in parameter space (``_refine_in_parameter_space``).
+        rows = np.flatnonzero(done)
+        scaled = first[rows] / self._p_scale
+        coefficients = np.zeros((len(rows), 6, 2))
+        centre = np.zeros((len(rows), 2))
+        active = np.ones(len(rows), dtype=bool)
+        for _ in range(30):
+            live = np.flatnonzero(active)
+            if live.size == 0:
+                break
+            s_live = scaled[live]
+            _, index = self._p_tree.query(s_live, k=self.n_neighbours)
+            centre_live = self._p[index[:, 0]]
+            x_points = (self._p[index] - centre_live[:, None, :]) / self._p_scale
+            distance = np.linalg.norm(x_points - (s_live - centre_live / self._p_scale)[:, None, :], axis=2)
+            weight = (1 - (distance / (1.01 * distance.max(axis=1) + 1e-300)[:, None]) ** 2) ** 2
+            sqrt_w = np.sqrt(weight)[..., None]
+            coefficients_live = _lstsq_stack(sqrt_w * _quadratic_basis_stack(x_points), sqrt_w * self._q[index])
+            x_here = s_live - centre_live / self._p_scale
+            x_new, norm = _damped_newton_step_stack(coefficients_live, x_here, q_star[rows[live]], 0.25)
+            scaled[live] = s_live + (x_new - x_here)
+            coefficients[live], centre[live] = coefficients_live, centre_live
+            outcome[rows[live[~np.isfinite(norm)]]] = _EXACT_LEFT
+            active[live[~(norm >= 1e-10)]] = False
+        q = _quadratic_value_stack(coefficients, scaled - centre / self._p_scale)
+        refined = ~np.any(np.abs(q - q_star[rows]) > tolerance[rows, None], axis=1)
+        p_out[rows] = np.where(refined[:, None], scaled * self._p_scale, first[rows])
+        # Not refined: ``fit`` reports the first root when it lies outside the database, else
+        # that the two neighbourhoods disagree.
+        first_outside = self._hull.find_simplex(first[rows] / self._p_scale) < 0
+        finite = outcome[rows] == _EXACT_OK  # not left to ``fit`` for a non-finite step
+        outcome[rows[finite & ~refined & ~first_outside]] = _EXACT_INCONSISTENT
+        rows = rows[finite & (refined | first_outside)]
+        outcome[rows[self._hull.find_simplex(p_out[rows] / self._p_scale) < 0]] = _EXACT_OUTSIDE
+        return p_out, outcome
 
     def _within_reach(self, q_star: np.ndarray) -> np.ndarray:
         """Rows of q* (n, 2) whose scaled distance to the database is a finite number."""
@@ -422,16 +512,17 @@ class TubeInverter:
             if live.size == 0:
                 break
             s_live = scaled[live]
-            _, index = self._p_tree.query(s_live, k=self.n_neighbours)
-            # In scaled parameters throughout (fit divides differences by the scale: the same
-            # to round-off).
-            centre_scaled = self._p_scaled[index[:, 0]]
-            x_points = self._p_scaled[index] - centre_scaled[:, None, :]
+            distance, index = self._p_tree.query(s_live, k=self.n_neighbours)
+            # In scaled parameters throughout (fit divides differences by the scale, and takes
+            # the distances from the differences: the same to round-off), the work arrays
+            # neighbour-major (n, m) as _weighted_lstsq_neighbour_major wants them.
+            index, distance = index.T, distance.T
+            centre_scaled = self._p_scaled[index[0]]
+            u = self._p_u[index] - centre_scaled[:, 0]
+            v = self._p_v[index] - centre_scaled[:, 1]
+            weight = (1 - (distance / (1.01 * distance[-1] + 1e-300)) ** 2) ** 2
+            coefficients_live = _weighted_lstsq_neighbour_major(u, v, [self._q_z[index], self._q_zp[index]], weight)
             x_here = s_live - centre_scaled
-            offset = x_points - x_here[:, None, :]
-            distance = np.sqrt(offset[..., 0] ** 2 + offset[..., 1] ** 2)
-            weight = (1 - (distance / (1.01 * distance.max(axis=1) + 1e-300)[:, None]) ** 2) ** 2
-            coefficients_live = _weighted_lstsq_many(x_points, self._q[index], weight)
             x_new, norm, bad = _damped_newton_step_many(coefficients_live, x_here, q_star[live], 0.25)
             scaled[live] = s_live + (x_new - x_here)
             coefficients[live] = coefficients_live
@@ -542,6 +633,54 @@ def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndar
     return value, np.column_stack([d_dx, d_dy])
 
 
+#: Outcomes of ``TubeInverter._fit_exact_many``: valid, ``fit``'s three flags after valid
+#: lengths, and left to ``fit`` itself.
+_EXACT_OK, _EXACT_NO_ROOT, _EXACT_INCONSISTENT, _EXACT_OUTSIDE, _EXACT_LEFT = range(5)
+
+
+def _lstsq_stack(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(a[i], b[i], rcond=None)[0]`` for every i of a stack a (m, r, c),
+    b (m, r, k), bit for bit: numpy's lstsq is a generalised ufunc (one LAPACK gelsd call per
+    matrix) behind a wrapper for one matrix; called on the stack where this numpy exposes it,
+    one matrix at a time otherwise."""
+    rcond = np.finfo(float).eps * max(a.shape[1:])
+    gufunc = getattr(getattr(np.linalg, "_umath_linalg", None), "lstsq", None)
+    if gufunc is None or len(a) == 0:
+        return np.array([np.linalg.lstsq(ai, bi, rcond=None)[0] for ai, bi in zip(a, b)]).reshape(
+            len(a), a.shape[2], b.shape[2])
+    with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+        return np.asarray(gufunc(a, b, rcond, signature="ddd->ddid")[0])
+
+
+def _quadratic_basis_stack(x: np.ndarray) -> np.ndarray:
+    """``_quadratic_basis`` on a stack: x (m, n, 2) -> (m, n, 6), the same elementwise operations."""
+    u, v = x[..., 0], x[..., 1]
+    return np.stack([np.ones_like(u), u, v, u**2, u * v, v**2], axis=-1)
+
+
+def _quadratic_value_stack(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The value of ``_quadratic_value_and_jacobian`` on a stack (c (m, 6, 2), x (m, 2) -> (m, 2)),
+    by the same product (one small matmul per capsule)."""
+    return np.matmul(_quadratic_basis_stack(x[:, None, :]), c)[:, 0]
+
+
+def _damped_newton_step_stack(c: np.ndarray, x: np.ndarray, q_star: np.ndarray, max_step: float
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """``_damped_newton_step`` on a stack with its own operations (c (m, 6, 2), x (m, 2)):
+    (new x (m, 2), length of the undamped step (m,))."""
+    u, v = x[:, 0], x[:, 1]
+    zero, one = np.zeros_like(u), np.ones_like(u)
+    value = _quadratic_value_stack(c, x)
+    d_dx = np.matmul(np.stack([zero, one, zero, 2 * u, v, zero], axis=-1)[:, None, :], c)[:, 0]
+    d_dy = np.matmul(np.stack([zero, zero, one, zero, u, 2 * v], axis=-1)[:, None, :], c)[:, 0]
+    jac = np.stack([d_dx, d_dy], axis=-1)
+    step = _lstsq_stack(jac, (q_star - value)[..., None])[..., 0]
+    norm = np.sqrt(np.matmul(step[:, None, :], step[:, :, None])[:, 0, 0])
+    damp = norm > max_step
+    step[damp] *= (max_step / norm[damp])[:, None]
+    return x + step, norm
+
+
 #: Smallest Cholesky pivot of the column-scaled Gram matrix (unit diagonal) for which its
 #: normal equations are solved directly: above it the Gram matrix's condition number stays
 #: ~< 1e6 and the solution equals lstsq's to ~1e-10; below it (neighbours on one or two grid
@@ -551,9 +690,6 @@ _MIN_CHOLESKY_PIVOT = 1e-6
 
 #: fit_many: capsules fitted together (larger batches are split).
 _BATCH = 16384
-#: fit_many: shift of the start (relative) and largest end gap (relative) that show a
-#: refinement still moving after its 30 steps to end robustly, where round-off cannot move it.
-_ROBUSTNESS_SHIFT = 1e-8
 #: Largest scaled length fitted: the squared distances of larger ones to the database overflow.
 _REACH = 1e150
 
@@ -561,7 +697,6 @@ _REACH = 1e150
 def _beyond_reach(L_z: float, L_p: float) -> str:
     return (f"outside the database: L_z = {L_z:.3g}, L_p = {L_p:.3g} lie far beyond the lengths of any "
             "database point")
-_ROBUSTNESS_GAP = 1e-9
 #: Exponents (of x, y) of the columns of ``_quadratic_basis``.
 _EXPONENTS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
@@ -573,56 +708,89 @@ def _weighted_lstsq_many(x: np.ndarray, values: np.ndarray, weight: np.ndarray) 
 
     Well-conditioned rows (the usual case) are solved by the normal equations with the
     columns scaled to unit norm. Their entries are weighted moments sum w x^i y^j (i + j <= 4)
-    and sum w q x^i y^j (i + j <= 2), reductions over (m, n) arrays, and the 6 x 6 Cholesky
-    factorisation and solves are written out over the stack: numpy operations on (m,) vectors
-    cost much less than one LAPACK call per small system. The error ~ cond**2 * eps stays
-    ~1e-10 while every Cholesky pivot exceeds _MIN_CHOLESKY_PIVOT. Rows below it (neighbours
-    on one or two grid lines make the basis rank-deficient, common near the edge of a
-    database's steady region) get lstsq's own answer: the minimum-norm SVD solution with
-    lstsq's cutoff on the singular values (eps * max(n, 6) times the largest)."""
-    u, v = x[..., 0], x[..., 1]
-    u_powers = [np.ones_like(u), u, u * u, u * u * u, (u * u) * (u * u)]
-    v_powers = [np.ones_like(v), v, v * v, v * v * v, (v * v) * (v * v)]
+    and sum w q x^i y^j (i + j <= 2), and the 6 x 6 Cholesky factorisation and solves are
+    written out over the stack: numpy operations on (m,) vectors cost much less than one
+    LAPACK call per small system. The work arrays are neighbour-major, (n, m), so that each
+    sum over the neighbours is n - 1 additions of whole (m,) vectors (a sum along a short
+    last axis runs ~5 times slower). The error ~ cond**2 * eps stays ~1e-10 while every
+    Cholesky pivot exceeds _MIN_CHOLESKY_PIVOT. Rows below it (neighbours on one or two grid
+    lines make the basis rank-deficient, common near the edge of a database's steady region)
+    get lstsq's own answer: the minimum-norm SVD solution with lstsq's cutoff on the singular
+    values (eps * max(n, 6) times the largest)."""
+    return _weighted_lstsq_neighbour_major(np.ascontiguousarray(x[..., 0].T), np.ascontiguousarray(x[..., 1].T),
+                                           [np.ascontiguousarray(values[..., q].T) for q in range(values.shape[2])],
+                                           np.ascontiguousarray(weight.T))
+
+
+def _weighted_lstsq_neighbour_major(u: np.ndarray, v: np.ndarray, value_columns: list[np.ndarray], w: np.ndarray
+                                    ) -> np.ndarray:
+    """``_weighted_lstsq_many`` on neighbour-major arrays: the points' coordinates u, v (n, m),
+    each column of the values (n, m) and the weights w (n, m) -> coefficients (m, 6, len(value_columns))."""
+    m = u.shape[1]
+    u_powers = [None, u, u * u]
+    u_powers += [u_powers[2] * u, u_powers[2] * u_powers[2]]
+    v_powers = [None, v, v * v]
+    v_powers += [v_powers[2] * v, v_powers[2] * v_powers[2]]
     moment = {}
+    weighted = {}  # w x^i y^j (i + j <= 2), for the right-hand sides
     for i in range(5):
-        wu = weight * u_powers[i]
+        wu = w if i == 0 else w * u_powers[i]
         for j in range(5 - i):
-            moment[i, j] = (wu * v_powers[j]).sum(axis=1)
+            wuv = wu if j == 0 else wu * v_powers[j]
+            if i + j <= 2:
+                weighted[i, j] = wuv
+            moment[i, j] = wuv.sum(axis=0)
     k = len(_EXPONENTS)
-    gram = np.empty((k, k, len(x)))
-    for r, (i1, j1) in enumerate(_EXPONENTS):
-        for c, (i2, j2) in enumerate(_EXPONENTS[: r + 1]):
-            gram[r, c] = gram[c, r] = moment[i1 + i2, j1 + j2]
-    rhs = np.empty((k, values.shape[2], len(x)))
-    for r, (i, j) in enumerate(_EXPONENTS):
-        wm = weight * u_powers[i] * v_powers[j]
-        rhs[r] = np.einsum("mn,mnq->qm", wm, values)
-    column_norm = np.sqrt(np.array([gram[r, r] for r in range(k)]))
-    bad = np.any(column_norm == 0, axis=0)
-    safe_norm = np.where(column_norm > 0, column_norm, 1.0)
-    gram /= safe_norm[:, None, :] * safe_norm[None, :, :]
-    rhs /= safe_norm[:, None, :]
-    lower = np.zeros_like(gram)
+    gram = [[moment[i1 + i2, j1 + j2] for (i2, j2) in _EXPONENTS] for (i1, j1) in _EXPONENTS]
+    rhs = [[(weighted[i, j] * column).sum(axis=0) for column in value_columns] for i, j in _EXPONENTS]
+    column_norm = [np.sqrt(gram[r][r]) for r in range(k)]
+    bad = np.zeros(m, dtype=bool)
+    for norm in column_norm:
+        bad |= norm == 0
+    safe_norm = [np.where(norm > 0, norm, 1.0) for norm in column_norm]
+    scaled_gram = [[gram[r][c] / (safe_norm[r] * safe_norm[c]) for c in range(k)] for r in range(k)]
+    scaled_rhs = [[b / safe_norm[r] for b in rhs[r]] for r in range(k)]
+    lower: list[list[np.ndarray]] = [[np.zeros(m)] * k for _ in range(k)]
     for j in range(k):
-        pivot = gram[j, j] - np.einsum("im,im->m", lower[j, :j], lower[j, :j])
+        pivot = scaled_gram[j][j]
+        for t in range(j):
+            pivot = pivot - lower[j][t] * lower[j][t]
         bad |= ~(pivot > _MIN_CHOLESKY_PIVOT)
-        lower[j, j] = np.sqrt(np.where(bad, 1.0, pivot))
+        lower[j][j] = np.sqrt(np.where(bad, 1.0, pivot))
         for i in range(j + 1, k):
-            lower[i, j] = (gram[i, j] - np.einsum("im,im->m", lower[i, :j], lower[j, :j])) / lower[j, j]
-    y = np.empty_like(rhs)
+            entry = scaled_gram[i][j]
+            for t in range(j):
+                entry = entry - lower[i][t] * lower[j][t]
+            lower[i][j] = entry / lower[j][j]
+    n_rhs = len(value_columns)
+    y: list[list[np.ndarray]] = []
     for i in range(k):
-        y[i] = (rhs[i] - np.einsum("jm,jkm->km", lower[i, :i], y[:i])) / lower[i, i]
-    solution = np.empty_like(rhs)
+        row = []
+        for q in range(n_rhs):
+            entry = scaled_rhs[i][q]
+            for t in range(i):
+                entry = entry - lower[i][t] * y[t][q]
+            row.append(entry / lower[i][i])
+        y.append(row)
+    solution: list[list[np.ndarray]] = [[np.zeros(m)] * n_rhs for _ in range(k)]
     for i in reversed(range(k)):
-        solution[i] = (y[i] - np.einsum("jm,jkm->km", lower[i + 1:, i], solution[i + 1:])) / lower[i, i]
-    coefficients = solution.transpose(2, 0, 1) / safe_norm.T[:, :, None]
+        for q in range(n_rhs):
+            entry = y[i][q]
+            for t in range(i + 1, k):
+                entry = entry - lower[t][i] * solution[t][q]
+            solution[i][q] = entry / lower[i][i]
+    coefficients = np.empty((m, k, n_rhs))
+    for i in range(k):
+        for q in range(n_rhs):
+            coefficients[:, i, q] = solution[i][q] / safe_norm[i]
     if bad.any():
-        sqrt_w = np.sqrt(weight[bad])[..., None]
-        a = sqrt_w * np.stack([u_powers[i][bad] * v_powers[j][bad] for i, j in _EXPONENTS], axis=-1)
-        b = sqrt_w * values[bad]
-        u_svd, s, vt = np.linalg.svd(a, full_matrices=False)
-        cutoff = np.finfo(float).eps * max(a.shape[1:]) * s[:, :1]
-        s_inverse = np.where(s > cutoff, 1 / np.where(s > cutoff, s, 1.0), 0.0)
+        sqrt_w = np.sqrt(w[:, bad].T)[..., None]
+        ub, vb = u[:, bad].T, v[:, bad].T
+        a = sqrt_w * np.stack([ub**i * vb**j for i, j in _EXPONENTS], axis=-1)
+        b = sqrt_w * np.stack([column[:, bad].T for column in value_columns], axis=-1)
+        u_svd, s_values, vt = np.linalg.svd(a, full_matrices=False)
+        cutoff = np.finfo(float).eps * max(a.shape[1:]) * s_values[:, :1]
+        s_inverse = np.where(s_values > cutoff, 1 / np.where(s_values > cutoff, s_values, 1.0), 0.0)
         coefficients[bad] = np.matmul(vt.transpose(0, 2, 1),
                                       s_inverse[:, :, None] * np.matmul(u_svd.transpose(0, 2, 1), b))
     return coefficients

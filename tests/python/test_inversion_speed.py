@@ -1,0 +1,111 @@
+"""The fast paths of the batch tube inversion give what the straightforward computation gives.
+
+``TubeInverter.fit_many`` hands the capsules whose result round-off decides (a refinement
+cycling between neighbour sets) to ``_fit_exact_many``, ``fit``'s own arithmetic stacked over
+the capsules: it must be ``fit``'s result bit for bit, flags included. The stacked weighted
+quadratic fits (normal equations over neighbour-major arrays, SVD where the basis is
+rank-deficient) must equal one ``np.linalg.lstsq`` per capsule to round-off. The capsules are
+drawn here, from the database's rows by the test's own triangulation, with 2 % noise on the
+lengths; no timing is asserted (``bench/bench_lengths_inversion.py`` measures it).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.interpolate import LinearNDInterpolator
+
+from capsmech.inversion import inverters
+from capsmech.inversion.fitting import tube_inverter
+from capsmech.io.catalog import database_path
+from capsmech.io.database import load_database
+
+FIELDS = ("a_over_l", "Ca_s", "vc_over_V", "G_s")
+
+
+@pytest.fixture(scope="module")
+def tube_db():
+    return load_database(database_path("tube-paper"))
+
+
+def drawn_capsules(table: inverters.TubeTable, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """n noisy (L_z, L_p) [l]: (a/l, ln Ca_s) uniform over the rows' bounding box, the lengths
+    linear between the rows (the test's own Delaunay triangulation; NaN outside it is redrawn)."""
+    rng = np.random.default_rng(seed)
+    p = np.column_stack([table.a_over_l, np.log(table.Ca_s)])
+    lengths = LinearNDInterpolator(p, np.column_stack([table.L_z, table.L_p]))
+    drawn = np.empty((0, 2))
+    while len(drawn) < n:
+        q = lengths(rng.uniform(p.min(axis=0), p.max(axis=0), size=(2 * n, 2)))
+        drawn = np.vstack([drawn, q[np.all(np.isfinite(q), axis=1)]])
+    drawn = drawn[:n] * (1 + 0.02 * rng.standard_normal((n, 2)))
+    return drawn[:, 0], drawn[:, 1]
+
+
+@pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
+def test_stacked_exact_path_is_fit_bit_for_bit(tube_db, law):
+    inverter = tube_inverter(tube_db, law)
+    l_z, l_p = drawn_capsules(inverter.table, 300, seed=11)
+    p, outcome = inverter._fit_exact_many(l_z, l_p)
+    flags = {inverters._EXACT_NO_ROOT: "no parameters of the database reproduce",
+             inverters._EXACT_INCONSISTENT: "no consistent parameters",
+             inverters._EXACT_OUTSIDE: "outside the database: fitted"}
+    for i in range(len(l_z)):
+        reference = inverter.fit(float(l_z[i]), float(l_p[i]))
+        if outcome[i] == inverters._EXACT_OK:
+            assert reference.ok, (i, reference.flag)
+            assert (p[i, 0], np.exp(p[i, 1])) == (reference.a_over_l, reference.Ca_s), i
+        else:
+            assert outcome[i] != inverters._EXACT_LEFT, i  # finite lengths: no step is left to fit
+            assert reference.flag.startswith(flags[int(outcome[i])]), (i, reference.flag)
+    # The draw reaches every outcome but the non-finite one: valid fits and the three flags.
+    assert set(outcome.tolist()) == {inverters._EXACT_OK, *flags}
+    assert (outcome == inverters._EXACT_OK).sum() > 200
+
+
+@pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
+def test_batch_equals_fit_on_drawn_capsules(tube_db, law, monkeypatch):
+    monkeypatch.setattr(inverters, "_BATCH", 128)  # several chunks, each with its own cycling capsules
+    inverter = tube_inverter(tube_db, law)
+    l_z, l_p = drawn_capsules(inverter.table, 300, seed=12)
+    many = inverter.fit_many(l_z, l_p, 2.5e-3, 1.2e-3)
+    for i in range(len(l_z)):
+        reference, batch = inverter.fit(float(l_z[i]), float(l_p[i]), 2.5e-3, 1.2e-3), many.row(i)
+        assert batch.flag == reference.flag, i
+        for name in FIELDS:
+            expected, got = getattr(reference, name), getattr(batch, name)
+            if np.isnan(expected):
+                assert np.isnan(got), (i, name)
+            else:
+                assert got == pytest.approx(expected, rel=1e-9, abs=0), (i, name)
+
+
+def test_stacked_weighted_fits_equal_lstsq_per_capsule(tube_db):
+    """The stacked fits on the neighbourhoods that fit_many meets (in lengths: a quarter are
+    rank-deficient; in parameters: well conditioned) equal one lstsq per capsule."""
+    inverter = tube_inverter(tube_db, "NH")
+    l_z, l_p = drawn_capsules(inverter.table, 400, seed=13)
+    q_star = np.column_stack([l_z, l_z - l_p])
+    for tree, points, scale in ((inverter._tree, q_star, inverter._q_scale),
+                                (inverter._p_tree, np.column_stack([np.full(400, 0.9), np.log(np.geomspace(
+                                    inverter.table.Ca_s.min(), inverter.table.Ca_s.max(), 400))]),
+                                 inverter._p_scale)):
+        distance, index = tree.query(points / scale, k=inverters.N_NEIGHBOURS)
+        x = (inverter._p[index] - inverter._p[index[:, :1]]) / inverter._p_scale
+        weight = (1 - (distance / (1.01 * distance.max(axis=1, keepdims=True))) ** 2) ** 2
+        values = inverter._q[index]
+        stacked = inverters._weighted_lstsq_many(x, values, weight)
+        for i in range(len(x)):
+            sqrt_w = np.sqrt(weight[i])[:, None]
+            a = sqrt_w * np.column_stack([x[i, :, 0] ** e[0] * x[i, :, 1] ** e[1] for e in inverters._EXPONENTS])
+            expected = np.linalg.lstsq(a, sqrt_w * values[i], rcond=None)[0]
+            assert np.abs(stacked[i] - expected).max() <= 1e-9 * np.abs(expected).max(), i
+
+
+def test_stacked_lstsq_is_lstsq_with_or_without_the_generalised_ufunc(monkeypatch):
+    rng = np.random.default_rng(14)
+    a, b = rng.standard_normal((50, 14, 6)), rng.standard_normal((50, 14, 2))
+    a[:10, :, 5] = a[:10, :, 4]  # rank-deficient: lstsq's minimum-norm answer
+    expected = np.array([np.linalg.lstsq(a[i], b[i], rcond=None)[0] for i in range(50)])
+    assert np.array_equal(inverters._lstsq_stack(a, b), expected)
+    monkeypatch.setattr(np.linalg, "_umath_linalg", None, raising=False)
+    assert np.array_equal(inverters._lstsq_stack(a, b), expected)
