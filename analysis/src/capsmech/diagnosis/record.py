@@ -93,6 +93,14 @@ def _fit(fit: GoodnessOfFit | None) -> dict[str, Any] | None:
     return fit.as_dict() if fit is not None else None
 
 
+def _tied_rounds(outcome: Diagnosis | SequentialDiagnosis, first: Diagnosis) -> list[Diagnosis]:
+    """The rounds that end in a tie; a first-round tie that a model and a measurement effect
+    fitted together resolved (``tie_resolved``) is not one."""
+    if not isinstance(outcome, SequentialDiagnosis):
+        return [first] if first.rivals else []
+    return [r for k, r in enumerate(outcome.rounds) if r.rivals and not (k == 0 and outcome.tie_resolved)]
+
+
 def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") -> dict[str, Any]:
     """The whole diagnosis as a JSON-ready dict (see the module)."""
     first = outcome.rounds[0] if isinstance(outcome, SequentialDiagnosis) else outcome
@@ -110,8 +118,7 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
         effects.append(_effect(first.chosen, first.chosen.theta, first.chosen.interval))
     record["effects"] = effects if kind == "effect" else []
     # Candidates the data cannot tell apart (verdict cannot_tell): the chosen one and its rivals.
-    tied = [r for r in outcome.rounds if r.rivals] if isinstance(outcome, SequentialDiagnosis) else (
-        [first] if first.rivals else [])
+    tied = _tied_rounds(outcome, first)
     record["cannot_tell"] = ([r.name for r in [tied[0].chosen, *tied[0].rivals] if r is not None]
                              if kind == "cannot_tell" and tied else [])
     closest = first.closest
@@ -143,8 +150,7 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
         after = g_s_interval(*values[1]) if kind == "effect" and len(values) > 1 else None
         g_s[name] = {"before": before, "after": after}
     # A tie still answers: G_s after under each tied candidate, and one interval covering them.
-    tied_round = next((r for r in ([*outcome.rounds] if isinstance(outcome, SequentialDiagnosis) else [first])
-                       if r.rivals), None)
+    tied_round = next(iter(_tied_rounds(outcome, first)), None)
     if kind == "cannot_tell" and tied_round is not None:
         for tie in tied_round.tied_g_s:
             g_s[tie.estimator]["tied"] = _tie(tie)

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize
 
-from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet
+from capsmech.diagnosis.candidates import BlendedLaw, Candidate, DatabaseSet, extrapolation_range
 from capsmech.diagnosis.diagnose import (
     Diagnosis,
     _base_database,
@@ -20,9 +20,11 @@ from capsmech.diagnosis.diagnose import (
 )
 from capsmech.diagnosis.goodness import GoodnessOfFit
 from capsmech.diagnosis.scoring import (
+    MIN_BIC_DROP,
     PROFILE_POINTS,
     PROFILE_RISE,
     BatchScore,
+    CandidateResult,
     _g_s_summary,
     _law_inverter,
     length_g_s_with_systematic,
@@ -59,6 +61,9 @@ class SequentialDiagnosis:
     g_s_lengths_systematic: list[float] = field(default_factory=list)
     #: The batch's fit with every effect found switched on (None when none was found).
     final: BatchScore | None = field(default=None, repr=False)
+    #: Whether the first round's tie was resolved by a model and a measurement effect fitted
+    #: together (``combine_with_measurement``: the two beat each alone).
+    tie_resolved: bool = False
 
     @property
     def kind(self) -> str:
@@ -70,7 +75,8 @@ class SequentialDiagnosis:
             return "not_assessed"
         if not self.fit.consistent:
             return "unexplained"
-        return "cannot_tell" if any(r.rivals for r in self.rounds) else "effect"
+        tied = [r for k, r in enumerate(self.rounds) if r.rivals and not (k == 0 and self.tie_resolved)]
+        return "cannot_tell" if tied else "effect"
 
     @property
     def verdict(self) -> str:
@@ -82,6 +88,14 @@ class SequentialDiagnosis:
             assert self.fit is not None
             return (f"unexplained: the effects found ({found}) leave the batch inconsistent with its tracing noise ("
                     + "; ".join(self.fit.failures) + "); G_s from these fits is not supported")
+        if self.kind == "cannot_tell":
+            # A later round's tie (a model effect with either of two measurement effects): the
+            # effects found stand, and G_s is given under each rival.
+            tied = next(r for k, r in enumerate(self.rounds) if r.rivals and not (k == 0 and self.tie_resolved))
+            assert tied.chosen is not None
+            found += (f"; cannot tell {tied.chosen.name} from " + ", ".join(r.name for r in tied.rivals)
+                      + "; " + "; ".join(tie.text() for tie in tied.tied_g_s)
+                      + f"; to tell them apart, {tied.separating_measurement}")
         return found
 
 
@@ -186,6 +200,165 @@ def joint_refine(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
                     chi2_start, float(total[k]), n_usable, values, total)
 
 
+#: A measurement effect fitted together with a model effect (``measurement_with_model``): the
+#: model's strength is searched at each measurement value, from three strengths one interval
+#: half-width apart, moved downhill at most this many times, then the parabola's minimum.
+PROFILE_WALKS = 2
+#: Refinement of the measurement value on each side of its best grid value when the model is
+#: searched at each (``evaluate_candidate``'s ``refine_evaluations``): each costs a model search.
+COMBINED_REFINE = 2
+
+
+@dataclass
+class ModelProfile:
+    """The model effect's best strength at each measurement value tried (the measurement's
+    profile with the model's strength fitted out), and the batch chi2 there."""
+
+    model: Candidate
+    strengths: dict[float, float] = field(default_factory=dict)
+    chi2: dict[float, float] = field(default_factory=dict)
+
+    def strength_at(self, value: float) -> float:
+        return self.strengths[round(float(value), 12)]
+
+    def predicted(self, value: float, default: float) -> float:
+        """Where to centre the model's search at ``value``: the straight line through the
+        strengths found so far (the two effects trade off about linearly over the small range
+        of a measurement effect), ``default`` before two are known."""
+        known = [(m, s) for m, s in self.strengths.items() if math.isfinite(s)]
+        if len(known) < 2:
+            return default
+        m, s = np.array(known).T
+        if np.ptp(m) == 0:
+            return float(np.mean(s))
+        slope, intercept = np.polyfit(m, s, 1)
+        return float(slope * value + intercept)
+
+
+def _best_strength(chi2_at: Callable[[float], float], centre: float, half: float, low: float, high: float) -> float:
+    """The strength of lowest batch chi2 near ``centre``: three strengths ``half`` apart, the
+    bracket walked downhill (``PROFILE_WALKS``), then the minimum of the parabola through the
+    lowest point and its neighbours."""
+    clip = lambda x: float(np.clip(x, low, high))   # noqa: E731
+    points = {clip(x): 0.0 for x in (centre - half, centre, centre + half)}
+    for x in list(points):
+        points[x] = chi2_at(x)
+    for _ in range(PROFILE_WALKS):
+        xs = sorted(points)
+        k = int(np.argmin([points[x] for x in xs]))
+        if 0 < k < len(xs) - 1:
+            break
+        beyond = clip(xs[k] - half if k == 0 else xs[k] + half)
+        if beyond in points:
+            break
+        points[beyond] = chi2_at(beyond)
+    xs = sorted(points)
+    k = int(np.argmin([points[x] for x in xs]))
+    if 0 < k < len(xs) - 1 and math.isfinite(points[xs[k - 1]]) and math.isfinite(points[xs[k + 1]]):
+        x3, y3 = np.array(xs[k - 1:k + 2]), np.array([points[x] for x in xs[k - 1:k + 2]])
+        a, b, _ = np.polyfit(x3, y3, 2)
+        if a > 0:
+            vertex = clip(-b / (2 * a))
+            if vertex not in points:
+                points[vertex] = chi2_at(vertex)
+    return min(points, key=lambda x: points[x])
+
+
+def measurement_with_model(measurement: Candidate, model: Candidate, model_result: CandidateResult,
+                           database: TubeDatabase | DatabaseSet, sigma: np.ndarray) -> tuple[Candidate, ModelProfile]:
+    """A measurement effect fitted together with a model effect that no database needs to hold
+    together: the measurement changes the capsules (contour moved along its normals, lengths
+    scaled), the model's database gives the shapes, and at each measurement value the model's
+    strength is fitted again (``_best_strength``, on the capsules its own fit used). The
+    returned candidate has the measurement's name and values; its neutral value is the model
+    effect alone at its fitted strength, so that ``diagnose`` on the batch with that law scores
+    what the measurement effect adds to the model. The strengths found are kept in the profile.
+
+    Fixing the model at its own best strength and then trying the measurement effect misses
+    both when they trade off: pre-stress 0.045 with the contour traced 1 px inside reads as
+    alpha 0.054 alone, and at 0.054 the offset's best value is near 0 (-0.19 px, not supported)."""
+    assert model_result.after is not None
+    usable = np.isfinite(model_result.after.chi2)
+    starts = model_result.after
+    low, high = extrapolation_range(model)
+    centre = model_result.theta
+    half = max(centre - model_result.interval[0], model_result.interval[1] - centre, 1e-6)
+    profile = ModelProfile(model)
+
+    def apply(capsules: Sequence[Capsule], value: float) -> tuple[list[Capsule], str | BlendedLaw]:
+        changed, _ = measurement.apply(capsules, value)
+        key = round(float(value), 12)
+        if key not in profile.strengths:
+            def chi2_at(theta: float) -> float:
+                state, law = model.apply(changed, theta)
+                chi2 = score_batch(state, database, law, sigma, starts=starts).chi2[usable]
+                return float(chi2.sum()) if np.all(np.isfinite(chi2)) else math.inf
+
+            if math.isclose(value, measurement.neutral, abs_tol=1e-12):
+                profile.strengths[key], profile.chi2[key] = centre, model_result.chi2
+            else:
+                best = _best_strength(chi2_at, profile.predicted(value, centre), half, low, high)
+                profile.strengths[key], profile.chi2[key] = best, chi2_at(best)
+        return model.apply(changed, profile.strengths[key])
+
+    return replace(measurement, apply=apply, neutral=measurement.neutral), profile
+
+
+def _tied(first: Diagnosis) -> list[CandidateResult]:
+    return [first.chosen, *first.rivals] if first.chosen is not None else []
+
+
+def combine_with_measurement(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
+                             model: Candidate, model_result: CandidateResult, singles: Sequence[CandidateResult],
+                             measurements: Sequence[Candidate], sigma: np.ndarray, progress: bool = False
+                             ) -> tuple[Diagnosis, ModelProfile | None, str]:
+    """A model effect found (``model_result``) and each measurement effect fitted with it
+    (``measurement_with_model``): a round of ``diagnose`` on the batch with the model's law, the
+    measurement candidates searched with the model refitted at each value. The combination is
+    kept (the profile of the chosen measurement returned) when the round supports it and its
+    chi2 beats every one-effect result of ``singles`` (those supported) by ``MIN_BIC_DROP`` on
+    the capsules both fit: two effects named where one explains the batch would be a guess.
+    Returns the round, the profile (None when not kept) and why not."""
+    state, law = model.apply(capsules, model_result.theta)
+    profiles: dict[str, ModelProfile] = {}
+    combined = []
+    for measurement in measurements:
+        candidate, profiles[measurement.name] = measurement_with_model(measurement, model, model_result, database, sigma)
+        combined.append(candidate)
+    round_ = diagnose(state, database, law, combined, sigma, screen=False, refine_evaluations=COMBINED_REFINE,
+                      progress=progress)
+    chosen = round_.chosen
+    if chosen is None or chosen.after is None:
+        return round_, None, "no measurement effect supported with it"
+    for single in singles:
+        if single.after is None or not single.supported or single.name == model_result.name:
+            continue
+        common = np.isfinite(single.after.chi2) & np.isfinite(chosen.after.chi2)
+        n_points = max(int(common.sum()), 1) * PROFILE_POINTS
+        drop = float(np.sum(single.after.chi2[common] - chosen.after.chi2[common]) - math.log(n_points))
+        if common.sum() < 3 or drop <= MIN_BIC_DROP:
+            return round_, None, f"{single.name} alone explains the batch as well (BIC drop {drop:.1f})"
+    return round_, profiles[chosen.name], ""
+
+
+def combined_fit(model_result: CandidateResult, measurement: CandidateResult, profile: ModelProfile) -> JointFit:
+    """The two strengths of a model effect fitted with a measurement effect: the measurement's
+    value and interval from its profile (the model fitted out at each value); the model's
+    strength at that value, its interval the strengths fitted across the measurement's interval
+    widened by the model's own interval at fixed measurement (its half-widths on each side)."""
+    theta = profile.strength_at(measurement.theta)
+    lo, hi = measurement.interval
+    inside = [s for m, s in profile.strengths.items() if lo - 1e-12 <= m <= hi + 1e-12 and math.isfinite(s)]
+    inside = inside or [theta]
+    interval = (min(inside) - (model_result.theta - model_result.interval[0]),
+                max(inside) + (model_result.interval[1] - model_result.theta))
+    points = np.array([(s, m) for m, s in sorted(profile.strengths.items())])
+    chi2 = np.array([profile.chi2[m] for m in sorted(profile.strengths)])
+    return JointFit((model_result.name, measurement.name), (model_result.theta, 0.0), (theta, measurement.theta),
+                    (interval, measurement.interval), model_result.chi2, measurement.chi2, measurement.capsules,
+                    points, chi2)
+
+
 def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, base_law: str,
                         library: Callable[[str | BlendedLaw], Sequence[Candidate]],
                         max_effects: int = 2, offcentre_table=None, progress: bool = False) -> SequentialDiagnosis:
@@ -197,6 +370,11 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
     descent, since the first was fitted with the second missing), and, when both effects have
     a continuous strength, fit the two together from there (``joint_refine``: coordinate
     descent stops in the valley along which two effects trade off).
+
+    A model effect found first (alone, or tied with a measurement effect) is instead fitted
+    with each measurement effect, its strength refitted at every measurement value
+    (``combine_with_measurement``); the pair is kept when it beats each effect alone, and then
+    resolves such a tie.
 
     ``library(law)`` builds the candidate list on a law (a key or a ``BlendedLaw``), e.g.
     ``lambda law: candidate_library(law, laws)`` for the base key. The noise levels are
@@ -212,9 +390,37 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         rounds[0].offcentre = fit_offcentre(capsules, excluded, _base_database(database), base_law, offcentre_table)
     fixed: list[tuple[Candidate, float]] = []
     note = ""
+    joint = None
+    tie_resolved = False
+    # A model effect found first (alone, or tied with a measurement effect that it may be
+    # mimicking together with it): each measurement effect is fitted with it, the model's
+    # strength refitted at each measurement value (``combine_with_measurement``).
+    model_first = _model_to_combine(rounds[0], library(base_law)) if max_effects >= 2 else None
+    if model_first is not None:
+        model = next(c for c in library(base_law) if c.name == model_first.name)
+        measurements = [c for c in library(base_law) if c.acts_on == "capsules"]
+        combined, profile, why = combine_with_measurement(with_contours, database, base_law, model, model_first,
+                                                          rounds[0].results, measurements, sigma, progress)
+        if profile is not None and combined.chosen is not None:
+            joint = combined_fit(model_first, combined.chosen, profile)
+            tie_resolved = bool(rounds[0].rivals)
+            rounds[0].chosen = model_first
+            rounds.append(combined)
+            measurement = next(c for c in measurements if c.name == combined.chosen.name)
+            fixed = [(model, joint.values[0]), (measurement, joint.values[1])]
+            found = ", ".join(f"{name} {value:.3g} [{lo:.3g}, {hi:.3g}]"
+                              for name, value, (lo, hi) in zip(joint.names, joint.values, joint.intervals))
+            note = (f"fitted together: {found}, {model.name} refitted at each {measurement.name}; chi2 "
+                    f"{joint.chi2_start:.0f} -> {joint.chi2:.0f} over {joint.capsules} capsules")
+        elif not rounds[0].rivals:
+            if combined.chosen is None:
+                rounds.append(combined)
+            fixed = [(model, model_first.theta)]
+            note = (f"measurement effects fitted with {model.name}: {why}; model effects on top of a model "
+                    "effect not assessed (no database holds both)")
     # A round whose choice the data cannot make (rivals) ends the sequence: fixing one of two
     # indistinguishable effects would build the next round on a guess.
-    while rounds[-1].chosen is not None and not rounds[-1].rivals:
+    while model_first is None and rounds[-1].chosen is not None and not rounds[-1].rivals:
         chosen = rounds[-1].chosen
         fixed.append((next(c for c in library(base_law) if c.name == chosen.name), chosen.theta))
         if len(fixed) == max_effects:
@@ -228,7 +434,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         rounds.append(diagnose(state, database, law, rest, sigma, screen=False, progress=progress))
         if model_fixed and rounds[-1].chosen is None:
             note = "model effects on top of a model effect not assessed (no database holds both)"
-    if len(fixed) == 2:
+    if len(fixed) == 2 and joint is None:
         (first, _), (second, theta_2) = fixed
         state, law = _apply_all(with_contours, base_law, [(second, theta_2)], library)
         rebuilt = [c for c in library(law) if c.name == first.name]
@@ -238,8 +444,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
             fixed[0] = (first, result.theta)
             note = (f"{first.name} refitted with {second.name} fixed: {result.theta:.3g}, "
                     f"interval [{result.interval[0]:.3g}, {result.interval[1]:.3g}]")
-    joint = None
-    if len(fixed) == 2 and all(len(c.values) > 2 for c, _ in fixed):
+    if len(fixed) == 2 and joint is None and all(len(c.values) > 2 for c, _ in fixed):
         joint = joint_refine(with_contours, database, base_law, fixed, library, sigma)
         fixed = [(c, value) for (c, _), value in zip(fixed, joint.values)]
         found = ", ".join(f"{name} {value:.3g} [{lo:.3g}, {hi:.3g}]"
@@ -267,5 +472,20 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         lengths_systematic.append(max([floor, *(c.g_s_lengths_systematic[1] for c in round_choices)]))
         fit = batch_fit(with_contours, final)
     return SequentialDiagnosis(rounds, effects, g_s, note, joint, fit, g_s_lengths, final=final,
-                               g_s_systematic=contour_systematic, g_s_lengths_systematic=lengths_systematic)
+                               g_s_systematic=contour_systematic, g_s_lengths_systematic=lengths_systematic,
+                               tie_resolved=tie_resolved)
+
+
+def _model_to_combine(first: Diagnosis, candidates: Sequence[Candidate]) -> CandidateResult | None:
+    """The model effect of the first round to fit measurement effects with: the chosen one when
+    it is a model effect with a continuous strength; in a tie, the best such model effect when
+    a measurement effect is among the rivals (the two together may be what the batch holds;
+    ``combine_with_measurement`` keeps them only if they beat each alone). None otherwise
+    (a tie of model effects only: no database holds two)."""
+    continuous = {c.name for c in candidates if c.acts_on == "law" and c.continuous}
+    tied = _tied(first)
+    models = [r for r in tied if r.name in continuous and r.after is not None]
+    if not models or (first.rivals and not any(r.acts_on == "capsules" for r in tied)):
+        return None
+    return max(models, key=lambda r: r.bic_drop_common)
 
