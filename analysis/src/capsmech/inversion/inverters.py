@@ -49,6 +49,17 @@ FIVE_FITS: tuple[tuple[str, float, float], ...] = (
 )
 
 
+
+#: The flags of a tube fit without a value (``fit`` and ``fit_many`` alike).
+NO_ROOT_FLAG = "no parameters of the database reproduce these lengths (local fit has no root)"
+INCONSISTENT_FLAG = ("no consistent parameters: the lengths' nearest database points lie on different branches and "
+                     "the local forward map around the first root does not reproduce them")
+
+
+def outside_flag(p: np.ndarray) -> str:
+    """The flag of a fit whose parameters (a/l, ln Ca_s) lie outside the database's grid."""
+    return f"outside the database: fitted a/l = {p[0]:.3f}, Ca_s = {np.exp(p[1]):.3g} lie outside its grid"
+
 @dataclass(frozen=True)
 class TubeTable:
     """Steady rows of a tube database for one law (lengths in l, velocity in V).
@@ -257,17 +268,15 @@ class TubeInverter:
                 break
         q, _ = _quadratic_value_and_jacobian(coefficients, x)
         if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
-            return TubeFit(flag="no parameters of the database reproduce these lengths (local fit has no root)")
+            return TubeFit(flag=NO_ROOT_FLAG)
         first = centre + x * self._p_scale
         p = self._refine_in_parameter_space(q_star, first)
         if p is None and self._hull.find_simplex(first / self._p_scale) < 0:
             p = first  # reported as outside the database below
         if p is None:
-            return TubeFit(flag="no consistent parameters: the lengths' nearest database points lie on different "
-                                "branches and the local forward map around the first root does not reproduce them")
+            return TubeFit(flag=INCONSISTENT_FLAG)
         if self._hull.find_simplex(p / self._p_scale) < 0:
-            return TubeFit(a_over_l=float("nan"), flag=f"outside the database: fitted a/l = {p[0]:.3f}, "
-                                                       f"Ca_s = {np.exp(p[1]):.3g} lie outside its grid")
+            return TubeFit(a_over_l=float("nan"), flag=outside_flag(p))
         velocity = float(self._velocity((p / self._p_scale)[None, :])[0])
         result = TubeFit(a_over_l=float(p[0]), Ca_s=float(np.exp(p[1])), vc_over_V=velocity)
         if v_c is not None and mu is not None:
@@ -376,46 +385,40 @@ class TubeInverter:
         outside[ok] = self._hull.find_simplex(p[ok] / self._p_scale) < 0
         ok &= ~outside
 
-        for j in np.flatnonzero(no_root):
-            out.flag[rows[j]] = "no parameters of the database reproduce these lengths (local fit has no root)"
-        for j in np.flatnonzero(inconsistent):
-            out.flag[rows[j]] = ("no consistent parameters: the lengths' nearest database points lie on different "
-                                 "branches and the local forward map around the first root does not reproduce them")
-        for j in np.flatnonzero(outside):
-            out.flag[rows[j]] = (f"outside the database: fitted a/l = {p[j, 0]:.3f}, "
-                                 f"Ca_s = {np.exp(p[j, 1]):.3g} lie outside its grid")
-        good = rows[ok]
-        out.a_over_l[good] = p[ok, 0]
-        out.Ca_s[good] = np.exp(p[ok, 1])
-        out.vc_over_V[good] = self._velocity(p[ok] / self._p_scale)
-        if has_modulus:
-            out.G_s[good] = mu_all[good] * v_c_all[good] / (out.Ca_s[good] * out.vc_over_V[good])
+        modulus = (v_c_all, mu_all) if has_modulus else None
+        self._store(out, rows, p, ok, no_root, inconsistent, outside, modulus)
         # The capsules that need ``fit``'s result get its arithmetic stacked (a loop over ``fit``
         # was ~30 % of the batch's time, and re-running the cycling refinements from shifted
         # starts to tell which ends round-off can move ~10 %); ``fit`` takes what is left.
         exact = rows[fallback]
         p_exact, outcome = self._fit_exact_many(L_z[exact], L_p[exact])
-        done = outcome == _EXACT_OK
-        good = exact[done]
-        out.a_over_l[good] = p_exact[done, 0]
-        out.Ca_s[good] = np.exp(p_exact[done, 1])
-        out.vc_over_V[good] = self._velocity(p_exact[done] / self._p_scale)
-        if has_modulus:
-            out.G_s[good] = mu_all[good] * v_c_all[good] / (out.Ca_s[good] * out.vc_over_V[good])
-        for j in np.flatnonzero(outcome == _EXACT_NO_ROOT):
-            out.flag[exact[j]] = "no parameters of the database reproduce these lengths (local fit has no root)"
-        for j in np.flatnonzero(outcome == _EXACT_INCONSISTENT):
-            out.flag[exact[j]] = ("no consistent parameters: the lengths' nearest database points lie on different "
-                                  "branches and the local forward map around the first root does not reproduce them")
-        for j in np.flatnonzero(outcome == _EXACT_OUTSIDE):
-            out.flag[exact[j]] = (f"outside the database: fitted a/l = {p_exact[j, 0]:.3f}, "
-                                  f"Ca_s = {np.exp(p_exact[j, 1]):.3g} lie outside its grid")
+        self._store(out, exact, p_exact, outcome == _EXACT_OK, outcome == _EXACT_NO_ROOT,
+                    outcome == _EXACT_INCONSISTENT, outcome == _EXACT_OUTSIDE, modulus)
         for i in exact[outcome == _EXACT_LEFT]:
             one = self.fit(float(L_z[i]), float(L_p[i]), float(v_c_all[i]) if has_modulus else None,
                            float(mu_all[i]) if has_modulus else None)
             out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
             out.flag[i] = one.flag
         return out
+
+    def _store(self, out: TubeFits, rows: np.ndarray, p: np.ndarray, ok: np.ndarray, no_root: np.ndarray,
+               inconsistent: np.ndarray, outside: np.ndarray,
+               modulus: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """Write the fitted parameters ``p`` of the ``ok`` capsules and the others' flags into
+        ``out`` at ``rows``; G_s where ``modulus`` gives (v_c, mu) of every capsule of ``out``."""
+        for j in np.flatnonzero(no_root):
+            out.flag[rows[j]] = NO_ROOT_FLAG
+        for j in np.flatnonzero(inconsistent):
+            out.flag[rows[j]] = INCONSISTENT_FLAG
+        for j in np.flatnonzero(outside):
+            out.flag[rows[j]] = outside_flag(p[j])
+        good = rows[ok]
+        out.a_over_l[good] = p[ok, 0]
+        out.Ca_s[good] = np.exp(p[ok, 1])
+        out.vc_over_V[good] = self._velocity(p[ok] / self._p_scale)
+        if modulus is not None:
+            v_c, mu = modulus
+            out.G_s[good] = mu[good] * v_c[good] / (out.Ca_s[good] * out.vc_over_V[good])
 
     def _fit_exact_many(self, L_z: np.ndarray, L_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``fit``'s own arithmetic on a stack of valid lengths (m,): (p = (a/l, ln Ca_s) (m, 2),
