@@ -95,6 +95,14 @@ $(PY): requirements.txt analysis/pyproject.toml
 
 venv: $(PY)
 
+# The package's sdist and, built from it, its wheel (the kernel compiled into it by CMake,
+# analysis/CMakeLists.txt, portable flags) in dist/; docs/getting-started.md.
+.PHONY: wheel
+wheel: venv
+	mkdir -p dist && rm -f dist/capsmech-*
+	cd analysis && ../$(PY) -c "from scikit_build_core.build import build_sdist; build_sdist('../dist')"
+	$(PY) -m pip wheel --no-deps --disable-pip-version-check -w dist dist/capsmech-*.tar.gz
+
 setup: build venv
 
 # The tests run on every core (TEST_WORKERS=0 runs them in pytest's own process). loadscope keeps a

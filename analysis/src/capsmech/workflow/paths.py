@@ -1,4 +1,15 @@
-"""Locations of the repository and of the ``capsim`` kernel executable."""
+"""Locations of the project files (the ``capsim`` kernel, the workflow, the grids).
+
+Two layouts hold them, the same relative paths in both (``bin/capsim``,
+``kernel/src/capsim_kinds.f90``, ``workflow/Snakefile``, ``config/<grid>.yaml``):
+
+- an installed package (a wheel, or ``pip install ./analysis``) carries its own copy in
+  ``capsmech/_project/``, the kernel compiled by the build (``analysis/CMakeLists.txt``);
+- a repository checkout (an editable install, ``make venv``) uses the repository itself, its
+  kernel built by ``make build``.
+
+The installed copy comes first: it is the one built for the package that runs.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +19,16 @@ from pathlib import Path
 
 #: Environment variable that, when set, names the kernel executable to use.
 CAPSIM_ENV = "CAPSIM"
+
+#: The project files an installed package carries (created by the wheel build, absent in a checkout).
+INSTALLED_PROJECT = Path(__file__).resolve().parent.parent / "_project"
+
+
+def installed_project() -> Path | None:
+    """The package's own project files (``capsmech/_project``), or None in a checkout."""
+    if (INSTALLED_PROJECT / "workflow" / "Snakefile").is_file():
+        return INSTALLED_PROJECT
+    return None
 
 
 def _is_repo_root(path: Path) -> bool:
@@ -26,38 +47,51 @@ def _is_repo_root(path: Path) -> bool:
     return (path / "Makefile").is_file() and (path / "kernel").is_dir()
 
 
-def repo_root() -> Path:
-    """Return the repository root directory.
+def checkout_root() -> Path | None:
+    """The repository checkout above this module (an editable install, ``analysis/src/capsmech``)
+    or above the current working directory, or None."""
+    for start in (Path(__file__).resolve().parent, Path.cwd().resolve()):
+        for candidate in (start, *start.parents):
+            if _is_repo_root(candidate):
+                return candidate
+    return None
 
-    Searched upwards first from this module's location (editable install,
+
+def repo_root() -> Path:
+    """Return the folder of the project files: the installed package's own
+    (``capsmech/_project``), else the repository checkout.
+
+    The checkout is searched upwards first from this module's location (editable install,
     ``analysis/src/capsmech``), then from the current working directory.
 
     Returns
     -------
     Path
-        Absolute path of the directory holding ``Makefile`` and ``kernel/``.
+        Absolute path of the folder holding ``bin/``, ``kernel/src/``, ``workflow/`` and ``config/``.
 
     Raises
     ------
     FileNotFoundError
-        If no such directory is found.
+        If neither is found.
     """
-    starts = (Path(__file__).resolve().parent, Path.cwd().resolve())
-    for start in starts:
-        for candidate in (start, *start.parents):
-            if _is_repo_root(candidate):
-                return candidate
+    installed = installed_project()
+    if installed is not None:
+        return installed
+    checkout = checkout_root()
+    if checkout is not None:
+        return checkout
     raise FileNotFoundError(
-        "cannot find the capsmech repository root (a directory with Makefile and kernel/) "
-        f"above {starts[0]} or {starts[1]}"
+        f"this capsmech has no kernel: neither its own ({INSTALLED_PROJECT}: install capsmech from a wheel "
+        "or an sdist, which build it) nor a repository checkout (a directory with Makefile and kernel/) "
+        f"above {Path(__file__).resolve().parent} or {Path.cwd().resolve()}"
     )
 
 
 def capsim_executable() -> Path:
     """Return the path of the ``capsim`` kernel executable.
 
-    The environment variable ``CAPSIM`` overrides the default
-    ``<repo>/bin/capsim``.
+    The environment variable ``CAPSIM`` overrides the default ``bin/capsim`` of
+    :func:`repo_root` (the installed package's kernel, else the checkout's).
 
     Returns
     -------
@@ -68,20 +102,20 @@ def capsim_executable() -> Path:
     ------
     FileNotFoundError
         If the executable does not exist or is not executable; the message
-        tells to run ``make build``.
+        tells how to build it (``make build`` in a checkout, a reinstall otherwise).
     """
     override = os.environ.get(CAPSIM_ENV)
+    packaged = installed_project() is not None
     if override:
         exe = Path(override)
         origin = f"{CAPSIM_ENV}={override}"
     else:
         exe = repo_root() / "bin" / "capsim"
-        origin = "default location"
+        origin = "installed with the package" if packaged else "default location"
     if not exe.is_file() or not os.access(exe, os.X_OK):
-        raise FileNotFoundError(
-            f"capsim executable not found or not executable: {exe} ({origin}); "
-            "run `make build` to build the kernel"
-        )
+        cure = ("reinstall capsmech (pip install --force-reinstall) to rebuild it" if packaged and not override
+                else "run `make build` to build the kernel")
+        raise FileNotFoundError(f"capsim executable not found or not executable: {exe} ({origin}); {cure}")
     return exe
 
 
