@@ -140,9 +140,12 @@ PROFILE ?= local
 SNAKEMAKE := $(VENV)/bin/snakemake -s workflow/Snakefile --configfile config/$(GRID).yaml \
              --profile workflow/profiles/$(PROFILE)
 
+# On SLURM, the jobs a killed run left in the queue are first cancelled (RECOVER=cancel, the
+# default: their cases resume from their checkpoints) or waited for (RECOVER=wait), so that no
+# case is computed by two jobs at once (docs/jobs/cluster.md).
 database: setup
 	@$(PY) -m capsmech.cli dev check-grid config/$(GRID).yaml
-	$(PY) -m capsmech.cli dev unlock-stale .
+	$(PY) -m capsmech.cli dev unlock-stale . --profile workflow/profiles/$(PROFILE) $(if $(RECOVER),--on-old-jobs $(RECOVER))
 	$(SNAKEMAKE)
 
 # Redraw the figures from the grid's databases as they are (no case is run).

@@ -2,8 +2,8 @@
 ``run-case`` (one grid case, as the workflow's case rule runs it), ``run-branch`` (every
 Ca_s of one (law, a/l) by continuation, the workflow's branch rule), ``kernel-version`` (check
 and record the version the built kernel writes), ``unlock-stale`` (remove the lock a killed
-workflow left), ``check-grid`` (``make database`` names a grid that exists and is valid before
-Snakemake starts)."""
+workflow left; on SLURM, first cancel or wait for the jobs it left in the queue), ``check-grid``
+(``make database`` names a grid that exists and is valid before Snakemake starts)."""
 from __future__ import annotations
 
 import argparse
@@ -12,6 +12,14 @@ from pathlib import Path
 from capsmech.cli.common import check_output
 from capsmech.workflow.grid import GridError
 from capsmech.workflow.paths import capsim_executable
+from capsmech.workflow.recovery import (
+    DEFAULT_ON_OLD_JOBS,
+    OnOldJobs,
+    clear_lock_of_killed_run,
+    main_snakemake_pids,
+    recover_old_jobs,
+    slurm_profile,
+)
 from capsmech.workflow.runner import CaseRunError
 
 
@@ -56,13 +64,28 @@ def cmd_kernel_version(args: argparse.Namespace) -> int:
 
 
 def cmd_unlock_stale(args: argparse.Namespace) -> int:
-    """Remove a Snakemake lock left by a killed workflow (never one of a live workflow)."""
+    """Remove a Snakemake lock left by a killed workflow (never one of a live workflow).
+
+    With a SLURM profile, the jobs the killed run left in the queue are first cancelled or
+    waited for (``--on-old-jobs``), so that the rerun never computes a case a second time while
+    an old job still computes it.
+    """
     from capsmech.workflow.runner import clear_stale_lock, running_snakemake
 
-    if clear_stale_lock(args.workdir):
+    if not slurm_profile(args.profile):
+        if clear_stale_lock(args.workdir):
+            print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
+        elif running_snakemake(args.workdir):
+            print(f"a Snakemake process is running in {args.workdir}: its lock is kept")
+        return 0
+    live = main_snakemake_pids(args.workdir)
+    if live:
+        print(f"a Snakemake process is running in {args.workdir} (process {', '.join(map(str, live))}): "
+              f"its lock and its SLURM jobs are kept")
+        return 0
+    recover_old_jobs(args.workdir, OnOldJobs(args.on_old_jobs))
+    if clear_lock_of_killed_run(args.workdir):
         print(f"removed the stale Snakemake lock of {args.workdir} (left by a killed run)")
-    elif running_snakemake(args.workdir):
-        print(f"a Snakemake process is running in {args.workdir}: its lock is kept")
     return 0
 
 
@@ -104,6 +127,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     version.set_defaults(func=cmd_kernel_version)
     unlock = actions.add_parser("unlock-stale", help="remove the Snakemake lock a killed workflow left")
     unlock.add_argument("workdir", nargs="?", default=".", help="the workflow's working directory")
+    unlock.add_argument("--profile", metavar="DIR",
+                        help="the run's Snakemake profile folder; with executor: slurm, the jobs a killed "
+                             "run left in SLURM's queue are handled first (--on-old-jobs)")
+    unlock.add_argument("--on-old-jobs", choices=[mode.value for mode in OnOldJobs],
+                        default=DEFAULT_ON_OLD_JOBS.value,
+                        help="SLURM jobs of a killed run in this directory: cancel them (the rerun resumes their "
+                             "cases from their checkpoints) or wait until they end (default: %(default)s)")
     unlock.set_defaults(func=cmd_unlock_stale)
     check = actions.add_parser("check-grid", help="check that a grid file exists and is valid (make database)")
     check.add_argument("grid", metavar="GRID.yaml", help="the grid file")
