@@ -1,7 +1,8 @@
 !> The catalogue of capsim's command-line options: per option its name, argument, group, unit,
 !> a note on its default and one line of help. It is the one list of options: the parser
-!> (run_options) accepts exactly these names and `capsim --help` prints this table, with each
-!> default read from the default-initialised run_options_t (nothing here types a default value).
+!> (run_options) accepts exactly these names, the namelist reader the same names written as
+!> variables (a_over_l for --a-over-l), and `capsim --help` prints this table, with each default
+!> read from the default-initialised run_options_t (nothing here types a default value).
 !>
 !> Scales: lengths in a (capsule radius) in the shear flow and l (tube radius) in the tube;
 !> time in 1/gamma_dot (shear) or l/V (tube, V the mean velocity); forces in G_s.
@@ -53,7 +54,8 @@ module option_table
       option_spec_t(name='--prestress', arg='ALPHA', group='flow and law', unit='dimensionless', &
                     help='pre-inflation: the stress-free membrane is the sphere of radius a/(1 + alpha); in [0, 0.5]'), &
       option_spec_t(name='--kb', arg='VALUE', group='flow and law', unit='dimensionless: k_b = K_B / (G_s a^2)', &
-                    help='bending stiffness (discrete Helfrich energy), in [0, 1]'), &
+                    help='bending stiffness (discrete Helfrich energy), in [0, 1]; shear: the default keeps small '// &
+                         'Ca_s free of node-scale wrinkles'), &
       option_spec_t(name='--level', arg='N', group='mesh', unit='count (level 4 = 2562 nodes)', &
                     help='subdivision level of the icosphere mesh of the capsule (shear; tube --model 3d), 1 to 5', &
                     contexts='shear tube-3d'), &
@@ -91,8 +93,8 @@ module option_table
                     help='drift: the capsule migrates from --offset; held: its centroid is put back to x = offset', &
                     contexts='tube-3d'), &
       option_spec_t(name='--integrator', arg='auto|newton|implicit|rk2', group='time stepping and solver', &
-                    help='auto: RK2 (shear, tube 3d), Newton for small Ca_s else implicit ROS2 (tube axi); '// &
-                         'newton: tube axi only'), &
+                    help='auto: shear implicit ROS2 for small Ca_s else RK2; tube axi Newton for small Ca_s else '// &
+                         'ROS2; tube 3d RK2'), &
       option_spec_t(name='--dt', arg='TIME', group='time stepping and solver', unit=time_unit, &
                     default_note='= automatic: dt_factor Ca_s h_min', &
                     help='time step; 0 = automatic'), &
@@ -129,8 +131,8 @@ module option_table
                     default_note='= the OpenMP default (OMP_NUM_THREADS)', &
                     help='OpenMP threads; 0 = the OpenMP default'), &
       option_spec_t(name='--namelist', arg='FILE', group='run', default_note='none', &
-                    help='read group &capsim of FILE first (flow law model nu_s c ca lambda kb a_over_l level '// &
-                         'n_meridian dt t_max threads out)'), &
+                    help='read group &capsim of FILE first: every option with a value, named without -- and with _ '// &
+                         'for - (a_over_l = 0.8)'), &
       option_spec_t(name='--help', short='-h', group='run', &
                     help='print this help and exit'), &
       option_spec_t(name='--version', group='run', &

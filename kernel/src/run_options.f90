@@ -14,7 +14,7 @@ module run_options
    implicit none
    private
    public :: run_options_t, parse_command_line, option_signature, write_help, path_len, branch_ca_values, branch_case_path, &
-             step_count_problem
+             step_count_problem, shear_kb_default, shear_implicit_below_ca
 
    !> Most time steps a run may take to reach t = 1 (one time unit, the shortest span over which
    !> a steady state is judged): the smallest automatic step (level 5, Ca_s 1e-3) takes 1e5, so
@@ -29,6 +29,17 @@ module run_options
    !> Longest command-line argument read (an option with its "=value").
    integer, parameter :: arg_len = path_len + 64
 
+   !> The shear flow's model choices where the options leave them open: those of the shipped
+   !> shear database (config/paper.yaml, shear.settings), so that a plain run reaches the steady
+   !> state the database holds. Without bending stiffness the membrane wrinkles at the node
+   !> scale under the compressive tensions of Ca_s < 0.15 and has no steady shape; k_b = 3e-4 is
+   !> the smallest that keeps levels 3 and 4 steady down to Ca_s 0.01, at a cost of -0.18 %
+   !> (Ca_s 0.15) to -0.11 % (0.3) in D12. The tube's default k_b is 0.
+   real(dp), parameter :: shear_kb_default = 3.0e-4_dp
+   !> Below this Ca_s, --integrator auto takes implicit (ROS2) steps in shear: the explicit
+   !> step is bound by the membrane's stiffness (dt ~ Ca_s h_min), the implicit one is not.
+   real(dp), parameter :: shear_implicit_below_ca = 0.07_dp
+
    type :: run_options_t
       character(len=16) :: flow = ''
       character(len=16) :: law = ''
@@ -38,8 +49,9 @@ module run_options
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
       !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, implicit steps otherwise and after
-      !> a failed Newton; see axisymmetric_tube). Shear and 3D tube: 'auto' is 'rk2'; shear
-      !> 'implicit' takes linearly implicit ROS2 steps (capsule_dynamics).
+      !> a failed Newton; see axisymmetric_tube). 3D tube: 'auto' is 'rk2'. Shear: 'implicit'
+      !> takes linearly implicit ROS2 steps (capsule_dynamics); 'auto' becomes 'implicit' below
+      !> Ca_s shear_implicit_below_ca and 'rk2' above (apply_flow_defaults).
       integer :: n_meridian = 64
       !> Tube length [l] (the paper's 3D tube is 20 l; the disturbance decays within a few l).
       real(dp) :: tube_length = 10.0_dp
@@ -60,7 +72,8 @@ module run_options
       !> Pre-stress alpha: the stress-free membrane is the sphere of radius a/(1 + alpha),
       !> inflated to radius a at rest (an isotropic pre-tension).
       real(dp) :: prestress = 0.0_dp
-      !> Bending stiffness k_b = K_B / (G_s a**2) (discrete Helfrich energy, membrane_bending).
+      !> Bending stiffness k_b = K_B / (G_s a**2) (discrete Helfrich energy, membrane_bending);
+      !> not given, shear_kb_default in shear (apply_flow_defaults).
       real(dp) :: kb = 0.0_dp
       !> 3D tube: initial radial position of the capsule's centroid over l (along x); the
       !> capsule is then re-centred axially only and drifts radially as the flow moves it.
@@ -217,6 +230,7 @@ contains
             if (ok) opts%ca = values(1)
          end block
       end if
+      call apply_flow_defaults(opts)
       call validate(opts, stat, errmsg)
 
    contains
@@ -228,6 +242,29 @@ contains
       end subroutine fail
 
    end subroutine parse_command_line
+
+   !> The defaults that depend on the flow, for the options not given (on the command line or
+   !> in the namelist): in shear, the bending stiffness shear_kb_default and, for --integrator
+   !> auto, implicit steps below Ca_s shear_implicit_below_ca and RK2 above. The resolved values
+   !> are those the run uses, the case file records (k_b) and the checkpoint signature holds:
+   !> a checkpoint written under other defaults is never resumed.
+   subroutine apply_flow_defaults(opts)
+      type(run_options_t), intent(inout) :: opts
+      if (trim(opts%flow) /= 'shear') return
+      if (.not. opts%given(option_index('--kb'))) opts%kb = shear_kb_default
+      ! An unset --ca is refused by validate; nothing to choose from then.
+      if (trim(opts%integrator) == 'auto' .and. opts%ca /= -huge(1.0_dp)) &
+         opts%integrator = merge('implicit', 'rk2     ', opts%ca < shear_implicit_below_ca)
+   end subroutine apply_flow_defaults
+
+   !> What the help adds to an option's default where a rule, not a value, chooses it.
+   function default_rule(name) result(rule)
+      character(len=*), intent(in) :: name
+      character(len=:), allocatable :: rule
+      rule = ''
+      if (name == '--integrator') rule = '(shear: implicit below Ca_s '//short_real_text(shear_implicit_below_ca)// &
+                                         ', rk2 above)'
+   end function default_rule
 
    !> The one binding of each option of option_table to its component of run_options_t, both
    !> ways: with `set`, reads `text` into the component (stat = 2 and errmsg naming the option
@@ -375,7 +412,7 @@ contains
          if (.not. ok) call fail('not an integer: "'//trim(text)//'"')
       end subroutine int_field
 
-      !> on|off (also 1|0, yes|no).
+      !> on|off (also 1|0, yes|no, and a namelist's .true.|.false.).
       subroutine switch_field(on)
          logical, intent(inout) :: on
          if (.not. set) then
@@ -384,9 +421,9 @@ contains
             return
          end if
          select case (trim(text))
-         case ('on', '1', 'yes')
+         case ('on', '1', 'yes', '.true.')
             on = .true.
-         case ('off', '0', 'no')
+         case ('off', '0', 'no', '.false.')
             on = .false.
          case default
             call fail('expected on or off, got "'//trim(text)//'"')
@@ -407,14 +444,20 @@ contains
 
    !> `capsim --help`: a usage line, the scales, then every option of option_table, group by
    !> group, one line each: name, argument, help, [unit], (default: ...). The defaults are the
-   !> components of a default-initialised run_options_t, shown through bind_option.
+   !> components of a default-initialised run_options_t, shown through bind_option, after
+   !> apply_flow_defaults for each flow: where the flows differ, both are shown.
    subroutine write_help(unit)
       integer, intent(in) :: unit
-      type(run_options_t) :: defaults
+      type(run_options_t) :: shear_defaults, tube_defaults
       type(option_spec_t) :: spec
       character(len=len(spec%group)) :: group
-      character(len=:), allocatable :: shown, errmsg, head, default_text
+      character(len=:), allocatable :: shown, shown_tube, errmsg, head, default_text
       integer :: i, stat, width
+
+      shear_defaults%flow = 'shear'
+      tube_defaults%flow = 'tube'
+      call apply_flow_defaults(shear_defaults)
+      call apply_flow_defaults(tube_defaults)
 
       write (unit, '(a)') 'usage: capsim --flow shear|tube --law NH|SK|GH --ca VALUE [--a-over-l VALUE] --out FILE.h5 [options]'
       write (unit, '(a)') '       capsim --namelist FILE [options]      capsim --help'
@@ -433,8 +476,14 @@ contains
             group = spec%group
             write (unit, '(/,a)') trim(group)//':'
          end if
-         call bind_option(defaults, trim(spec%name), .false., '', shown, stat, errmsg)
-         if (stat /= 0) shown = '? ('//errmsg//')'
+         call bind_option(tube_defaults, trim(spec%name), .false., '', shown_tube, stat, errmsg)
+         if (stat == 0) call bind_option(shear_defaults, trim(spec%name), .false., '', shown, stat, errmsg)
+         if (stat /= 0) then
+            shown = '? ('//errmsg//')'
+         else if (shown /= shown_tube) then
+            shown = shown//' in shear, '//shown_tube//' in the tube'
+         end if
+         shown = trim(shown//' '//default_rule(trim(spec%name)))
          if (spec%required) then
             default_text = trim('required '//spec%default_note)
          else if (len(shown) == 0) then
@@ -504,23 +553,26 @@ contains
 
    end function short_real_text
 
-   !> Group &capsim of the file `path`. A variable the group sets counts as its option given
-   !> (so that an inapplicable one is refused like its flag); reals must be finite.
+   !> Group &capsim of the file `path`, read as Fortran's namelist input writes it: items
+   !> `name = value` separated by blanks, commas or line ends, values quoted ('...', "...") or
+   !> bare, '!' to the end of a line a comment, the group ended by '/'. The names are derived
+   !> from option_table: every option that takes a value, without '--' and with '_' for '-'
+   !> (a_over_l for --a-over-l, c for --C; in any case), and each value is read by bind_option
+   !> as its flag's is, so the file accepts what the command line accepts, as strictly: an
+   !> unknown name, a name given twice and a second group are refused, naming their line. A
+   !> variable the group sets counts as its option given (an inapplicable one is refused like
+   !> its flag).
    subroutine read_namelist(path, opts, stat, errmsg)
       character(len=*), intent(in) :: path
       type(run_options_t), intent(inout) :: opts
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
-      !> Marks a variable the group did not set.
-      character(len=*), parameter :: unset_word = achar(0)//'unset'
-      real(dp), parameter :: unset_real = -huge(1.0_dp)
-      integer, parameter :: unset_int = -huge(1)
-      character(len=16) :: flow, law, model
-      character(len=2 * path_len) :: out
-      real(dp) :: nu_s, c, ca, dt, t_max, a_over_l, lambda, kb
-      integer :: level, threads, unit, ios, n_meridian
-      character(len=256) :: iomsg
-      namelist /capsim/ flow, law, model, nu_s, c, ca, lambda, kb, a_over_l, level, n_meridian, dt, t_max, threads, out
+      character(len=:), allocatable :: text, name, value, shown, reason
+      integer :: i, j, k, n, line, name_line, groups, unit, ios, bind_stat
+      integer :: first_line(n_options)
+      integer(8) :: bytes
+      character :: quote
+      logical :: in_group
 
       stat = 2
       errmsg = ''
@@ -533,90 +585,231 @@ contains
          end if
          return
       end if
-      flow = unset_word
-      law = unset_word
-      model = unset_word
-      out = unset_word
-      a_over_l = unset_real
-      nu_s = unset_real
-      c = unset_real
-      ca = unset_real
-      lambda = unset_real
-      kb = unset_real
-      dt = unset_real
-      t_max = unset_real
-      n_meridian = unset_int
-      level = unset_int
-      threads = unset_int
-      ! Fortran's namelist read takes the last of a repeated name and ignores a second group:
-      ! both would run other options than the file seems to say.
-      errmsg = namelist_problem(path)
-      if (len(errmsg) > 0) return
-      open (newunit=unit, file=path, status='old', action='read', iostat=ios, iomsg=iomsg)
+      open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', iostat=ios)
       if (ios /= 0) then
-         errmsg = '--namelist: cannot open "'//path//'": '//trim(iomsg)
+         errmsg = '--namelist: cannot open "'//path//'"'
          return
       end if
-      read (unit, nml=capsim, iostat=ios, iomsg=iomsg)
+      inquire (unit=unit, size=bytes)
+      if (bytes > max_namelist_bytes) then
+         close (unit)
+         errmsg = '--namelist: "'//path//'" is '//int_text(int(bytes))//' bytes, larger than any namelist ('// &
+                  int_text(max_namelist_bytes)//' at most)'
+         return
+      end if
+      allocate (character(len=max(0, int(bytes))) :: text)
+      ios = 0
+      if (bytes > 0) read (unit, iostat=ios) text
       close (unit)
       if (ios /= 0) then
-         errmsg = '--namelist: cannot read group &capsim in "'//path//'": '//trim(iomsg)
+         errmsg = '--namelist: cannot read "'//path//'"'
          return
       end if
-      call take_word('--flow', flow, opts%flow)
-      call take_word('--law', law, opts%law)
-      call take_word('--model', model, opts%model)
-      call take_word('--out', out, opts%out)
-      call take_real('--a-over-l', 'a_over_l', a_over_l, opts%a_over_l)
-      call take_real('--nu-s', 'nu_s', nu_s, opts%nu_s)
-      call take_real('--C', 'c', c, opts%c)
-      call take_real('--ca', 'ca', ca, opts%ca)
-      call take_real('--lambda', 'lambda', lambda, opts%lambda)
-      call take_real('--kb', 'kb', kb, opts%kb)
-      call take_real('--dt', 'dt', dt, opts%dt)
-      call take_real('--t-max', 't_max', t_max, opts%t_max)
-      call take_int('--n-meridian', n_meridian, opts%n_meridian)
-      call take_int('--level', level, opts%level)
-      call take_int('--threads', threads, opts%threads)
-      if (len(errmsg) == 0) stat = 0
+
+      first_line = 0
+      groups = 0
+      in_group = .false.
+      line = 1
+      n = len(text)
+      i = 1
+      do while (i <= n)
+         select case (text(i:i))
+         case (achar(10))
+            line = line + 1
+            i = i + 1
+         case (' ', ',', achar(9), achar(13))
+            i = i + 1
+         case ('!')
+            do while (i <= n)
+               if (text(i:i) == achar(10)) exit
+               i = i + 1
+            end do
+         case ('&', '$')
+            j = name_end(i + 1)
+            name = lower(text(i + 1:j))
+            i = j + 1
+            if (in_group .and. name == 'end') then
+               in_group = .false.
+               cycle
+            end if
+            groups = groups + 1
+            if (groups > 1) then
+               call fail(line, 'a second group; the file must hold one group &capsim')
+               return
+            else if (name /= 'capsim') then
+               call fail(line, 'group &'//name//' (expected &capsim)')
+               return
+            end if
+            in_group = .true.
+         case ('/')
+            in_group = .false.
+            i = i + 1
+         case default
+            ! Outside the group Fortran's reader skips everything (a title, notes).
+            if (.not. in_group) then
+               i = i + 1
+               cycle
+            end if
+            if (.not. is_name_start(text(i:i))) then
+               call fail(line, 'unexpected "'//text(i:i)//'" (expected name = value)')
+               return
+            end if
+            name_line = line
+            j = name_end(i)
+            name = lower(text(i:j))
+            i = skip_blanks(j + 1, .false.)
+            if (i > n) then
+               call fail(name_line, name//' without "= value"')
+               return
+            else if (text(i:i) /= '=') then
+               call fail(name_line, name//' without "= value"')
+               return
+            end if
+            i = skip_blanks(i + 1, .true.)
+            if (i > n) then
+               call fail(name_line, name//' without a value')
+               return
+            end if
+            if (text(i:i) == "'" .or. text(i:i) == '"') then
+               ! A quoted value; a doubled quote inside stands for one.
+               quote = text(i:i)
+               value = ''
+               i = i + 1
+               do
+                  if (i > n) then
+                     call fail(name_line, name//': the quoted value is not closed')
+                     return
+                  end if
+                  if (text(i:i) == quote) then
+                     if (i < n) then
+                        if (text(i + 1:i + 1) == quote) then
+                           value = value//quote
+                           i = i + 2
+                           cycle
+                        end if
+                     end if
+                     i = i + 1
+                     exit
+                  end if
+                  if (text(i:i) == achar(10)) line = line + 1
+                  value = value//text(i:i)
+                  i = i + 1
+               end do
+            else
+               j = i
+               do while (j <= n)
+                  if (index(' ,/!'//achar(9)//achar(10)//achar(13), text(j:j)) > 0) exit
+                  j = j + 1
+               end do
+               value = text(i:j - 1)
+               i = j
+            end if
+            k = namelist_option(name)
+            if (k == 0) then
+               call fail(name_line, 'unknown name '//name//' (the names are the options that take a value, '// &
+                         'without -- and with _ for -: a_over_l = 0.8)')
+               return
+            else if (first_line(k) > 0) then
+               call fail(name_line, name//' is given twice (first on line '//int_text(first_line(k))//')')
+               return
+            end if
+            first_line(k) = name_line
+            call bind_option(opts, trim(option_specs(k)%name), .true., value, shown, bind_stat, reason)
+            if (bind_stat /= 0) then
+               call fail(name_line, name//' ('//reason//')')
+               return
+            end if
+            opts%given(k) = .true.
+         end select
+      end do
+      if (groups == 0) then
+         errmsg = '--namelist: "'//path//'" holds no group &capsim'
+      else if (in_group) then
+         call fail(line, 'group &capsim is not ended by /')
+      else
+         stat = 0
+      end if
 
    contains
 
-      subroutine take_word(option, value, field)
-         character(len=*), intent(in) :: option, value
-         character(len=*), intent(inout) :: field
-         if (len(errmsg) > 0 .or. value == unset_word) return
-         if (len_trim(value) > len(field)) then
-            errmsg = '--namelist: '//option//' in "'//path//'": longer than '//int_text(len(field))//' characters'
-            return
-         end if
-         field = value
-         opts%given(option_index(option)) = .true.
-      end subroutine take_word
+      subroutine fail(at, reason_text)
+         integer, intent(in) :: at
+         character(len=*), intent(in) :: reason_text
+         errmsg = '--namelist: "'//path//'" line '//int_text(at)//': '//reason_text
+      end subroutine fail
 
-      subroutine take_real(option, name, value, field)
-         character(len=*), intent(in) :: option, name
-         real(dp), intent(in) :: value
-         real(dp), intent(inout) :: field
-         if (len(errmsg) > 0 .or. value == unset_real) return
-         if (.not. ieee_is_finite(value)) then
-            errmsg = '--namelist: '//name//' in "'//path//'" must be a finite number, got '//real_text(value)
-            return
-         end if
-         field = value
-         opts%given(option_index(option)) = .true.
-      end subroutine take_real
+      !> Index of the last character of the name that starts at `from`.
+      integer function name_end(from)
+         integer, intent(in) :: from
+         name_end = from - 1
+         do while (name_end < n)
+            if (.not. is_name_char(text(name_end + 1:name_end + 1))) exit
+            name_end = name_end + 1
+         end do
+      end function name_end
 
-      subroutine take_int(option, value, field)
-         character(len=*), intent(in) :: option
-         integer, intent(in) :: value
-         integer, intent(inout) :: field
-         if (len(errmsg) > 0 .or. value == unset_int) return
-         field = value
-         opts%given(option_index(option)) = .true.
-      end subroutine take_int
+      !> The first character at or after `from` that is not a blank (nor, with `lines`, a line end).
+      integer function skip_blanks(from, lines)
+         integer, intent(in) :: from
+         logical, intent(in) :: lines
+         skip_blanks = from
+         do while (skip_blanks <= n)
+            if (text(skip_blanks:skip_blanks) == achar(10) .and. lines) then
+               line = line + 1
+            else if (index(' '//achar(9)//achar(13), text(skip_blanks:skip_blanks)) == 0) then
+               exit
+            end if
+            skip_blanks = skip_blanks + 1
+         end do
+      end function skip_blanks
 
    end subroutine read_namelist
+
+   !> The option of the namelist name `name` (lower case): an option of option_table that takes
+   !> a value, its name without '--' and with '_' for '-'; 0 if none.
+   integer function namelist_option(name)
+      character(len=*), intent(in) :: name
+      integer :: i
+      namelist_option = 0
+      do i = 1, n_options
+         if (len_trim(option_specs(i)%arg) == 0 .or. trim(option_specs(i)%name) == '--namelist') cycle
+         if (namelist_name(option_specs(i)%name) == name) then
+            namelist_option = i
+            return
+         end if
+      end do
+   end function namelist_option
+
+   !> 'a_over_l' for '--a-over-l', 'c' for '--C'.
+   pure function namelist_name(option) result(name)
+      character(len=*), intent(in) :: option
+      character(len=:), allocatable :: name
+      integer :: m
+      name = lower(trim(option(3:)))
+      do m = 1, len(name)
+         if (name(m:m) == '-') name(m:m) = '_'
+      end do
+   end function namelist_name
+
+   pure logical function is_name_start(ch)
+      character, intent(in) :: ch
+      is_name_start = (ch >= 'a' .and. ch <= 'z') .or. (ch >= 'A' .and. ch <= 'Z')
+   end function is_name_start
+
+   pure logical function is_name_char(ch)
+      character, intent(in) :: ch
+      is_name_char = is_name_start(ch) .or. (ch >= '0' .and. ch <= '9') .or. ch == '_'
+   end function is_name_char
+
+   pure function lower(word) result(low)
+      character(len=*), intent(in) :: word
+      character(len=len(word)) :: low
+      integer :: m
+      low = word
+      do m = 1, len(word)
+         if (word(m:m) >= 'A' .and. word(m:m) <= 'Z') low(m:m) = achar(iachar(word(m:m)) + 32)
+      end do
+   end function lower
 
    !> The most --threads accepted here: 4 per processor the OpenMP runtime sees, at least 64.
    integer function max_threads()
@@ -637,116 +830,6 @@ contains
       end if
    end function step_count_problem
 
-   !> What makes the namelist file at `path` ambiguous: a name given twice in its group, or a
-   !> second group; '' when there is neither. Blanks, comments (! to the end of the line) and
-   !> quoted values are skipped as Fortran's namelist input does.
-   function namelist_problem(path) result(problem)
-      character(len=*), intent(in) :: path
-      character(len=:), allocatable :: problem
-      character(len=:), allocatable :: text, key
-      character(len=64) :: keys(128)
-      integer :: key_lines(128), n_keys, groups, line, unit, ios, i, j, k
-      integer(8) :: bytes
-      character :: quote, c
-      logical :: comment
-
-      problem = ''
-      open (newunit=unit, file=path, access='stream', form='unformatted', status='old', action='read', iostat=ios)
-      if (ios /= 0) return          ! the namelist read that follows says why
-      inquire (unit=unit, size=bytes)
-      if (bytes > max_namelist_bytes) then
-         close (unit)
-         problem = '--namelist: "'//path//'" is '//int_text(int(bytes))//' bytes, larger than any namelist ('// &
-                   int_text(max_namelist_bytes)//' at most)'
-         return
-      end if
-      allocate (character(len=int(bytes)) :: text)
-      if (bytes > 0) read (unit, iostat=ios) text
-      close (unit)
-      if (ios /= 0) return
-      n_keys = 0
-      groups = 0
-      line = 1
-      quote = ' '
-      comment = .false.
-      i = 1
-      do while (i <= len(text))
-         c = text(i:i)
-         if (c == achar(10)) then
-            line = line + 1
-            comment = .false.
-         else if (comment) then
-            continue
-         else if (quote /= ' ') then
-            if (c == quote) quote = ' '
-         else if (c == "'" .or. c == '"') then
-            quote = c
-         else if (c == '!') then
-            comment = .true.
-         else if (c == '&' .or. c == '$') then
-            groups = groups + 1
-            if (groups > 1) then
-               problem = '--namelist: "'//path//'" line '//int_text(line)//': a second group; the file must hold '// &
-                         'one group &capsim'
-               return
-            end if
-         else if (is_name_start(c) .and. (i == 1 .or. index(' ,'//achar(9)//achar(10)//achar(13), &
-                                                           text(max(1, i - 1):max(1, i - 1))) > 0)) then
-            j = i
-            do while (j < len(text))
-               if (.not. is_name_char(text(j + 1:j + 1))) exit
-               j = j + 1
-            end do
-            k = j + 1
-            do while (k <= len(text))
-               if (text(k:k) /= ' ' .and. text(k:k) /= achar(9)) exit
-               k = k + 1
-            end do
-            if (k <= len(text) .and. groups == 1) then
-               if (text(k:k) == '=' .or. text(k:k) == '(') then
-                  key = lower(text(i:j))
-                  do k = 1, n_keys
-                     if (trim(keys(k)) == key) then
-                        problem = '--namelist: "'//path//'" line '//int_text(line)//': '//key// &
-                                  ' is given twice (first on line '//int_text(key_lines(k))//')'
-                        return
-                     end if
-                  end do
-                  if (n_keys < size(keys)) then
-                     n_keys = n_keys + 1
-                     keys(n_keys) = key
-                     key_lines(n_keys) = line
-                  end if
-               end if
-            end if
-            i = j
-         end if
-         i = i + 1
-      end do
-
-   contains
-
-      pure logical function is_name_start(ch)
-         character, intent(in) :: ch
-         is_name_start = (ch >= 'a' .and. ch <= 'z') .or. (ch >= 'A' .and. ch <= 'Z')
-      end function is_name_start
-
-      pure logical function is_name_char(ch)
-         character, intent(in) :: ch
-         is_name_char = is_name_start(ch) .or. (ch >= '0' .and. ch <= '9') .or. ch == '_'
-      end function is_name_char
-
-      pure function lower(word) result(low)
-         character(len=*), intent(in) :: word
-         character(len=len(word)) :: low
-         integer :: m
-         low = word
-         do m = 1, len(word)
-            if (word(m:m) >= 'A' .and. word(m:m) <= 'Z') low(m:m) = achar(iachar(word(m:m)) + 32)
-         end do
-      end function lower
-
-   end function namelist_problem
 
    subroutine validate(opts, stat, errmsg)
       type(run_options_t), intent(in) :: opts
@@ -1149,7 +1232,9 @@ contains
       item = trim(adjustl(list(first:last)))
    end function branch_item
 
-   !> Everything that determines the result: a checkpoint is resumed only if this matches.
+   !> Everything that determines the result: a checkpoint is resumed only if this matches. It
+   !> holds the values the run uses (after apply_flow_defaults: shear's integrator and k_b as
+   !> chosen), so that a checkpoint written under other defaults does not match.
    function option_signature(opts) result(sig)
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable :: sig

@@ -105,7 +105,9 @@ def test_incremental_tube_jacobian_follows_the_wider_bending_stencil(probe):
     assert r["max_rel_difference"] < 1e-5
 
 
-@pytest.mark.parametrize("flow_args", NEUTRAL_FLOW_ARGS, ids=["shear", "tube"])
+# The tube only: in shear a run without --kb takes the shear database's k_b (3e-4), so --kb 0
+# is the base model there by definition (no bending force is set up for k_b = 0).
+@pytest.mark.parametrize("flow_args", NEUTRAL_FLOW_ARGS[1:], ids=["tube"])
 def test_zero_kb_is_the_base_model_bit_for_bit(capsim, tmp_path, flow_args):
     assert_neutral_effect_is_base(capsim, tmp_path, flow_args, "--kb", "k_b")
 

@@ -70,7 +70,7 @@ def test_a_time_step_that_cannot_get_anywhere_is_refused_at_once(capsim, tmp_pat
 def test_a_small_time_step_over_a_short_t_max_is_not_refused(capsim, tmp_path):
     # 1e-6 over t_max 1e-3: a thousand steps, a legitimate short run.
     out = tmp_path / "x.h5"
-    result = run(capsim, *SHEAR, "--dt", "1e-6", "--t-max", "1e-3", "--quiet", "--out", str(out))
+    result = run(capsim, *SHEAR, "--dt", "1e-6", "--t-max", "1e-3", "--threads", "1", "--quiet", "--out", str(out))
     assert result.returncode == 0, result.stderr
 
 

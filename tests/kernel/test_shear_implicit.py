@@ -55,7 +55,8 @@ def velocity_evaluations(path: Path) -> int:
     pytest.param(("--law", "NH", "--lambda", "0.2", "--ca", "0.05"), marks=pytest.mark.validate),
 ], ids=["NH-0.05", "NH-0.2", "GH0.5-0.05", "NH-kb0.01-0.05", "NH-lambda5-0.05", "NH-lambda0.2-0.05"])
 def test_implicit_reaches_the_rk2_steady_shape(run_shear, law_args):
-    rk2 = read_case(run_shear(*law_args))
+    # RK2 named: --integrator auto takes implicit steps below Ca_s 0.07.
+    rk2 = read_case(run_shear(*law_args, "--integrator", "rk2"))
     implicit = read_case(run_shear(*law_args, "--integrator", "implicit"))
     assert rk2.status == implicit.status == "steady", implicit.message
     for name in SHAPE:
@@ -68,7 +69,7 @@ def test_implicit_needs_fewer_velocity_evaluations_at_small_ca(run_shear):
     # RK2's step is bound to 0.5 Ca h_min by the membrane stiffness (dt = 1.4e-3 at Ca_s 0.01,
     # level 2); the implicit step only by accuracy. Measured: 2900 against 332 evaluations.
     args = ("--law", "NH", "--ca", "0.01")
-    rk2, implicit = run_shear(*args), run_shear(*args, "--integrator", "implicit")
+    rk2, implicit = run_shear(*args, "--integrator", "rk2"), run_shear(*args, "--integrator", "implicit")
     assert read_case(implicit).status == read_case(rk2).status == "steady"
     for name in SHAPE:
         assert read_case(implicit).steady_value(name) == pytest.approx(read_case(rk2).steady_value(name),
@@ -77,7 +78,8 @@ def test_implicit_needs_fewer_velocity_evaluations_at_small_ca(run_shear):
     # At lambda = 5, Ca_s 0.05 (where an evaluation is a GMRES solve) measured 842 against 328;
     # at lambda = 1, Ca_s 0.05 only 610 against 477: the step there is bound by accuracy too.
     args = ("--law", "NH", "--lambda", "5", "--ca", "0.05")
-    assert velocity_evaluations(run_shear(*args)) >= 2 * velocity_evaluations(run_shear(*args, "--integrator", "implicit"))
+    assert velocity_evaluations(run_shear(*args, "--integrator", "rk2")) >= \
+        2 * velocity_evaluations(run_shear(*args, "--integrator", "implicit"))
 
 
 def test_implicit_kill_and_resume_reaches_the_same_steady_shape(capsim, tmp_path, monkeypatch):
@@ -118,11 +120,11 @@ def test_level_3_implicit_matches_rk2_with_far_fewer_evaluations(capsim, tmp_pat
                         "--quiet", "--out", str(out)], check=True, timeout=1800, env=ONE_THREAD)
         return out
 
-    rk2, implicit = run("--ca", "0.05"), run("--ca", "0.05", "--integrator", "implicit")
+    rk2, implicit = run("--ca", "0.05", "--integrator", "rk2"), run("--ca", "0.05", "--integrator", "implicit")
     for name in SHAPE:
         assert read_case(implicit).steady_value(name) == pytest.approx(read_case(rk2).steady_value(name),
                                                                         rel=STEADY_REL_TOL), name
-    rk2, implicit = run("--ca", "0.01"), run("--ca", "0.01", "--integrator", "implicit")
+    rk2, implicit = run("--ca", "0.01", "--integrator", "rk2"), run("--ca", "0.01", "--integrator", "implicit")
     assert read_case(implicit).steady_value("D12") == pytest.approx(read_case(rk2).steady_value("D12"),
                                                                      rel=STEADY_REL_TOL)
     assert velocity_evaluations(rk2) >= 10 * velocity_evaluations(implicit)

@@ -38,6 +38,12 @@ _PUBLIC = {
     "population": "capsmech.api",
     "population_table": "capsmech.api",
     "read_results": "capsmech.api",
+    "diagnose_shear": "capsmech.api",
+    "compare_methods": "capsmech.api",
+    "make_batch": "capsmech.api",
+    "write_batch": "capsmech.api",
+    "simulate": "capsmech.api",
+    "SimulationRun": "capsmech.api",
     "CapsmechError": "capsmech.errors",
     "CapsmechWarning": "capsmech.errors",
     "InputWarning": "capsmech.errors",
@@ -48,6 +54,7 @@ _PUBLIC = {
     "read_case": "capsmech.io.case",
     "load_database": "capsmech.io.database",
     "read_measurements": "capsmech.io.measurements",
+    "read_batch": "capsmech.io.measurement_frames",
     "plot_case": "capsmech.plotting",
     "save_figure": "capsmech.plotting",
 }
@@ -55,19 +62,26 @@ _PUBLIC = {
 if TYPE_CHECKING:
     from capsmech.api import (
         Extraction,
+        SimulationRun,
+        compare_methods,
         diagnose,
+        diagnose_shear,
         extract,
         extract_shear,
         fit_shear,
         fit_tube,
+        make_batch,
         plot_population,
         population,
         population_table,
         read_results,
+        simulate,
+        write_batch,
     )
     from capsmech.errors import CapsmechError, CapsmechWarning, InputWarning, OutsideDatabaseWarning
     from capsmech.io.case import CaseFileError, CaseResult, NotSteadyError, read_case
     from capsmech.io.database import load_database
+    from capsmech.io.measurement_frames import read_batch
     from capsmech.io.measurements import read_measurements
     from capsmech.plotting import plot_case, save_figure
 
@@ -96,18 +110,25 @@ __all__ = [
     "OutsideDatabaseWarning",
     "__version__",
     "Extraction",
+    "SimulationRun",
+    "compare_methods",
     "diagnose",
+    "diagnose_shear",
     "extract",
     "extract_shear",
     "fit_shear",
     "fit_tube",
     "load_database",
+    "make_batch",
     "plot_case",
     "plot_population",
     "population",
     "population_table",
+    "read_batch",
     "read_case",
     "read_measurements",
     "read_results",
     "save_figure",
+    "simulate",
+    "write_batch",
 ]

@@ -1,13 +1,13 @@
 """The public API: what ``import capsmech`` offers a script or a notebook, and what the CLI wraps.
 
 Every function takes a database as a loaded object, a shipped database's name (``"tube-paper"``,
-see ``capsmech.io.catalog``) or a file path, and measurements as capsules or a CSV path.
-Results are pandas DataFrames, one row per capsule (and law), with a ``flag`` code column
-(empty when the capsule was fitted; ``capsmech.inversion.fitting.FLAG_CODES``) and a
-``reason`` column in words; ``DataFrame.attrs["units"]`` gives each column's unit. What a
-user must know but that does not stop the analysis is a warning of the
-``capsmech.errors.CapsmechWarning`` family; what stops it is a ``CapsmechError`` with a
-message naming the file, line, field or name at fault.
+see ``capsmech.io.catalog``) or a file path, and measurements as a file path (CSV or ``.xlsx``),
+a DataFrame (units in its column names or ``attrs["units"]``) or capsules. Results are pandas
+DataFrames, one row per capsule (and law), with a ``flag`` code column (empty when the capsule
+was fitted; ``capsmech.inversion.fitting.FLAG_CODES``) and a ``reason`` column in words;
+``DataFrame.attrs["units"]`` gives each column's unit. What a user must know but that does not
+stop the analysis is a warning of the ``capsmech.errors.CapsmechWarning`` family; what stops it
+is a ``CapsmechError`` with a message naming the file, line, field or name at fault.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Literal, TypeAlias, cast, overload
 import numpy as np
 import pandas as pd
 
-from capsmech.errors import InputWarning, OutsideDatabaseWarning
+from capsmech.errors import CapsmechError, InputWarning, OutsideDatabaseWarning
 from capsmech.inversion.fitting import (
     SHEAR_RESULT_UNITS,
     TUBE_RESULT_UNITS,
@@ -32,7 +32,8 @@ from capsmech.inversion.population import PopulationVerdict, population_verdict
 from capsmech.inversion.population_report import plot_population as plot_population_rows
 from capsmech.io import plausibility
 from capsmech.io.database import Database, DatabaseError, ShearDatabase, TubeDatabase, load_database
-from capsmech.io.measurements import Capsule, read_measurements
+from capsmech.io.measurement_frames import capsules_from_frame
+from capsmech.io.measurements import Capsule, MeasurementError, read_measurements
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -40,10 +41,14 @@ if TYPE_CHECKING:
     from capsmech.diagnosis.diagnose import Diagnosis
     from capsmech.diagnosis.offcentre import OffcentreTable
     from capsmech.diagnosis.sequential import SequentialDiagnosis
+    from capsmech.diagnosis.shear import ShearDiagnosis
+    from capsmech.diagnosis.undeclared_tube import Batch
     from capsmech.imaging.shear_plane import ShearExtraction
+    from capsmech.inversion.microrheometry import MethodComparison
+    from capsmech.io.case import CaseResult
 
 DatabaseLike: TypeAlias = Database | str | Path
-CapsulesLike: TypeAlias = Sequence[Capsule] | str | Path
+CapsulesLike: TypeAlias = pd.DataFrame | Sequence[Capsule] | str | Path
 ResultsLike: TypeAlias = pd.DataFrame | Iterable[Mapping[str, Any]] | str | Path
 
 
@@ -95,9 +100,17 @@ def _label(database: Database) -> str:
 
 
 def _capsules(capsules: CapsulesLike, flow: str) -> list[Capsule]:
+    """The capsules of a measurement file, a DataFrame (``capsmech.io.measurement_frames``)
+    or a sequence of ``Capsule``; anything else is a ``MeasurementError`` saying what is taken."""
     if isinstance(capsules, (str, Path)):
         return read_measurements(capsules, flow)
-    return list(capsules)
+    if isinstance(capsules, pd.DataFrame):
+        return capsules_from_frame(capsules, flow)
+    items = list(capsules) if isinstance(capsules, Iterable) else None
+    if items is None or not all(isinstance(item, Capsule) for item in items):
+        raise MeasurementError(f"measurements: a file path, a pandas DataFrame or a list of Capsule, not "
+                               f"{type(capsules).__name__}")
+    return items
 
 
 def _frame(rows: Sequence[Mapping[str, Any]], units: Mapping[str, str]) -> pd.DataFrame:
@@ -135,8 +148,10 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
 
     Parameters
     ----------
-    capsules : sequence of Capsule, or str or Path
-        Measured capsules, or a measurement CSV (``capsmech.io.measurements``).
+    capsules : DataFrame, str or Path, or sequence of Capsule
+        Measured capsules: a measurement file (CSV or ``.xlsx``), a DataFrame with units in
+        its column names or ``attrs["units"]`` (``pd.read_csv`` of such a file,
+        ``capsmech.io.measurement_frames.read_batch``), or capsules (``capsmech.io.measurements``).
     database : Database, str or Path
         A tube database, its shipped name (default ``"tube-paper"``) or its file.
     laws : str or iterable of str, optional
@@ -174,17 +189,30 @@ def fit_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
 
 
 def read_results(path: str | Path) -> pd.DataFrame:
-    """A results file written by ``capsmech fit-tube`` (CSV with ``name [unit]`` headers)."""
-    from capsmech.inversion.population_report import read_results as read_rows
+    """A results file written by ``capsmech fit-tube``, ``fit-shear`` or ``population`` with
+    ``--out``: a CSV with ``name [unit]`` headers or an HDF5 file (told apart by its first
+    bytes); the units in ``attrs["units"]``, the columns in the order the command writes them.
 
-    rows = read_rows(path)
-    frame = pd.DataFrame(rows)
-    for column in frame.columns:
-        if column not in ("id", "law", "flag", "reason"):
-            frame[column] = pd.to_numeric(frame[column], errors="coerce")
-    for column in ("flag", "reason"):
-        if column in frame.columns:
-            frame[column] = frame[column].fillna("")
+    Raises
+    ------
+    capsmech.io.results.ResultsFileError
+        A file that is not such a table (naming the file, and the line or dataset, and field).
+    """
+    from capsmech.inversion.population_report import POPULATION_UNITS
+    from capsmech.io.results import read_results_table
+
+    rows, units = read_results_table(path, required=())
+    for known in (TUBE_RESULT_UNITS, SHEAR_RESULT_UNITS, POPULATION_UNITS):
+        # An HDF5 file without its column order lists the columns by name: the command's order back.
+        if set(units) == set(known):
+            units = {name: units[name] for name in known}
+    frame = pd.DataFrame(rows, columns=list(units))
+    frame.attrs["units"] = units
+    for column, unit in units.items():
+        # A column with a unit holds numbers (checked by the reader; an empty cell: NaN), parsed
+        # by float() so that every digit an HDF5 file holds comes back; one without is text.
+        frame[column] = (np.array([float(v) if str(v).strip() else math.nan for v in frame[column]], dtype=float)
+                         if unit else frame[column].fillna(""))
     return frame
 
 
@@ -260,8 +288,8 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
 
     Parameters
     ----------
-    capsules : sequence of Capsule, or str or Path
-        A tube batch with contours.
+    capsules : DataFrame, str or Path, or sequence of Capsule
+        A tube batch with contours, as ``fit_tube`` takes it.
     database : Database, str or Path
         The base tube database (default ``"tube-paper"``).
     law : str
@@ -640,3 +668,285 @@ def extract_shear(frames: str | Path | Sequence[str | Path], pixel_size: float |
                              background=bg, progress=advance)
     finally:
         bar.close()
+
+
+def diagnose_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
+                   lambda_database: DatabaseLike = "shear-microrheometry", law: str = "NH", *,
+                   lambda_value: str | None = None, pixel_size: float | None = None, error_px: float | None = None,
+                   theta_error: float | None = None) -> ShearDiagnosis:
+    """Which effect (the experiment's viscosity ratio, another law) a Couette batch's G_s drift
+    supports (``capsmech.diagnosis.shear``).
+
+    Parameters
+    ----------
+    capsules : sequence of Capsule, or str or Path
+        A shear batch (at least 3 capsules).
+    database : Database, str or Path
+        The shear database made with viscosity ratio 1 (default ``"shear-paper"``).
+    lambda_database : Database, str or Path
+        The shear database at the candidate viscosity ratio (law keys ``<law>+lambda<X>``).
+    law : str
+        The base law key.
+    lambda_value : str, optional
+        That viscosity ratio as the law keys spell it (default ``diagnosis.shear.LAMBDA_VALUE``).
+    pixel_size : float, optional
+        The noise model's pixel [m] where the batch has no ``pixel_size`` column.
+    error_px : float, optional
+        Error bound of each semi-axis [px].
+    theta_error : float, optional
+        Standard deviation of a measured inclination [rad].
+
+    Returns
+    -------
+    ShearDiagnosis
+        Every candidate's criteria, the chosen one and ``verdict`` in words.
+
+    Raises
+    ------
+    DatabaseError
+        A database of another flow, or a law key it does not hold.
+    MeasurementError
+        Fewer than 3 capsules, or a noise parameter that is not a positive number.
+    """
+    from capsmech.diagnosis import shear
+    from capsmech.io.measurements import MeasurementError
+
+    lambda_value = shear.LAMBDA_VALUE if lambda_value is None else lambda_value
+    noise = {"pixel_size": shear.PIXEL_SIZE if pixel_size is None else pixel_size,
+             "error_px": shear.ERROR_PX if error_px is None else error_px,
+             "theta_error": shear.THETA_ERROR if theta_error is None else theta_error}
+    for name, value in noise.items():
+        if not (math.isfinite(value) and value > 0):
+            raise MeasurementError(f"{name}: must be a positive number, got {value}")
+    databases = [as_database(database, "shear", "diagnose_shear (database)"),
+                 as_database(lambda_database, "shear", "diagnose_shear (lambda_database)")]
+    check_laws(databases[0], [law], "law")
+    key = shear.lambda_key(law, lambda_value)
+    if key not in databases[1].laws:
+        raise DatabaseError(f"lambda_value: {_label(databases[1])} has no law {key!r} "
+                            f"(it has {', '.join(databases[1].laws)})")
+    batch = _capsules(capsules, "shear")
+    candidates = shear.default_candidates(law, databases[0].laws, lambda_value)
+    try:
+        return shear.diagnose_shear(batch, shear.ShearGroups(databases), law, candidates, **noise)
+    except ValueError as err:
+        if isinstance(err, CapsmechError):
+            raise
+        raise MeasurementError(f"{capsules if isinstance(capsules, (str, Path)) else 'capsules'}: {err}") from None
+
+
+def make_batch(effects: Mapping[str, float] | None = None, n_capsules: int = 24, law: str = "NH",
+               g_s: float = 0.04, *, seed: int = 0, workers: int = 1) -> Batch:
+    """A synthetic tube batch with undeclared effects, simulated with the kernel, to check
+    ``diagnose`` on (``capsmech.diagnosis.undeclared_tube``).
+
+    Parameters
+    ----------
+    effects : mapping, optional
+        Effect name -> strength (``{"prestress": 0.06}``); none by default.
+    n_capsules : int
+        Capsules drawn (those that reach no steady state are left out).
+    law : str
+        The base law the batch will be fitted with.
+    g_s : float
+        The membrane's G_s [N/m].
+    seed : int
+        Random seed of the draw and the noise.
+    workers : int
+        Kernel runs at a time.
+
+    Returns
+    -------
+    capsmech.diagnosis.undeclared_tube.Batch
+        The measurement rows and the truth (``write_batch`` writes both).
+
+    Raises
+    ------
+    MeasurementError
+        An unknown effect, two laws at once, or a value out of range (the message says which).
+    """
+    from capsmech.diagnosis.undeclared_tube import make_batch as simulate_batch
+    from capsmech.io.measurements import MeasurementError
+
+    try:
+        return simulate_batch(dict(effects or {}), n_capsules=n_capsules, law=law, g_s=g_s, seed=seed,
+                              workers=workers)
+    except ValueError as err:
+        if isinstance(err, CapsmechError):
+            raise
+        raise MeasurementError(str(err)) from None
+
+
+def write_batch(batch: Batch, path: str | Path) -> tuple[Path, Path]:
+    """Write a ``make_batch`` batch: the measurement CSV (and contours) at ``path``, the truth
+    beside it (``<stem>_truth.csv``); returns both paths."""
+    from capsmech.diagnosis.undeclared_tube import write_batch as write_rows
+
+    return write_rows(batch, path)
+
+
+def compare_methods(database: DatabaseLike = "shear-paper", lambda_database: DatabaseLike = "shear-microrheometry",
+                    lambda_value: str = "0.001", laws: str | Iterable[str] | None = None) -> list[MethodComparison]:
+    """The paper's microrheometry against its microfluidics, before and after the viscosity
+    ratio of its shear experiment (``capsmech.inversion.microrheometry``).
+
+    Parameters
+    ----------
+    database : Database, str or Path
+        The shear database made with viscosity ratio 1 (default ``"shear-paper"``).
+    lambda_database : Database, str or Path
+        The one at the experiment's viscosity ratio (law keys ``<law>+lambda<X>``).
+    lambda_value : str
+        That ratio as the law keys spell it (default ``"0.001"``).
+    laws : str or iterable of str, optional
+        Base law keys (default NH, GH_nu0.5 and GH_nu0.2, the paper's).
+
+    Returns
+    -------
+    list of MethodComparison
+        One per law: the paper's example capsule's G_s before and after, the correction's mean
+        and extremes over the population's D12, the microrheometry G_s [N/m] before and after,
+        the microfluidics G_s.
+
+    Raises
+    ------
+    DatabaseError
+        A database of another flow, or a law key one of them does not hold.
+    """
+    from capsmech.inversion.microrheometry import compare_methods as compare
+
+    base = as_database(database, "shear", "compare_methods (database)")
+    with_lambda = as_database(lambda_database, "shear", "compare_methods (lambda_database)")
+    keys = check_laws(base, ["NH", "GH_nu0.5", "GH_nu0.2"] if laws is None else laws, "laws")
+    suffix = f"+lambda{lambda_value}"
+    missing = [law + suffix for law in keys if law + suffix not in with_lambda.laws]
+    if missing:
+        raise DatabaseError(f"lambda_database: {_label(with_lambda)} has no law group {', '.join(missing)} "
+                            f"(it has {', '.join(with_lambda.laws)}); refill it with `make database GRID=microrheometry`")
+    return compare(base, with_lambda, suffix, tuple(keys))
+
+
+#: The grid whose model choices a single kernel run takes when its arguments leave them open: the
+#: paper's, so that a case run by hand is comparable with (and as steady as) the shipped databases'.
+REFERENCE_GRID = "paper"
+
+
+def _kernel_flag(args: Sequence[str], flag: str) -> str | None:
+    """The value of ``flag`` (``--flag V`` or ``--flag=V``) in kernel arguments, the last one given."""
+    found = None
+    for i, arg in enumerate(args):
+        if arg == flag and i + 1 < len(args):
+            found = args[i + 1]
+        elif arg.startswith(flag + "="):
+            found = arg.split("=", 1)[1]
+    return found
+
+
+def database_settings(kernel_args: Sequence[str]) -> list[str]:
+    """The reference grid's model choices (integrator, bending regularisation) that
+    ``kernel_args`` leave open, as kernel flags. Empty for a namelist run, a branch, help, an
+    unreadable Ca_s, or where the grid file is not at hand."""
+    flow, ca = _kernel_flag(kernel_args, "--flow"), _kernel_flag(kernel_args, "--ca")
+    if flow not in ("tube", "shear") or ca is None or "--help" in kernel_args or "-h" in kernel_args \
+            or _kernel_flag(kernel_args, "--namelist") is not None or _kernel_flag(kernel_args, "--branch-ca"):
+        return []
+    from capsmech.workflow.grid import GridError, load_grid, model_choice_flags
+    from capsmech.workflow.paths import repo_root
+
+    try:
+        Ca_s = float(ca)
+        grid = load_grid(repo_root() / "config" / f"{REFERENCE_GRID}.yaml")
+    except (ValueError, FileNotFoundError, GridError):
+        return []
+    flags = model_choice_flags(grid, flow, Ca_s)
+    return [item for flag, value in zip(flags[::2], flags[1::2])
+            if _kernel_flag(kernel_args, flag) is None for item in (flag, value)]
+
+
+@dataclass
+class SimulationRun:
+    """One run of the capsim kernel.
+
+    Attributes
+    ----------
+    returncode : int
+        The kernel's exit status (0: the run ended normally; the case's ``status`` says whether
+        it reached a steady state).
+    arguments : list of str
+        The arguments it ran with (those given, then ``added``).
+    added : list of str
+        The reference grid's settings added because the arguments left them open.
+    case_path : Path or None
+        The case file this run wrote (``--out``), None when it wrote none.
+    """
+
+    returncode: int
+    arguments: list[str]
+    added: list[str]
+    case_path: Path | None
+
+
+def simulate(kernel_args: Sequence[str], *, database_defaults: bool = True,
+             output: Any = None) -> SimulationRun:
+    """Run the capsim kernel on one case, its output streamed line by line.
+
+    Parameters
+    ----------
+    kernel_args : sequence of str
+        The kernel's arguments (``["--flow", "shear", "--ca", "0.05", "--out", "case.h5"]``;
+        ``capsim --help`` lists them). The folder of ``--out`` is created.
+    database_defaults : bool
+        Add the reference grid's model choices the arguments leave open (``database_settings``),
+        so that the case is computed as the shipped databases' are.
+    output : text stream, optional
+        Where the kernel's output goes (default ``sys.stdout``).
+
+    Returns
+    -------
+    SimulationRun
+        The exit status, the arguments, and the case file written (``read_case`` reads it).
+
+    Raises
+    ------
+    FileNotFoundError
+        No kernel (``make build``, or the ``CAPSIM`` variable).
+    """
+    import subprocess
+    import sys
+    import time
+
+    from capsmech.workflow.paths import capsim_executable
+    from capsmech.workflow.simulate import relay_kernel_output
+
+    exe = capsim_executable()
+    added = database_settings(kernel_args) if database_defaults else []
+    arguments = [*kernel_args, *added]
+    stream = sys.stdout if output is None else output
+    out_text = _kernel_flag(arguments, "--out")
+    out = Path(out_text) if out_text else None
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    stream.flush()
+    with subprocess.Popen([str(exe), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          bufsize=1) as proc:
+        assert proc.stdout is not None
+        try:
+            # On a terminal the kernel's progress lines become one bar; elsewhere they pass through.
+            relay_kernel_output(proc.stdout, stream)
+            code = proc.wait()
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            raise
+    # A case file older than the run is not this run's (the kernel stopped before writing).
+    wrote = out is not None and out.is_file() and out.stat().st_mtime >= started - 1.0
+    return SimulationRun(code, arguments, added, out if wrote else None)
+
+
+def read_case(path: str | Path) -> CaseResult:
+    """A case file written by the kernel (``capsmech.io.case.CaseResult``: parameters, status,
+    steady values with their units, history, mesh)."""
+    from capsmech.io.case import read_case as read
+
+    return read(path)

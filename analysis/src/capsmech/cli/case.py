@@ -1,22 +1,35 @@
 """``capsmech simulate``: one case with the ``capsim`` kernel; ``capsmech show``: a case file.
 
-``simulate`` passes all its arguments through to the kernel, streams its output, returns the
-kernel's exit code, and then summarises the case file named by ``--out`` if the run wrote one.
+``simulate`` passes all its arguments through to the kernel (``capsmech.api.simulate``) but
+capsmech's own ``--json FILE`` and ``--force``, streams its output, returns the kernel's exit
+code, and then summarises the case file named by ``--out`` if the run wrote one.
 ``show`` prints a case file's parameters, status and steady values, and with ``--plot
 OUT.png`` draws the deformation history and the profile (``capsmech.plotting.plot_case``).
 """
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from capsmech.cli.common import EXIT_ERROR, FIGURE_SUFFIXES, bracketed_unit, check_output, fmt
-from capsmech.io.case import CaseFileError, CaseResult, read_case
-from capsmech.workflow.paths import capsim_executable
+from capsmech.api import REFERENCE_GRID, database_settings, read_case, simulate
+from capsmech.cli.common import (
+    EXIT_ERROR,
+    FIGURE_SUFFIXES,
+    OutputPathError,
+    add_force_option,
+    add_json_option,
+    bracketed_unit,
+    fmt,
+    plan_output,
+    write_json,
+)
+from capsmech.io.case import CaseFileError, CaseResult
+
+__all__ = ["REFERENCE_GRID", "case_record", "cmd_show", "cmd_simulate", "database_choices", "format_summary",
+           "out_path_from_args", "register"]
 
 
 def format_summary(case: CaseResult) -> str:
@@ -77,105 +90,103 @@ def out_path_from_args(args: Sequence[str]) -> Path | None:
     return found
 
 
-def cmd_show(case_path: str | Path, plot: str | Path | None = None) -> int:
-    """Print a case summary, and optionally write its plot (PNG); 0 on success."""
+def case_record(case: CaseResult) -> dict[str, Any]:
+    """A case as ``--json`` holds it: what ``format_summary`` prints, with each value's unit."""
+    return {"case": case.path, "flow": case.flow, "law": case.law, "nu_s": case.nu_s, "C": case.C,
+            "Ca_s": case.Ca_s, "a_over_l": case.a_over_l, "mesh_level": case.mesh_level, "dt": case.dt,
+            "status": case.status, "message": case.message, "steady_state": case.is_steady,
+            "steady": dict(case.steady), "effects": dict(case.effects),
+            "units": {"dt": case.unit("history/t"), **{name: case.unit("steady/" + name) for name in case.steady}},
+            "wall_time_s": case.wall_time_s, "threads": case.threads, "code_version": case.code_version,
+            "schema_version": case.schema_version}
+
+
+def cmd_show(case_path: str | Path, plot: str | Path | None = None, json_path: str | Path | None = None,
+             force: bool = False) -> int:
+    """Print a case summary, and optionally write its plot (PNG) and its JSON; 0 on success."""
     from capsmech.plotting import plot_case, save_figure
 
-    if plot is not None:
-        check_output(plot, "--plot", FIGURE_SUFFIXES, create_parent=True)
+    planned = plan_output(plot, "--plot", FIGURE_SUFFIXES, force, create_parent=True) if plot is not None else None
+    json_out = plan_output(json_path, "--json", (".json",), force) if json_path is not None else None
     case = read_case(case_path)
     print(format_summary(case))
-    if plot is not None:
-        print(f"plot        {save_figure(plot_case(case), plot)}")
+    if planned is not None:
+        print(f"plot        {save_figure(plot_case(case), planned.path)}"
+              + (" (replaced the file that was there)" if planned.existed else ""))
+    if json_out is not None:
+        print(json_out.wrote(write_json(json_out.path, "show", case_record(case))))
     return 0
 
 
-#: The grid whose model choices a single case takes when the user gives none: the paper's, so that
-#: a case run by hand is comparable with (and as steady as) the shipped databases' cases.
-REFERENCE_GRID = "paper"
-
-
-def _flag_value(args: Sequence[str], flag: str) -> str | None:
-    for i, arg in enumerate(args):
-        if arg == flag and i + 1 < len(args):
-            return args[i + 1]
-        if arg.startswith(flag + "="):
-            return arg.split("=", 1)[1]
-    return None
-
-
 def database_choices(kernel_args: Sequence[str]) -> list[str]:
-    """The paper grid's model choices (integrator, bending regularisation) that ``kernel_args``
-    leave open, as kernel flags; printed when added. None for a namelist run, a branch, an
-    unreadable Ca_s or where the grid file is not at hand (an installed package)."""
-    flow, ca = _flag_value(kernel_args, "--flow"), _flag_value(kernel_args, "--ca")
-    if flow not in ("tube", "shear") or ca is None or "--help" in kernel_args or "-h" in kernel_args \
-            or _flag_value(kernel_args, "--namelist") is not None or _flag_value(kernel_args, "--branch-ca"):
-        return []
-    from capsmech.workflow.grid import GridError, load_grid, model_choice_flags
-    from capsmech.workflow.paths import repo_root
-
-    try:
-        Ca_s = float(ca)
-        grid = load_grid(repo_root() / "config" / f"{REFERENCE_GRID}.yaml")
-    except (ValueError, FileNotFoundError, GridError):
-        return []
-    flags = model_choice_flags(grid, flow, Ca_s)
-    added = [item for flag, value in zip(flags[::2], flags[1::2])
-             if _flag_value(kernel_args, flag) is None for item in (flag, value)]
+    """The reference grid's model choices that ``kernel_args`` leave open, as kernel flags
+    (``capsmech.api.database_settings``); printed when added."""
+    added = database_settings(kernel_args)
     if added:
         print(f"capsmech: the {REFERENCE_GRID} database's settings for this case: {' '.join(added)} "
               "(give the flags to choose otherwise)")
     return added
 
 
-def cmd_simulate(kernel_args: Sequence[str]) -> int:
-    """Run the capsim kernel with ``kernel_args``, streaming its output.
+def _own_options(kernel_args: Sequence[str]) -> tuple[list[str], str | None, bool]:
+    """capsmech's own options among the kernel's (``--json FILE``, ``--force``; the kernel has
+    neither), and the arguments left for the kernel."""
+    rest: list[str] = []
+    json_path: str | None = None
+    force = False
+    items = iter(kernel_args)
+    for arg in items:
+        if arg == "--json":
+            json_path = next(items, None)
+            if json_path is None:
+                raise OutputPathError("--json: give the file to write (FILE.json)")
+        elif arg.startswith("--json="):
+            json_path = arg.split("=", 1)[1]
+        elif arg == "--force":
+            force = True
+        else:
+            rest.append(arg)
+    return rest, json_path, force
 
-    The parent directory of ``--out`` is created first. After the run, the
-    case file named by ``--out`` is summarised if this run wrote it.
+
+def cmd_simulate(kernel_args: Sequence[str]) -> int:
+    """Run the capsim kernel with ``kernel_args`` (``capsmech.api.simulate``), streaming its output.
+
+    The case file named by ``--out`` (an existing one is kept unless ``--force``) is summarised
+    if this run wrote it, and with ``--json FILE`` written as ``show --json`` writes it.
 
     Parameters
     ----------
     kernel_args : sequence of str
-        Arguments passed unchanged to ``bin/capsim``.
+        Arguments passed unchanged to ``bin/capsim`` (but ``--json FILE`` and ``--force``).
 
     Returns
     -------
     int
         The kernel's exit code (or 2 if it succeeded but its case file is unreadable).
     """
-    exe = capsim_executable()
-    kernel_args = [*kernel_args, *database_choices(kernel_args)]
+    kernel_args, json_path, force = _own_options(kernel_args)
     out = out_path_from_args(kernel_args)
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    started = time.time()
-    sys.stdout.flush()
-    with subprocess.Popen(
-        [str(exe), *kernel_args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        bufsize=1,
-    ) as proc:
-        assert proc.stdout is not None
-        try:
-            for line in proc.stdout:
-                sys.stdout.write(line)
-                sys.stdout.flush()
-            code = proc.wait()
-        except KeyboardInterrupt:
-            proc.terminate()
-            proc.wait()
-            return 130
-    if out is not None and out.is_file() and out.stat().st_mtime >= started - 1.0:
+    help_asked = "--help" in kernel_args or "-h" in kernel_args
+    if out is not None and not help_asked:
+        plan_output(out, "--out", (".h5", ".hdf5"), force, create_parent=True)
+    json_out = plan_output(json_path, "--json", (".json",), force) if json_path is not None else None
+    added = database_choices(kernel_args)
+    run = simulate([*kernel_args, *added], database_defaults=False, output=sys.stdout)
+    code = run.returncode
+    if run.case_path is not None:
         print()
         try:
-            cmd_show(out)
+            cmd_show(run.case_path)
+            if json_out is not None:
+                print(json_out.wrote(write_json(json_out.path, "simulate", {
+                    "arguments": run.arguments, "added": added, "returncode": code,
+                    **case_record(read_case(run.case_path))})))
         except CaseFileError as exc:
             print(f"capsmech: error: {exc}", file=sys.stderr)
             return code if code != 0 else EXIT_ERROR
+    elif json_out is not None:
+        print(f"capsmech: no case file written: {json_out.path} not written", file=sys.stderr)
     return code
 
 
@@ -184,10 +195,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     sub.add_parser(
         "simulate",
         add_help=False,
-        help="run the capsim kernel on one case; every argument goes to it (try: simulate --help)",
+        help="run the capsim kernel on one case; every argument goes to it (try: simulate --help), but capsmech's "
+             "own --json FILE (the case's summary as JSON) and --force (replace an existing --out)",
         description="Run bin/capsim; every argument is passed through to it.",
     )
     show = sub.add_parser("show", help="summarise a case file, optionally plot it")
     show.add_argument("case", metavar="CASE.h5", help="case file written by capsim")
     show.add_argument("--plot", metavar="OUT.png", help="write a 2-panel PNG (history, profile)")
-    show.set_defaults(func=lambda args: cmd_show(args.case, args.plot))
+    add_json_option(show, "the case's parameters, status and steady values with their units")
+    add_force_option(show)
+    show.set_defaults(func=lambda args: cmd_show(args.case, args.plot, args.json, args.force))

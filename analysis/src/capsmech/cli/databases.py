@@ -6,17 +6,25 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from capsmech.cli.common import add_force_option, add_json_option, plan_output, write_json
 from capsmech.workflow.grid import GridError
 
 
 def cmd_databases(args: argparse.Namespace) -> int:
     """``databases``: list the shipped databases: name, flow, what it holds, its accuracy."""
-    from capsmech.io.catalog import shipped_databases
+    from capsmech.io.catalog import database_versions, shipped_databases
 
-    for entry in shipped_databases():
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
+    entries = shipped_databases()
+    for entry in entries:
         print(f"{entry.name:<22} {entry.flow:<6} {entry.description}")
         if entry.accuracy:
             print(f"{'':<22} {'':<6} accuracy: {entry.accuracy}")
+    if json_out is not None:
+        versions = database_versions()
+        listed = [{"name": e.name, "flow": e.flow, "kind": e.kind, "description": e.description,
+                   "accuracy": e.accuracy, "path": str(e.path), "version": versions.get(e.name)} for e in entries]
+        print(json_out.wrote(write_json(json_out.path, "databases", {"databases": listed})))
     return 0
 
 
@@ -97,6 +105,8 @@ def cmd_figures(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``databases``, ``database`` and ``figures``."""
     listing = sub.add_parser("databases", help="list the shipped databases (names for --database)")
+    add_json_option(listing, "the list (name, flow, what it holds, its accuracy, its file and version)")
+    add_force_option(listing)
     listing.set_defaults(func=cmd_databases)
     database = sub.add_parser("database", help="assemble (workflow) or summarise a database file")
     actions = database.add_subparsers(dest="action", required=True, metavar="ACTION")

@@ -6,14 +6,23 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import warnings
 from pathlib import Path
 
-from capsmech.api import as_database, diagnose
-from capsmech.cli.common import add_database_option, check_output
+from capsmech.api import as_database, diagnose, diagnose_shear, make_batch, write_batch
+from capsmech.cli.common import (
+    add_base_law_option,
+    add_database_option,
+    add_force_option,
+    add_json_option,
+    add_report_option,
+    plan_output,
+    report_option,
+    write_json,
+)
 from capsmech.diagnosis.shear import ERROR_PX, LAMBDA_VALUE, PIXEL_SIZE, THETA_ERROR
-from capsmech.errors import CapsmechError
-from capsmech.io.database import DatabaseError
-from capsmech.io.measurements import MeasurementError, read_measurements
+from capsmech.errors import CapsmechError, InputWarning
+from capsmech.io.measurements import MeasurementError
 
 
 def _levels(text: str, option: str) -> list[float]:
@@ -36,10 +45,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     levels = {option: _levels(getattr(args, option), option) for option in ("prestress_levels", "kb_levels")}
     # Outputs are checked before the minutes of work that fill them.
-    if args.out:
-        check_output(args.out, "--out", (".md",), create_parent=True)
-    if args.json:
-        check_output(args.json, "--json", (".json",))
+    report_path = report_option(args)
+    report = plan_output(report_path, "--report", (".md",), args.force, create_parent=True) if report_path else None
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     if args.profile and not args.simulate:
         raise MeasurementError("--profile: only with --simulate (it says where the simulations run)")
     database = as_database(args.database, "tube", "diagnose")
@@ -113,14 +121,15 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                   f"{sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
         else:
             print(f"verdict for the batch: {sequence.verdict}")
-    if args.json:
-        from capsmech.diagnosis.record import write_json
+    if json_out is not None:
+        from capsmech.diagnosis.record import diagnosis_record
 
-        print(f"wrote {write_json(outcome, args.json, Path(args.measurements).name)}")
-    if args.out:
-        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+        record = diagnosis_record(outcome, Path(args.measurements).name)
+        print(json_out.wrote(write_json(json_out.path, "diagnose", record)))
+    if report is not None:
+        print(report.wrote(write_report(result, report.path, Path(args.measurements).name)))
         for k, later in enumerate(sequence.rounds[1:] if sequence is not None else [], start=2):
-            out = Path(args.out).with_name(f"{Path(args.out).stem}_round{k}{Path(args.out).suffix}")
+            out = report.path.with_name(f"{report.path.stem}_round{k}{report.path.suffix}")
             print(f"wrote {write_report(later, out, Path(args.measurements).name + f' (round {k})')}")
     return 0
 
@@ -230,65 +239,98 @@ def _simulate(args: argparse.Namespace, candidate: str, grid: dict, database) ->
     return path
 
 
-def cmd_make_batch(args: argparse.Namespace) -> int:
-    """``make-batch``: a synthetic tube batch with undeclared effects (capsmech.diagnosis.undeclared_tube)."""
-    from capsmech.diagnosis.undeclared_tube import make_batch, write_batch
+def batch_path(out: str, name: str | None) -> Path:
+    """The batch's measurement file: ``--out FILE.csv``; the old spelling ``--out DIR`` (with
+    ``--name STEM``) still gives ``DIR/STEM.csv``, with a warning."""
+    path = Path(out)
+    if path.suffix == ".csv" and name is None:
+        return path
+    if path.suffix == ".csv":
+        raise MeasurementError("--name: only with the old --out DIR; give the file itself, --out DIR/NAME.csv")
+    warnings.warn(f"--out {out}: a folder; --out now names the batch's measurement file "
+                  f"(--out {path / ((name or 'batch') + '.csv')}); --out DIR and --name will go", InputWarning,
+                  stacklevel=2)
+    return path / f"{name or 'batch'}.csv"
 
+
+def cmd_make_batch(args: argparse.Namespace) -> int:
+    """``make-batch``: a synthetic tube batch with undeclared effects (``api.make_batch``)."""
     effects = args.effect or []
     strengths = args.strength or []
     if len(strengths) != len(effects):
         raise MeasurementError(f"--strength: give one per --effect ({len(effects)} effects, {len(strengths)} strengths)")
-    try:
-        batch = make_batch(dict(zip(effects, strengths)), n_capsules=args.n, law=args.law, g_s=args.g_s,
-                           seed=args.seed, workers=args.workers)
-    except ValueError as err:
-        raise MeasurementError(str(err)) from None
-    csv_path, truth = write_batch(batch, Path(args.out) / f"{args.name}.csv")
-    print(f"wrote {csv_path} ({len(batch.rows)} capsules) and {truth}")
+    csv_out = plan_output(batch_path(args.out, args.name), "--out", (".csv",), args.force, create_parent=True)
+    truth_out = plan_output(csv_out.path.with_name(f"{csv_out.path.stem}_truth.csv"), "--out (its truth file)",
+                            (".csv",), args.force, create_parent=True)
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
+    batch = make_batch(dict(zip(effects, strengths)), n_capsules=args.n, law=args.law, g_s=args.g_s,
+                       seed=args.seed, workers=args.workers)
+    csv_path, truth = write_batch(batch, csv_out.path)
+    print(f"{csv_out.wrote(csv_path)} ({len(batch.rows)} capsules); {truth_out.wrote(truth)}")
+    if json_out is not None:
+        payload = {"measurements": str(csv_path), "truth": str(truth), "effects": batch.effects,
+                   "capsules": len(batch.rows), "law": args.law, "G_s": args.g_s, "units": {"G_s": "N/m"},
+                   "seed": args.seed}
+        print(json_out.wrote(write_json(json_out.path, "make-batch", payload)))
     return 0
 
 
 def cmd_diagnose_shear(args: argparse.Namespace) -> int:
-    """``diagnose-shear``: print the verdict (and write the report)."""
-    from capsmech.diagnosis.shear import (
-        ShearGroups,
-        default_candidates,
-        diagnose_shear,
-        lambda_key,
-        write_report,
-    )
+    """``diagnose-shear``: print the verdict (and write the report and the JSON)."""
+    from capsmech.diagnosis.shear import write_report
     from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, parse_quantity
 
-    args.pixel_size = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um")
-    for option in ("pixel_size", "error_px", "theta_error"):
-        value = getattr(args, option)
-        if not (math.isfinite(value) and value > 0):
-            raise MeasurementError(f"--{option.replace('_', '-')}: must be a positive number, got {value}")
-    capsules = read_measurements(args.measurements, "shear")
-    databases = []
-    for option, path in (("--database", args.database), ("--lambda-database", args.lambda_database)):
-        databases.append(as_database(path, "shear", f"diagnose-shear {option}"))
-    if args.law not in databases[0].laws:
-        raise DatabaseError(f"--law: {args.database} has no law {args.law!r} (it has {', '.join(databases[0].laws)})")
-    key = lambda_key(args.law, args.lambda_value)
-    if key not in databases[1].laws:
-        raise DatabaseError(f"--lambda-value: {args.lambda_database} has no law {key!r} "
-                            f"(it has {', '.join(databases[1].laws)})")
-    candidates = default_candidates(args.law, databases[0].laws, args.lambda_value)
+    report_path = report_option(args)
+    report = plan_output(report_path, "--report", (".md",), args.force, create_parent=True) if report_path else None
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
+    pixel_size = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um")
     try:
-        result = diagnose_shear(capsules, ShearGroups(databases), args.law, candidates,
-                                pixel_size=args.pixel_size * 1e-6, error_px=args.error_px,
-                                theta_error=math.radians(args.theta_error))
-    except ValueError as err:
-        raise MeasurementError(f"{args.measurements}: {err}") from None
+        result = diagnose_shear(args.measurements, args.database, args.lambda_database, args.law,
+                                lambda_value=args.lambda_value, pixel_size=pixel_size * 1e-6,
+                                error_px=args.error_px, theta_error=math.radians(args.theta_error))
+    except CapsmechError as err:
+        # The API names its parameters; the command line its options.
+        text = str(err)
+        for parameter, option in (("diagnose_shear (database)", "diagnose-shear --database"),
+                                  ("diagnose_shear (lambda_database)", "diagnose-shear --lambda-database")):
+            text = text.replace(parameter, option)
+        for parameter in ("law", "lambda_value", "error_px", "theta_error"):
+            if text.startswith(parameter + ":"):
+                text = "--" + parameter.replace("_", "-") + text[len(parameter):]
+        if text.startswith("pixel_size:"):
+            text = f"--pixel-size: must be a positive size, got {args.pixel_size}"
+        raise type(err)(text) from None
     for r in result.results:
         state = r.note or (f"BIC drop {r.bic_drop:.1f}, CV p = {r.cv_p_value:.2g}, "
                            f"{'supported' if r.supported else 'not supported'}")
         print(f"{r.name}: {state}")
     print(f"verdict: {result.verdict}")
-    if args.out:
-        print(f"wrote {write_report(result, args.out, Path(args.measurements).name)}")
+    if json_out is not None:
+        print(json_out.wrote(write_json(json_out.path, "diagnose-shear", shear_record(result, args))))
+    if report is not None:
+        print(report.wrote(write_report(result, report.path, Path(args.measurements).name)))
     return 0
+
+
+def shear_record(result, args: argparse.Namespace) -> dict:
+    """A shear diagnosis as ``--json`` holds it: the verdict, the chosen candidate and every
+    candidate's criteria (G_s [N/m] with its standard error and the database's share)."""
+    def candidate(r) -> dict:
+        return {"name": r.name, "law": r.law, "capsules": r.capsules, "supported": r.supported, "note": r.note,
+                "chi2_base": r.chi2_base, "chi2": r.chi2, "bic_drop": r.bic_drop, "cv_gain": r.cv_gain,
+                "cv_gain_error": r.cv_gain_error, "cv_p_value": r.cv_p_value,
+                "G_s_before": {"value": r.g_s_before[0], "std_error": r.g_s_before[1],
+                               "database_error": r.g_s_systematic[0]},
+                "G_s_after": {"value": r.g_s_after[0], "std_error": r.g_s_after[1],
+                              "database_error": r.g_s_systematic[1]},
+                "drift_p_before": r.drift_p_before, "drift_p_after": r.drift_p_after}
+
+    return {"batch": str(args.measurements), "base_law": result.base_law,
+            "verdict": "effect" if result.chosen is not None else "none", "verdict_text": result.verdict,
+            "chosen": result.chosen.name if result.chosen is not None else None,
+            "cannot_tell_from": [r.name for r in result.rivals],
+            "units": {"G_s": "N/m", "chi2": "1", "bic_drop": "1", "cv_gain": "1 per capsule"},
+            "candidates": [candidate(r) for r in result.results]}
 
 
 def _add_diagnose_shear(sub: argparse._SubParsersAction) -> None:
@@ -299,14 +341,16 @@ def _add_diagnose_shear(sub: argparse._SubParsersAction) -> None:
     add_database_option(p, "shear-microrheometry", "shear database at the candidate viscosity ratio "
                         "(law keys <law>+lambda<X>)", option="--lambda-database")
     p.add_argument("--lambda-value", default=LAMBDA_VALUE, help=f"that viscosity ratio, as in the law keys (default {LAMBDA_VALUE})")
-    p.add_argument("--law", default="NH", help="base law key (default NH)")
+    add_base_law_option(p, "base law key")
     p.add_argument("--pixel-size", default=f"{PIXEL_SIZE * 1e6:g}um",
                    help="pixel size of the noise model where the CSV has no pixel_size column, e.g. 0.5um "
                         f"(bare numbers: um; default {PIXEL_SIZE * 1e6:g}um)")
     p.add_argument("--error-px", type=float, default=ERROR_PX, help="error bound of each semi-axis [px] (default 1)")
     p.add_argument("--theta-error", type=float, default=math.degrees(THETA_ERROR),
                    help="standard deviation of a measured theta [deg], for batches with a theta column (default 1)")
-    p.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figure beside it)")
+    add_report_option(p, "a Markdown report (figure beside it)")
+    add_json_option(p, "the verdict and every candidate's criteria and G_s")
+    add_force_option(p)
     p.set_defaults(func=cmd_diagnose_shear)
 
 
@@ -315,7 +359,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     diag = sub.add_parser("diagnose", help="which effect the base model lacks, from the batch's contour residuals")
     diag.add_argument("measurements", metavar="CSV", help="tube measurements with contour files")
     add_database_option(diag, "tube-paper", "base tube database")
-    diag.add_argument("--law", default="NH", metavar="KEY", help="base law key (one; default NH)")
+    add_base_law_option(diag, "base law key")
     diag.add_argument("--other-law", action="append", metavar="KEY",
                       help="another law group to test as a candidate (repeatable), e.g. GH_nu0.5 or NH+prestress0.05 "
                            "(default: every other law of the database)")
@@ -347,21 +391,24 @@ def register(sub: argparse._SubParsersAction) -> None:
                            "(default: the shipped table 'offcentre'; none: leave them out unfitted)")
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
-    diag.add_argument("--out", metavar="REPORT.md", help="write a Markdown report (figures beside it)")
-    diag.add_argument("--json", metavar="FILE.json",
-                      help="write the verdict (effect / none / unexplained), the strengths with their intervals, "
-                           "G_s before and after, the goodness of fit and the capsules left out, as JSON")
+    add_report_option(diag, "a Markdown report (figures beside it)")
+    add_json_option(diag, "the verdict (effect / none / unexplained), the strengths with their intervals, G_s "
+                    "before and after, the goodness of fit and the capsules left out")
+    add_force_option(diag)
     diag.set_defaults(func=cmd_diagnose)
     _add_diagnose_shear(sub)
     mb = sub.add_parser("make-batch", help="synthetic tube batch with an undeclared effect (truth in a separate file)")
     mb.add_argument("--effect", action="append", choices=("contour_offset", "tube_radius", "prestress", "kb", "GH_nu", "SK_C"),
                     help="effect to switch on (repeatable; none: no effect)")
     mb.add_argument("--strength", action="append", type=float, help="its strength (px, relative, alpha, k_b, nu_s, C)")
-    mb.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    mb.add_argument("--name", default="batch", help="file stem (default batch)")
+    mb.add_argument("--out", required=True, metavar="FILE.csv",
+                    help="the batch's measurement file (contours in a folder beside it, the truth in <stem>_truth.csv)")
+    mb.add_argument("--name", help=argparse.SUPPRESS)
     mb.add_argument("-n", type=int, default=24, help="capsules (default 24)")
-    mb.add_argument("--law", default="NH", help="base law (default NH)")
+    add_base_law_option(mb, "base law key the batch will be fitted with")
     mb.add_argument("--g-s", type=float, default=0.04, help="G_s of the material [N/m] (default 0.04)")
     mb.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     mb.add_argument("--workers", type=int, default=1, help="kernel runs at a time (default 1)")
+    add_json_option(mb, "what was written: the files, the effects and their strengths, the capsules")
+    add_force_option(mb)
     mb.set_defaults(func=cmd_make_batch)

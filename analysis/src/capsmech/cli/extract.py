@@ -9,7 +9,15 @@ from dataclasses import replace
 from pathlib import Path
 
 from capsmech.api import extract
-from capsmech.cli.common import format_table, records
+from capsmech.cli.common import (
+    add_force_option,
+    add_json_option,
+    format_table,
+    plan_output,
+    records,
+    table_json,
+    write_json,
+)
 from capsmech.imaging.extraction import ExtractionError
 
 
@@ -63,6 +71,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
     )
 
     check_options(args)
+    out_file = plan_output(args.out, "--out", (".csv",), args.force)
+    plan_output(args.report or out_file.path.with_name(out_file.path.stem + "_frames.csv"), "--report",
+                (".csv",), args.force)
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     mu = parse_quantity(args.mu, "--mu", VISCOSITY_UNITS_PA_S, "Pa s") if args.mu else None
     pixel_um = parse_quantity(args.pixel_size, "--pixel-size", PIXEL_UNITS_UM, "um") if args.pixel_size else None
     rate = parse_quantity(args.frame_rate, "--frame-rate", RATE_UNITS_HZ, "Hz") if args.frame_rate else None
@@ -157,7 +169,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
             path = write_overlay(Path(args.overlay) / f"{row['id']}.png", channel.levelled(stack.frames[frame.index]),
                                  frame, walls, title)
             print(f"wrote {path}")
-    print(f"wrote {csv_path}")
+    print(out_file.wrote(csv_path))
+    if json_out is not None:
+        payload = {"frames": [str(f) for f in args.frames], "measurements": str(csv_path),
+                   "frame_report": str(report), "pixel_size_um": pixel_um, "frame_rate_hz": rate,
+                   "tube_radius_um": walls.radius_px * pixel_um, "flow_direction": channel.flow_direction,
+                   **table_json(capsules)}
+        print(json_out.wrote(write_json(json_out.path, "extract", payload)))
     return 0
 
 
@@ -200,4 +218,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ext.add_argument("--max-line-width", type=float, default=10.0,
                      help="flag frames whose membrane line is wider than this, px (out of focus; default 10)")
     ext.add_argument("--min-frames", type=int, default=3, help="good frames a capsule needs to be measured (default 3)")
+    add_json_option(ext, "every capsule passage (measured or with its flag and reason), lengths in um, v_c in mm/s, "
+                    "and the calibration used")
+    add_force_option(ext)
     ext.set_defaults(func=cmd_extract)

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from capsmech.api import extract_shear
-from capsmech.cli.common import check_output, format_table
+from capsmech.cli.common import add_force_option, add_json_option, format_table, plan_output, write_json
 from capsmech.errors import ExtractionError
 
 #: Units a shear rate may be given in (bare numbers: 1/s).
@@ -33,9 +33,11 @@ def cmd_extract_shear(args: argparse.Namespace) -> int:
         write_shear_overlay,
     )
 
-    out = check_output(args.out, "--out", (".csv",))
-    report = Path(args.report) if args.report else out.with_name(out.stem + "_ellipses.csv")
-    check_output(report, "--report", (".csv",))
+    out_file = plan_output(args.out, "--out", (".csv",), args.force)
+    out = out_file.path
+    report = plan_output(args.report or out.with_name(out.stem + "_ellipses.csv"), "--report", (".csv",),
+                         args.force).path
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     if args.overlay and Path(args.overlay).exists() and not Path(args.overlay).is_dir():
         raise ExtractionError(f"--overlay {args.overlay}: exists and is not a folder")
     if not math.isfinite(args.flow_angle):
@@ -76,7 +78,12 @@ def cmd_extract_shear(args: argparse.Namespace) -> int:
               "as too imprecise to fit (paper §4.3)", file=sys.stderr)
     path = write_shear_measurements(out, found, shear_rate, mu, report=report.name,
                                     source=" ".join(str(f) for f in args.frames))
-    print(f"wrote {path}")
+    print(out_file.wrote(path))
+    if json_out is not None:
+        payload = {"frames": [str(f) for f in args.frames], "measurements": str(path), "object_report": str(report),
+                   "shear_rate": shear_rate, "mu": mu, "units": {**CAPSULE_UNITS, "shear_rate": "1/s", "mu": "Pa s"},
+                   "rows": rows}
+        print(json_out.wrote(write_json(json_out.path, "extract-shear", payload)))
     return 0
 
 
@@ -106,4 +113,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="image of the empty field (default: a smooth surface fitted to each frame)")
     ext.add_argument("--report", metavar="CSV", help="per-object report (default: <out stem>_ellipses.csv)")
     ext.add_argument("--overlay", metavar="DIR", help="write one PNG per frame: the traced outlines and their ellipses")
+    add_json_option(ext, "every measured capsule's L1, L2 [um], D12 and theta [deg] with their uncertainties")
+    add_force_option(ext)
     ext.set_defaults(func=cmd_extract_shear)

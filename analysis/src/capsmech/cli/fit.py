@@ -1,58 +1,93 @@
 """``capsmech fit-tube`` and ``capsmech fit-shear``: a measurement CSV fitted against a database.
 
-Prints one line per (capsule, law) with units; writes the results (.csv or .h5). Exit status 1
-when no capsule could be fitted by any law (the reasons are printed), 2 for bad input.
+Prints one line per (capsule, law) with units; writes the results (``--out``: .csv or .h5, both
+read back by ``population`` and ``capsmech.read_results``) and ``--json``. Exit status 1 when no
+capsule could be fitted by any law (the reasons are printed), 2 for bad input.
+
+The job walks CLI -> ``capsmech.api`` once: the database is loaded once (``api.as_database``,
+whose object the fit and the results' provenance share) and the laws are checked once, by the
+fit (its messages name the API's parameters; they are given back under the options' names).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import warnings
+from typing import Any
 
-from capsmech.api import as_database, check_laws, fit_shear, fit_tube
+import pandas as pd
+
+from capsmech.api import as_database, fit_shear, fit_tube
 from capsmech.cli.common import (
     TABLE_SUFFIXES,
     add_database_option,
+    add_force_option,
+    add_json_option,
     add_law_option,
-    check_output,
     format_table,
+    plan_output,
     records,
+    table_json,
+    write_json,
 )
 from capsmech.errors import OutsideDatabaseWarning
 from capsmech.inversion.fitting import write_results
+from capsmech.io.database import Database, DatabaseError
 from capsmech.io.measurements import read_measurements
 
-#: Columns printed (all are written to --out).
+#: Columns printed (all are written to --out and --json).
 SHOWN = {"tube": ["id", "law", "a_over_l", "Ca_s", "G_s", "G_s_spread", "flag"],
          "shear": ["id", "law", "D12", "Ca_s", "a", "G_s", "G_s_spread", "flag"]}
+
+
+def _fit(flow: str, command: str, capsules: Any, database: Database, laws: list[str] | None) -> pd.DataFrame:
+    """The API's fit, its errors worded with the command's options."""
+    try:
+        if flow == "tube":
+            return fit_tube(capsules, database, laws, progress=sys.stderr.isatty())
+        return fit_shear(capsules, database, laws)
+    except DatabaseError as err:
+        text = str(err)
+        if text.startswith("laws:"):
+            raise DatabaseError("--law:" + text.removeprefix("laws:")) from None
+        raise
+
+
+def fit_summary(results: pd.DataFrame) -> dict[str, Any]:
+    """How many (capsule, law) fits have a value, and how many have none by flag code."""
+    unfitted = results[results["flag"] != ""]
+    return {"fits": len(results), "fitted": len(results) - len(unfitted),
+            "unfitted_by_flag": {str(code): int(n) for code, n in unfitted["flag"].value_counts().items()}}
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``fit-tube`` / ``fit-shear``: fit, print the table, write the results."""
     flow = "tube" if args.command == "fit-tube" else "shear"
-    for out in args.out or []:
-        check_output(out, "--out", TABLE_SUFFIXES)
+    outs = [plan_output(out, "--out", TABLE_SUFFIXES, args.force) for out in args.out or []]
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     database = as_database(args.database, flow, args.command)
-    laws = check_laws(database, args.law, "--law")
     capsules = read_measurements(args.measurements, flow, contours_anywhere=args.contours_anywhere)
     with warnings.catch_warnings():
         # The table's flag column says it per row, and the summary below in one line.
         warnings.simplefilter("ignore", OutsideDatabaseWarning)
-        if flow == "tube":
-            results = fit_tube(capsules, database, laws, progress=sys.stderr.isatty())
-        else:
-            results = fit_shear(capsules, database, laws)
+        results = _fit(flow, args.command, capsules, database, args.law)
     units = results.attrs["units"]
+    laws = list(dict.fromkeys(results["law"])) if not results.empty else list(args.law or [])
     print(format_table(records(results), SHOWN[flow], units))
-    for out in args.out or []:
-        print(f"wrote {write_results(records(results), units, out, database)}")
-    fitted = results[results["flag"] == ""]
-    unfitted = results[results["flag"] != ""]
-    if not unfitted.empty:
-        print(f"{len(unfitted)} of {len(results)} fits have no value: "
-              + ", ".join(f"{n} {code}" for code, n in unfitted["flag"].value_counts().items())
+    for out in outs:
+        print(out.wrote(write_results(records(results), units, out.path, database)))
+    summary = fit_summary(results)
+    if json_out is not None:
+        payload = {"measurements": str(args.measurements), "database": str(database.path),
+                   "database_code_version": str(database.provenance.get("code_version", "")), "laws": laws,
+                   **summary, **table_json(results)}
+        print(json_out.wrote(write_json(json_out.path, args.command, payload)))
+    unfitted = summary["fits"] - summary["fitted"]
+    if unfitted:
+        print(f"{unfitted} of {summary['fits']} fits have no value: "
+              + ", ".join(f"{n} {code}" for code, n in summary["unfitted_by_flag"].items())
               + " (the reasons are in the results' 'reason' column)")
-    if fitted.empty:
+    if not summary["fitted"]:
         print(f"capsmech: no capsule of {args.measurements} could be fitted with {', '.join(laws)}", file=sys.stderr)
         return 1
     return 0
@@ -65,7 +100,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         fit.add_argument("measurements", metavar="CSV", help="measurement file (format: capsmech.io.measurements)")
         add_database_option(fit, f"{flow}-paper", f"{flow} database")
         add_law_option(fit)
-        fit.add_argument("--out", action="append", metavar="FILE", help="write the results (.csv or .h5; repeatable)")
+        fit.add_argument("--out", action="append", metavar="FILE",
+                         help="write the results (.csv or .h5, both read back by population and read_results; "
+                              "repeatable)")
+        add_json_option(fit, "the results (one row per capsule and law, with units and flags)")
+        add_force_option(fit)
         fit.add_argument("--contours-anywhere", action="store_true",
                          help="read contour files outside the measurement file's folder too (by default refused)")
         fit.set_defaults(func=cmd_fit)

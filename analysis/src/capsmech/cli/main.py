@@ -29,7 +29,12 @@ capsim kernel (boundary integrals + membrane finite elements; NH, SK and GH laws
 
 A lab's path: extract (frames -> lengths and contours), fit-tube (-> a/l, Ca_s, G_s per capsule
 and law), population (which law), diagnose (which effect the model lacks). Databases are
-addressed by name (capsmech databases) or by file."""
+addressed by name (capsmech databases) or by file.
+
+In every job (the workflow's database and figures commands aside): --out is the result
+file (fit-tube's .csv or .h5, both read back by population), --report a Markdown report,
+--json FILE the result as JSON, --law a law key (repeatable where several laws are fitted);
+an output that exists is kept unless --force."""
 
 
 #: The modules of ``capsmech.cli`` that register subcommands, in the order the help lists them.

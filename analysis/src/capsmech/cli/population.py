@@ -7,11 +7,20 @@ from pathlib import Path
 from typing import Any
 
 from capsmech.api import plot_population, population, population_table, read_results
-from capsmech.cli.common import FIGURE_SUFFIXES, TABLE_SUFFIXES, check_output, format_table, records
+from capsmech.cli.common import (
+    FIGURE_SUFFIXES,
+    TABLE_SUFFIXES,
+    add_force_option,
+    add_json_option,
+    format_table,
+    plan_output,
+    records,
+    write_json,
+)
 from capsmech.inversion.fitting import write_results
 from capsmech.inversion.population import FAIL_SCORE
-from capsmech.inversion.population_report import write_verdict_json
-from capsmech.io.results import read_results_csv
+from capsmech.inversion.population_report import verdict_dict
+from capsmech.io.results import read_results_file
 from capsmech.plotting import save_figure
 
 #: Columns printed and their units (--out writes every column of the table, separately).
@@ -37,7 +46,8 @@ def _rows(paths: list[str]) -> list[dict[str, Any]]:
     """The result rows of every file; where several files use the same capsule id, each id is
     qualified by its file's name (``file:id``) so that capsules of different batches stay apart."""
     for path in paths:
-        read_results_csv(path)        # fit-tube's results, or a ResultsFileError naming file, line and field
+        # fit-tube's results (CSV or HDF5), or a ResultsFileError naming file, line and field.
+        read_results_file(path)
     per_file = [(Path(path), records(read_results(path))) for path in paths]
     ids = [{(str(row["id"]), str(row["law"])) for row in rows} for _, rows in per_file]
     clash = len(per_file) > 1 and sum(len(i) for i in ids) > len(set().union(*ids))
@@ -48,12 +58,9 @@ def _rows(paths: list[str]) -> list[dict[str, Any]]:
 
 def cmd_population(args: argparse.Namespace) -> int:
     """The law the batch supports, with the evidence per law (see capsmech.inversion.population)."""
-    for out in args.out or []:
-        check_output(out, "--out", TABLE_SUFFIXES)
-    if args.plot:
-        check_output(args.plot, "--plot", FIGURE_SUFFIXES, create_parent=True)
-    if args.json:
-        check_output(args.json, "--json", (".json",))
+    outs = [plan_output(out, "--out", TABLE_SUFFIXES, args.force) for out in args.out or []]
+    plot = plan_output(args.plot, "--plot", FIGURE_SUFFIXES, args.force, create_parent=True) if args.plot else None
+    json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     results = _rows(args.results)
     verdict = population(results)
     table = population_table(verdict)
@@ -73,20 +80,21 @@ def cmd_population(args: argparse.Namespace) -> int:
     if verdict.heterogeneity is not None and verdict.kind != "not_one_material":
         # The groups open a two-material verdict's line; otherwise the test is said here.
         print(verdict.heterogeneity.line())
-    if args.plot:
-        print(f"wrote {save_figure(plot_population(results, verdict), args.plot)}")
-    for out in args.out or []:
-        print(f"wrote {write_results(records(table), units, out)}")
-    if args.json:
-        print(f"wrote {write_verdict_json(verdict, args.json)}")
+    if plot is not None:
+        print(plot.wrote(save_figure(plot_population(results, verdict), plot.path)))
+    for out in outs:
+        print(out.wrote(write_results(records(table), units, out.path)))
+    if json_out is not None:
+        print(json_out.wrote(write_json(json_out.path, "population", verdict_dict(verdict))))
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``population``."""
     pop = sub.add_parser("population", help="which law describes the batch, with its G_s and the evidence per law")
-    pop.add_argument("results", nargs="+", metavar="RESULTS.csv", help="fit-tube results")
+    pop.add_argument("results", nargs="+", metavar="RESULTS", help="fit-tube results (.csv or .h5, as fit-tube --out writes them)")
     pop.add_argument("--plot", metavar="FIG.png", help="draw G_s against Delta (paper figure 10)")
     pop.add_argument("--out", action="append", metavar="FILE", help="write the per-law table (.csv or .h5; repeatable)")
-    pop.add_argument("--json", metavar="FILE.json", help="write the verdict and its evidence as JSON")
+    add_json_option(pop, "the verdict and its evidence")
+    add_force_option(pop)
     pop.set_defaults(func=cmd_population)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from capsmech.io.case import read_case
-from capsmech.workflow.grid import parse_law
+from capsmech.io.laws import parse_law
 from capsmech.workflow.paths import capsim_executable
 
 

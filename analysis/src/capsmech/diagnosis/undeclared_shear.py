@@ -31,7 +31,7 @@ import numpy as np
 
 from capsmech.diagnosis.undeclared_tube import write_truth
 from capsmech.io.case import read_case
-from capsmech.workflow.grid import parse_law
+from capsmech.io.laws import parse_law
 from capsmech.workflow.paths import capsim_executable
 
 CA_S = (0.25, 0.62)
@@ -71,13 +71,14 @@ def law_key(law: str, viscosity_ratio: float) -> str:
 
 
 def simulate_shear(Ca_s: float, key: str, threads: int = 1, capsim: str | Path | None = None) -> ShearCapsule:
-    """Run the kernel for one capsule in simple shear (law key may carry ``+lambda<X>``);
-    NaN shape measures when the run is not steady."""
+    """Run the kernel for one capsule in simple shear (law key may carry ``+lambda<X>``), the
+    base model (no bending stiffness, whatever the kernel's default); NaN shape measures when
+    the run is not steady."""
     kernel = Path(capsim) if capsim else capsim_executable()
     with tempfile.TemporaryDirectory(prefix="capsim-shear-") as tmp:
         out = Path(tmp) / "case.h5"
         subprocess.run([str(kernel), "--flow", "shear", *parse_law(key).kernel_args(), "--ca", repr(float(Ca_s)),
-                        "--level", str(LEVEL), "--t-max", f"{T_MAX:g}", "--threads", str(threads), "--quiet",
+                        "--kb", "0", "--level", str(LEVEL), "--t-max", f"{T_MAX:g}", "--threads", str(threads), "--quiet",
                         "--out", str(out)], check=True, capture_output=True, text=True)
         case = read_case(out)
     if case.status != "steady":

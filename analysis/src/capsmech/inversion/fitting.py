@@ -413,7 +413,9 @@ def write_results(rows: Sequence[dict[str, Any]], units: dict[str, str], out: st
                 for row in rows:
                     writer.writerow([_cell(row[k]) for k in units])
         else:
-            with h5py.File(tmp, "w") as f:
+            with h5py.File(tmp, "w", track_order=True) as f:
+                # The column order, for readers that list datasets by name (capsmech.io.results).
+                f.attrs["columns"] = list(units)
                 for key, unit in units.items():
                     values = [row[key] for row in rows]
                     if unit == "":

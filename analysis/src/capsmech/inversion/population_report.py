@@ -122,11 +122,12 @@ def write_verdict_json(verdict: PopulationVerdict, path: str | Path) -> Path:
 
 
 def read_results(path: str | Path) -> list[dict[str, Any]]:
-    """Read a results CSV (header cells 'name [unit]'), checked by
-    ``capsmech.io.results.read_results_csv`` (a ``ResultsFileError`` names file, line and field)."""
-    from capsmech.io.results import read_results_csv
+    """Read a results file (a CSV with header cells 'name [unit]', or the HDF5 that fit-tube
+    writes), checked by ``capsmech.io.results.read_results_file`` (a ``ResultsFileError`` names
+    file, line or dataset, and field)."""
+    from capsmech.io.results import read_results_file
 
-    return list(read_results_csv(path, required=()))
+    return list(read_results_file(path, required=()))
 
 
 def plot_population(rows: Iterable[Mapping[str, Any]], drifts: Mapping[str, LawDrift],

@@ -14,7 +14,7 @@ def d12_slope(nu_s: float) -> float:
 
 def law_d12_slope(law_key: str) -> float:
     """:func:`d12_slope` of a database law key (``NH``, ``GH_nu0.2``, ...); NH as nu_s = 1/2."""
-    from capsmech.workflow.grid import parse_law
+    from capsmech.io.laws import parse_law
 
     nu_s = parse_law(law_key).nu_s
     return d12_slope(NH_NU_S if nu_s is None else nu_s)

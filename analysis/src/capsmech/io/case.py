@@ -35,12 +35,13 @@ import h5py
 import numpy as np
 
 from capsmech.errors import CapsmechError
+from capsmech.io.laws import KERNEL_LAWS
 
 #: The only case-file schema version this reader understands.
 SCHEMA_VERSION = 1
 
 FLOWS = ("shear", "tube")
-LAWS = ("NH", "SK", "GH")
+LAWS = KERNEL_LAWS
 STATUSES = ("steady", "continuous_elongation", "max_time", "failed")
 
 #: Root attributes every case file must carry (``a_over_l`` is optional for shear flow).

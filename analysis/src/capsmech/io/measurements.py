@@ -1,137 +1,77 @@
-"""Measured capsules: the CSV format that ``capsmech fit-tube`` and ``fit-shear`` read.
+"""Measured capsules: the tables that ``capsmech fit-tube``, ``fit-shear`` and ``diagnose`` read.
 
-Format
-------
-One capsule per row; the header names each column and its unit in brackets. Lines starting
-with ``#`` are comments. Column names are case-sensitive.
-
-Tube (``fit-tube``)::
+The format is described in full in ``docs/reference/file-formats.md`` (Measurement CSV). In short:
+one capsule per row; the header names each column and its unit, ``L_z [um]`` or ``L_z (um)``,
+names in any case; lines starting with ``#`` are comments. Tube::
 
     # capsules in a 100 um capillary, glycerol at 20 C
-    id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s]
-    c01,182.4,21.0,1.52,50.0,1.41
-
-required ``id``, ``L_z``, ``L_p``, ``tube_radius``; ``v_c`` and ``mu`` are needed for G_s;
-optional ``V`` (mean flow velocity, when the flow rate is known), ``pixel_size`` (then
-lengths may be given in ``px``) and ``contour``: the path (relative to the CSV's folder) of
-the capsule's contour file, in the unit of the column's header, e.g. ``contour [px]``::
-
     id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],mu [Pa s],pixel_size [um],contour [px]
     c01,182.4,21.0,1.52,50.0,1.41,0.5,contours/c01.txt
 
-A contour file is what ImageJ's "Save XY Coordinates" writes: two columns x y (tab, space
-or comma separated, one optional header line), the capsule's mid-line in a plane through
-the tube axis, x along the axis with the flow in +x (see ``capsmech.io.contours``). With a
-contour, ``fit-tube`` measures the misfit H/a of the fitted profile and the contour's
-asymmetry, and flags the capsule when either is too large. Optional ``contour_noise`` (a
-length): one contour's tracing noise measured across the video frames (``capsmech extract``
-writes it); the contour's chi2 then takes the larger of it and the noise of the contour's two
-halves (``capsmech.inversion.noise``). Optional ``tube_radius_sigma`` (a length): the tube
-radius's standard uncertainty from the walls' positions (``capsmech extract`` writes it;
-``fit-tube`` carries it into the spreads of a/l, Ca_s and G_s, ``capsmech.inversion.fitting``).
-
-Shear (``fit-shear``)::
+required ``id``, ``L_z``, ``L_p``, ``tube_radius`` (``v_c`` and ``mu`` for G_s); optional ``V``,
+``pixel_size`` (lengths then in ``px``), ``contour`` (a contour file's path relative to the
+table's folder, in the unit of the header; ``capsmech.io.contours``), ``contour_noise`` and
+``tube_radius_sigma``. Shear::
 
     id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s]
     s01,52.1,23.5,350,0.756
 
-required ``id``, ``L1``, ``L2`` (semi-axes in the shear plane), ``shear_rate``, ``mu``;
-optional ``theta`` (inclination of the major axis to the flow direction, in (0, 90) deg, unit
-``deg`` or ``rad``), which ``diagnose-shear`` uses when given; optional ``D12_err``
-(dimensionless, unit ``1`` or none): D12's uncertainty, which ``fit-shear`` turns into G_s's
-spread (``capsmech extract-shear`` writes it, at two standard deviations).
+required ``id``, ``L1``, ``L2``, ``shear_rate``, ``mu``; optional ``theta`` and ``D12_err``. The
+units each kind of column takes are those of ``capsmech.io.measurement_columns``; everything is
+converted to SI on reading.
 
-Units: lengths m, mm, um (or µm), nm, px (with a ``pixel_size`` column); velocities m/s, mm/s,
-um/s; viscosity Pa s, mPa s, cP; shear rate 1/s. Micro may be written ``u``, the micro sign
-(U+00B5) or the Greek mu (U+03BC). Everything is converted to SI on reading.
+Where the rows come from (``capsmech.io.measurement_sources``): a text file in UTF-8, UTF-16 or
+Windows-1252, separated by ``,``, ``;`` or tab; or the first sheet of an ``.xlsx`` workbook
+(openpyxl); or a pandas DataFrame (``capsmech.io.measurement_frames``). Decimal commas are read
+wherever a comma cannot be a field break (``;`` or tab separator, a sheet); in a
+``,``-separated file they are refused with a hint. Columns that are not part of the format
+are ignored with one ``InputWarning`` naming them. A comment line after the header that has the
+fields of a capsule row is named in an ``InputWarning``, so that a capsule is never dropped
+silently (quote an id that starts with ``#``). A file holds at most ``MAX_CAPSULES`` rows and
+``MAX_FILE_BYTES`` bytes.
 
-Files a spreadsheet wrote
--------------------------
-What a spreadsheet's "Save as CSV" adds is accepted: a UTF-8 byte-order mark (or, failing
-UTF-8, Windows-1252 text: Excel's plain "CSV", or else Latin-1), CRLF line endings, a ``;`` (or tab) separator
-instead of ``,`` (the one the header line uses most), columns in any order, rows padded with
-empty cells, and columns that are not part of the format (e.g. ``note``): those are ignored
-with one ``capsmech.errors.InputWarning`` naming them. Decimal commas (``0,5``) are accepted
-only when the separator is ``;`` (with ``,`` as separator a decimal comma cannot be told from
-a field break); decimal points are accepted with every separator.
-
-The flow (tube or shear) is the one the caller names, or else the one whose required columns
-the header has; a header that has those of both, or of neither, is an error that names the
-columns each flow lacks.
-
-Comments and ids that start with ``#``
---------------------------------------
-A line whose first character (after blanks) is ``#`` is a comment, also after the header: a
-row commented out is left out of the batch. A capsule whose id starts with ``#`` is written
-with its id quoted (``"#c01",182.4,...``); a comment line after the header that has the
-fields of a capsule row (an id, and a number in each required column) is still a comment,
-but is named in an ``InputWarning``, so that a capsule is never dropped silently.
-
-Limits
-------
-A file may hold at most ``MAX_CAPSULES`` (100,000) capsule rows and ``MAX_FILE_BYTES``
-(32 MiB); a larger one is refused at once, naming the file (and the first row past the
-limit), and is never read whole into memory. Fitting 100,000 capsules takes minutes per law
-(about 2.5 ms per capsule and law on one core), with a progress bar on a terminal; split a
-larger batch into files. A contour file may hold at most
-``capsmech.io.contours.MAX_CONTOUR_BYTES``.
-
-Errors
-------
-Any problem (unknown unit, missing column, empty or non-numeric value, NaN, negative or zero
-length, duplicate id, a binary file, a file over the limits, an unreadable or degenerate
-contour) raises ``MeasurementError`` naming the file, the line and the field. A file is read
-whole or not at all: a batch is never half-processed.
+Any problem raises ``MeasurementError`` naming the file, the line and the field (a DataFrame:
+its row's index label); a table is read whole or not at all.
 """
 from __future__ import annotations
 
-import csv
 import math
 import re
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from capsmech.errors import CapsmechError, InputWarning
 from capsmech.io import plausibility
 from capsmech.io.contours import ContourError, contour_problem, read_contour
-from capsmech.io.text import read_text, split_lines
+from capsmech.io.measurement_columns import (
+    EXAMPLE_UNITS,
+    FLOWS,
+    NOTE_COLUMNS,
+    UNITS,
+    ZERO_ALLOWED,
+    accepted_units,
+    header_cell,
+    unit_scale,
+)
+from capsmech.io.measurement_sources import Row, open_source
 
-LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "px": None}
-VELOCITY_UNITS = {"m/s": 1.0, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}
-VISCOSITY_UNITS = {"Pa s": 1.0, "Pa.s": 1.0, "mPa s": 1e-3, "mPa.s": 1e-3, "cP": 1e-3}
-RATE_UNITS = {"1/s": 1.0, "s^-1": 1.0}
-ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180}
-DIMENSIONLESS_UNITS = {"": 1.0, "1": 1.0}
+__all__ = ["FLOWS", "MAX_CAPSULES", "MAX_FILE_BYTES", "UNITS", "Capsule", "MeasurementError", "TableOrigin",
+           "read_flow_and_capsules", "read_measurements", "read_rows"]
 
-#: Column -> (kind, required) per flow.
-TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
-                "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
-                "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False),
-                "tube_radius_sigma": ("length", False)}
-SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
-                 "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False),
-                 "D12_err": ("number", False)}
-UNITS: dict[str, Mapping[str, float | None]] = {"length": LENGTH_UNITS, "velocity": VELOCITY_UNITS, "viscosity": VISCOSITY_UNITS, "rate": RATE_UNITS,
-         "angle": ANGLE_UNITS, "number": DIMENSIONLESS_UNITS}
-#: Columns where zero is a measurement (no rear dimple; an exact value), not a slip.
-ZERO_ALLOWED = frozenset({"L_p", "tube_radius_sigma", "D12_err"})
-HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)\s*(\[(?P<unit>[^\]]*)\])?\s*$")
 #: A header cell read: column name, unit, scale to SI (None for id, and for px until a row's pixel_size).
 Column = tuple[str, str, float | None]
-FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
-#: Text columns ``capsmech extract`` writes for the reader of the file (not for the fit): skipped
-#: without the warning an unknown column gets.
-NOTE_COLUMNS = frozenset({"width_check"})
-#: Separators tried on the header line; decimal commas only go with ";".
-SEPARATORS = (",", ";", "\t")
 #: Most capsule rows a measurement file may hold (a batch; split a larger one).
 MAX_CAPSULES = 100_000
 #: Largest measurement file read [bytes] (100,000 rows of ~300 characters).
 MAX_FILE_BYTES = 32 * 2**20
+#: Columns of ``measurement_frames.read_batch``'s frame that are not measurements: skipped when it comes back.
+FRAME_COLUMNS = frozenset({"line"})
+DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+")
 
 
 class MeasurementError(CapsmechError, ValueError):
@@ -163,62 +103,93 @@ class Capsule:
         return self.values.get(name, math.nan)
 
 
-def _unit(text: str) -> str:
-    """A header's unit as the unit tables spell it: micro as ``u``, whitespace single spaces."""
-    # Spreadsheets and keyboards give both the micro sign and the Greek mu, and may put a
-    # non-breaking space in "Pa s"; all mean the same unit.
-    return " ".join(text.replace("\u00b5", "u").replace("\u03bc", "u").split())
+@dataclass(frozen=True)
+class TableOrigin:
+    """Where a table's rows come from: what messages name, and how numbers are written there.
+
+    A file names ``path:line``; a DataFrame names its rows by index label (line k is the k-th
+    row). Line 0 is a DataFrame's columns (a file's lines start at 1).
+    """
+
+    name: str
+    folder: Path                               # where a relative contour path starts
+    separator: str = ","                       # "" for a sheet or a DataFrame
+    decimal_comma: bool = False
+    labels: Sequence[object] | None = None     # a DataFrame's index
+
+    def at(self, line: int) -> str:
+        """Where line ``line`` is: ``'path:line'``, ``'DataFrame row <label>'``."""
+        if line == 0:
+            return f"{self.name} columns"
+        return f"{self.name}:{line}" if self.labels is None else f"{self.name} {self.row(line)}"
+
+    def row(self, line: int) -> str:
+        """Line ``line`` in words: ``'line 3'``, or a DataFrame's ``'row <label>'``."""
+        return f"line {line}" if self.labels is None else f"row {self.labels[line - 1]!r}"
 
 
-def _names(row: list[str]) -> list[str | None]:
+def _names(row: Sequence[object]) -> list[str | None]:
     """Each header cell's column name, None where the cell is not ``name [unit]``."""
-    return [match["name"] if (match := HEADER.match(cell)) else None for cell in row]
+    return [parsed[0] if (parsed := header_cell(str(cell))) else None for cell in row]
 
 
 def _missing(names: set[str], flow: str) -> list[str]:
     return [c for c, (_, required) in FLOWS[flow].items() if required and c not in names]
 
 
-def _infer_flow(path: Path, line: int, row: list[str]) -> str:
+def _infer_flow(origin: TableOrigin, line: int, row: Sequence[object]) -> str:
     """The flow whose required columns the header has; an error unless exactly one has them all."""
     names = {name for name in _names(row) if name}
     fits = [flow for flow in FLOWS if not _missing(names, flow)]
     if len(fits) == 1:
         return fits[0]
     if fits:
-        raise MeasurementError(f"{path}:{line}: the header has the required columns of both a tube and a shear "
+        raise MeasurementError(f"{origin.at(line)}: the header has the required columns of both a tube and a shear "
                                "file; name the flow ('tube' or 'shear')")
     lacks = "; ".join(f"for {flow}: {', '.join(_missing(names, flow))}" for flow in FLOWS)
-    raise MeasurementError(f"{path}:{line}: neither a tube nor a shear file, missing column(s) {lacks}")
+    raise MeasurementError(f"{origin.at(line)}: neither a tube nor a shear file, missing column(s) {lacks}")
 
 
-def _parse_header(path: Path, line: int, row: list[str], flow: str) -> tuple[list[Column | None], list[str]]:
+def _parse_header(origin: TableOrigin, line: int, row: Sequence[object],
+                  flow: str) -> tuple[list[Column | None], list[str]]:
     """Each header cell's (name, unit, SI scale), None where the column is ignored; and the ignored cells."""
     columns = FLOWS[flow]
     parsed: list[Column | None] = []
     ignored: list[str] = []
+    unitless: list[str] = []
     seen = set()
-    for i, cell in enumerate(row):
-        match = HEADER.match(cell)
-        if not match or (match["name"] != "id" and match["name"] not in columns):
+    for i, cell in enumerate(str(c) for c in row):
+        header = header_cell(cell)
+        if header is None or header[0] in FRAME_COLUMNS or (header[0] != "id" and header[0] not in columns):
             parsed.append(None)
-            if not (match and match["name"] in NOTE_COLUMNS):
+            if not (header and (header[0] in NOTE_COLUMNS or header[0] in FRAME_COLUMNS)):
                 ignored.append(cell.strip() or f"(unnamed column {i + 1})")
             continue
-        name, unit = match["name"], _unit(match["unit"] or "")
+        name, written = header
         if name in seen:
-            raise MeasurementError(f"{path}:{line}: column {name!r} appears twice")
+            raise MeasurementError(f"{origin.at(line)}: column {name!r} appears twice")
         seen.add(name)
         if name == "id":
             parsed.append((name, "", None))
             continue
         kind = columns[name][0]
-        if unit not in UNITS[kind]:
-            raise MeasurementError(f"{path}:{line}: column {name!r}: unknown {kind} unit {unit!r} "
-                                   f"(expected one of {', '.join(UNITS[kind])})")
-        if name == "pixel_size" and unit == "px":
-            raise MeasurementError(f"{path}:{line}: column 'pixel_size' needs a physical length unit, not px")
-        parsed.append((name, unit, UNITS[kind][unit]))
+        if written is None and kind != "number":
+            unitless.append(name)
+            parsed.append(None)
+            continue
+        unit = unit_scale(kind, written or "")
+        if unit is None:
+            raise MeasurementError(f"{origin.at(line)}: column {name!r}: unknown {kind} unit {written!r} "
+                                   f"(expected one of {accepted_units(kind)})")
+        if name == "pixel_size" and unit[0] == "px":
+            raise MeasurementError(f"{origin.at(line)}: column 'pixel_size' needs a physical length unit, not px")
+        parsed.append((name, *unit))
+    if unitless:
+        where = "the column name" if origin.labels is None else "the column name or DataFrame.attrs['units']"
+        kind = columns[unitless[0]][0]
+        raise MeasurementError(f"{origin.at(line)}: column(s) {', '.join(unitless)} without a unit; write it in "
+                               f"{where}, e.g. '{unitless[0]} [{EXAMPLE_UNITS[kind]}]' ({kind} units: "
+                               f"{accepted_units(kind)})")
     missing = _missing(seen, flow)
     if "id" not in seen:
         missing.insert(0, "id")
@@ -230,108 +201,202 @@ def _parse_header(path: Path, line: int, row: list[str], flow: str) -> tuple[lis
             hint = f"; the header has the columns of a {other} file"
         elif ignored:
             hint = f"; ignored: {', '.join(repr(c) for c in ignored)}"
-        raise MeasurementError(f"{path}:{line}: missing column(s) {', '.join(missing)} for a {flow} file{hint}")
+        raise MeasurementError(f"{origin.at(line)}: missing column(s) {', '.join(missing)} for a {flow} file{hint}")
     return parsed, ignored
 
 
-def _is_comment(line: str) -> bool:
-    """A comment line: its first character after blanks is ``#`` (a quoted ``"#id"`` is not)."""
-    return line.lstrip().startswith("#")
+def _is_missing(cell: object) -> bool:
+    """A DataFrame's empty cell: None or a pandas missing value (NaN, NA, NaT)."""
+    return cell is None or cell is pd.NA or cell is pd.NaT or (isinstance(cell, (float, np.floating)) and math.isnan(cell))
 
 
-def _separator(lines: list[str]) -> str:
-    """The separator the header line (the first that is not blank or a comment) uses most."""
-    for text in lines:
-        if text.strip(",;\t \"") and not _is_comment(text):
-            return max(SEPARATORS, key=text.count)       # ties (none at all) go to ","
-    return ","
+def _number(origin: TableOrigin, line: int, name: str, cell: object) -> float | None:
+    """A cell's value, None when it is empty."""
+    if _is_missing(cell):
+        return None
+    if isinstance(cell, (int, float, np.integer, np.floating)) and not isinstance(cell, bool):
+        value = float(cell)
+        text = repr(value)
+    else:
+        text = str(cell).strip()
+        if not text:
+            return None
+        try:
+            # "0,5" is a decimal comma only where "," cannot be the separator.
+            value = float(text.replace(",", ".") if origin.decimal_comma else text)
+        except ValueError:
+            raise MeasurementError(f"{origin.at(line)}: field {name!r}: {text!r} is not a number"
+                                   f"{_comma_hint(origin, text)}") from None
+    if not math.isfinite(value):
+        raise MeasurementError(f"{origin.at(line)}: field {name!r} is {text} (not finite)")
+    if value < 0 or (value == 0 and name not in ZERO_ALLOWED):
+        raise MeasurementError(f"{origin.at(line)}: field {name!r} must be positive, got {text}")
+    return value
 
 
-def _cells(path: Path, text: str, separator: str, number: int) -> list[str]:
-    """One line's cells; a cell beyond the csv module's limit (128 kB) is no measurement."""
-    try:
-        return next(csv.reader([text], delimiter=separator), [])
-    except csv.Error as err:
-        raise MeasurementError(f"{path}:{number}: {err} (no field of a measurement file is that long)") from None
+def _comma_hint(origin: TableOrigin, text: str) -> str:
+    if not DECIMAL_COMMA.fullmatch(text) or origin.decimal_comma:
+        return ""
+    if origin.labels is not None:
+        return " (a decimal comma? read the file with pd.read_csv(..., decimal=','))"
+    return (" (a decimal comma? a ','-separated file needs decimal points, or save it with ';' as the separator; "
+            "a thousands separator is not read either)")
 
 
-def _rows(path: Path, lines: list[str], separator: str) -> Iterator[tuple[int, list[str]]]:
-    """The non-blank lines as (line number, cells); comment lines come after the header, as
-    (-line number, cells without the '#'), so that a row commented out can be recognised."""
-    header_seen = False
-    for number, text in enumerate(lines, start=1):
-        if not text.strip(" \t" + separator):
-            continue
-        if _is_comment(text):
-            if header_seen:
-                yield -number, _cells(path, text.lstrip()[1:], separator, number)
-            continue
-        row = _cells(path, text, separator, number)
-        if any(cell.strip() for cell in row):
-            header_seen = True
-            yield number, row
-
-
-def _parse_row(path: Path, line: int, row: list[str], parsed: list[Column | None], columns: Mapping[str, tuple[str, bool]],
-               separator: str) -> tuple[str, dict[str, tuple[float, str, float | None]], tuple[str, str, float | None] | None]:
+def _parse_row(origin: TableOrigin, line: int, row: Sequence[object], parsed: list[Column | None],
+               columns: Mapping[str, tuple[str, bool]]
+               ) -> tuple[str, dict[str, tuple[float, str, float | None]], tuple[object, str, float | None] | None]:
     """One capsule row: (id, column -> (value, unit, SI scale), the contour cell or None)."""
-    if len(row) > len(parsed) and not any(c.strip() for c in row[len(parsed):]):
+    if len(row) > len(parsed) and not any(str(c).strip() for c in row[len(parsed):]):
         row = row[:len(parsed)]
     if len(row) != len(parsed):
-        raise MeasurementError(f"{path}:{line}: {len(row)} fields, the header has {len(parsed)}")
+        hint = ("; decimal commas in a ','-separated file? use decimal points, or ';' as the separator"
+                if len(row) > len(parsed) and origin.separator == "," and any(DECIMAL_COMMA.fullmatch(
+                    f"{a},{b}") for a, b in zip(row, row[1:])) else "")
+        raise MeasurementError(f"{origin.at(line)}: {len(row)} fields, the header has {len(parsed)}{hint}")
     raw: dict[str, tuple[float, str, float | None]] = {}
     capsule_id = ""
-    contour_cell: tuple[str, str, float | None] | None = None
+    contour_cell: tuple[object, str, float | None] | None = None
     for column, cell in zip(parsed, row):
         if column is None:
             continue
         name, unit, scale = column
-        cell = cell.strip()
         if name == "id":
-            if not cell:
-                raise MeasurementError(f"{path}:{line}: field 'id' is empty")
-            capsule_id = cell
+            capsule_id = "" if _is_missing(cell) else str(cell).strip()
+            if not capsule_id:
+                raise MeasurementError(f"{origin.at(line)}: field 'id' is empty")
             continue
         if name == "contour":
-            if cell:
-                contour_cell = (cell, unit, scale)
+            if isinstance(cell, np.ndarray) or (isinstance(cell, str) and cell.strip()):
+                contour_cell = (cell.strip() if isinstance(cell, str) else cell, unit, scale)
             continue
-        if not cell:
+        value = _number(origin, line, name, cell)
+        if value is None:
             if columns[name][1]:
-                raise MeasurementError(f"{path}:{line}: field {name!r} is empty")
+                raise MeasurementError(f"{origin.at(line)}: field {name!r} is empty")
             continue
-        try:
-            # "0,5" is a decimal comma only where "," cannot be the separator.
-            value = float(cell.replace(",", ".") if separator == ";" else cell)
-        except ValueError:
-            raise MeasurementError(f"{path}:{line}: field {name!r}: {cell!r} is not a number") from None
-        if not math.isfinite(value):
-            raise MeasurementError(f"{path}:{line}: field {name!r} is {cell} (not finite)")
-        if value < 0 or (value == 0 and name not in ZERO_ALLOWED):
-            raise MeasurementError(f"{path}:{line}: field {name!r} must be positive, got {cell}")
         raw[name] = (value, unit, scale)
     return capsule_id, raw, contour_cell
 
 
-def _row_like_id(path: Path, line: int, row: list[str], parsed: list[Column | None],
-                 columns: Mapping[str, tuple[str, bool]], separator: str) -> str | None:
+def _row_like_id(origin: TableOrigin, line: int, row: list[str], parsed: list[Column | None],
+                 columns: Mapping[str, tuple[str, bool]]) -> str | None:
     """``'<line> (#<id>)'`` when a comment line after the header reads as a capsule row, else None."""
     try:
-        capsule_id, _, _ = _parse_row(path, line, row, parsed, columns, separator)
+        capsule_id, _, _ = _parse_row(origin, line, row, parsed, columns)
     except MeasurementError:
         return None
     return f"{line} (#{capsule_id})"
 
 
+def _si_values(origin: TableOrigin, line: int, raw: Mapping[str, tuple[float, str, float | None]]
+               ) -> tuple[dict[str, float], float | None]:
+    """A row's values in SI units, and its pixel size [m] (None without one)."""
+    values: dict[str, float] = {}
+    pixel: float | None = None
+    if "pixel_size" in raw:
+        size, _, size_scale = raw["pixel_size"]
+        assert size_scale is not None  # a physical length: the header refuses pixel_size in px
+        pixel = size * size_scale
+    for name, (value, unit, scale) in raw.items():
+        if unit == "px":
+            if pixel is None:
+                raise MeasurementError(f"{origin.at(line)}: field {name!r} is in px but the row has no pixel_size")
+            values[name] = value * pixel
+        else:
+            assert scale is not None  # px is the only unit without an SI scale
+            values[name] = value * scale
+        if not math.isfinite(values[name]) or (values[name] == 0 and value != 0):
+            raise MeasurementError(f"{origin.at(line)}: field {name!r}: {value:g} {unit} is out of range once "
+                                   f"converted to SI ({values[name]:g})")
+        # A zero L_p (no rear dimple) is a measurement, not a slip: only positive values are ranged.
+        if name in plausibility.COLUMNS and values[name] > 0 and plausibility.COLUMNS[name].absurd(values[name]):
+            quantity = plausibility.COLUMNS[name]
+            raise MeasurementError(f"{origin.at(line)}: field {name!r}: {value:g} {unit} is not a physical value "
+                                   f"(plausible: {quantity.low:g}-{quantity.high:g} {quantity.unit}, and no unit "
+                                   "slip brings it there)")
+    return values, pixel
+
+
+def _check_batch(origin: TableOrigin, flow: str, capsules: list[Capsule]) -> None:
+    """The checks between a row's fields."""
+    for capsule in capsules:
+        where = origin.at(capsule.line)
+        if flow == "tube" and capsule["L_p"] >= capsule["L_z"]:
+            raise MeasurementError(f"{where}: field 'L_p' must be smaller than L_z")
+        if flow == "shear" and capsule["L2"] > capsule["L1"]:
+            raise MeasurementError(f"{where}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
+        if flow == "shear" and capsule["D12_err"] >= 1:
+            raise MeasurementError(f"{where}: field 'D12_err' must be below 1 (D12 lies in [0, 1))")
+        if flow == "shear" and capsule["theta"] >= math.pi / 2:
+            raise MeasurementError(f"{where}: field 'theta' must be below 90 deg (the major axis's "
+                                   "inclination to the flow direction)")
+
+
+def read_rows(origin: TableOrigin, rows: Iterator[Row], flow: str | None,
+              contours_anywhere: bool) -> tuple[str, list[Capsule]]:
+    """The flow and the capsules of a table's rows (a header, then capsule and comment rows),
+    checked as ``read_measurements`` describes."""
+    if flow is not None and flow not in FLOWS:
+        raise ValueError(f"flow must be 'tube', 'shear' or None, got {flow!r}")
+    first = next((row for row in rows if not row[2]), None)
+    if first is None:
+        raise MeasurementError(f"{origin.name}: no header line")
+    header_line, header, _ = first
+    while header and not str(header[-1]).strip():       # spreadsheets pad rows with empty cells
+        header = header[:-1]
+    if flow is None:
+        flow = _infer_flow(origin, header_line, header)
+    columns = FLOWS[flow]
+    parsed, ignored = _parse_header(origin, header_line, header, flow)
+    capsules: list[Capsule] = []
+    ids: dict[str, int] = {}
+    commented: list[str] = []
+    for line, row, comment in rows:
+        if comment:
+            # A comment after the header: named when it has the fields of a capsule row.
+            if (capsule_like := _row_like_id(origin, line, row, parsed, columns)) is not None:
+                commented.append(capsule_like)
+            continue
+        if len(capsules) == MAX_CAPSULES:
+            raise MeasurementError(f"{origin.at(line)}: more than {MAX_CAPSULES} capsule rows, the most one file may "
+                                   "hold (split the batch into several files)")
+        capsule_id, raw, contour_cell = _parse_row(origin, line, row, parsed, columns)
+        if capsule_id in ids:
+            raise MeasurementError(f"{origin.at(line)}: id {capsule_id!r} already used on {origin.row(ids[capsule_id])}")
+        ids[capsule_id] = line
+        values, pixel = _si_values(origin, line, raw)
+        contour = None
+        if contour_cell is not None:
+            contour = _read_row_contour(origin, line, contour_cell, pixel, contours_anywhere)
+        capsules.append(Capsule(id=capsule_id, values=values, line=line, contour=contour))
+    if not capsules:
+        raise MeasurementError(f"{origin.name}: no capsule rows after the header")
+    _check_batch(origin, flow, capsules)
+    # Warned only once the table is read: a table that is refused warns of nothing.
+    for name, quantity in plausibility.COLUMNS.items():
+        outside = [c for c in capsules if math.isfinite(c[name]) and c[name] > 0 and not quantity.contains(c[name])]
+        sentence = plausibility.out_of_range(name, quantity, (c[name] for c in outside),
+                                             _lines(origin, [c.line for c in outside])) if outside else None
+        if sentence:
+            warnings.warn(f"{origin.name}: {sentence}", InputWarning, stacklevel=4)
+    if ignored:
+        warnings.warn(f"{origin.at(header_line)}: ignored column(s) not in the {flow} format: "
+                      f"{', '.join(repr(c) for c in ignored)}", InputWarning, stacklevel=4)
+    if commented:
+        warnings.warn(f"{origin.name}: comment line(s) {', '.join(commented)} have the fields of a capsule row and "
+                      "are left out; if an id starts with '#', quote it (\"#c01\",...)", InputWarning, stacklevel=4)
+    return flow, capsules
+
+
 def read_measurements(path: str | Path, flow: str | None = None, contours_anywhere: bool = False) -> list[Capsule]:
-    """Read a tube or shear measurement CSV (see the module docstring) into SI units.
+    """Read a tube or shear measurement file (see the module docstring) into SI units.
 
     Parameters
     ----------
     path : str or Path
-        The CSV file: ``,``, ``;`` or tab separated, UTF-8 (with or without a byte-order mark)
-        or Windows-1252, any line endings. Decimal commas (``0,5``) are accepted only in a
-        ``;``-separated file.
+        The file: a CSV (``,``, ``;`` or tab separated; UTF-8, UTF-16 or Windows-1252; any line
+        endings) or an ``.xlsx`` workbook's first sheet (needs openpyxl).
     flow : {'tube', 'shear'} or None
         Which format; None (default) infers it from the header's columns.
     contours_anywhere : bool
@@ -342,7 +407,8 @@ def read_measurements(path: str | Path, flow: str | None = None, contours_anywhe
     Returns
     -------
     list of Capsule
-        One per row, in file order, values in SI units.
+        One per row, in file order, values in SI units (``capsmech.io.measurement_frames.read_batch``:
+        the same as a DataFrame).
 
     Raises
     ------
@@ -353,97 +419,25 @@ def read_measurements(path: str | Path, flow: str | None = None, contours_anywhe
     Warns
     -----
     InputWarning
-        Once, naming the columns that are not part of the format and are ignored.
+        Once, naming the columns that are not part of the format and are ignored; and for
+        values outside their plausible range (``capsmech.io.plausibility``).
     """
+    return read_flow_and_capsules(path, flow, contours_anywhere)[1]
+
+
+def read_flow_and_capsules(path: str | Path, flow: str | None, contours_anywhere: bool) -> tuple[str, list[Capsule]]:
+    """``read_measurements``, with the flow (the one given, or the one the header's columns say)."""
     path = Path(path)
-    if flow is not None and flow not in FLOWS:
-        raise ValueError(f"flow must be 'tube', 'shear' or None, got {flow!r}")
-    lines = split_lines(read_text(path, MAX_FILE_BYTES, "measurement file", MeasurementError))
-    separator = _separator(lines)
-    rows = _rows(path, lines, separator)
-    first = next(rows, None)
-    if first is None:
-        raise MeasurementError(f"{path}: no header line")
-    header_line, header = first
-    while header and not header[-1].strip():            # spreadsheets pad rows with empty cells
-        header = header[:-1]
-    if flow is None:
-        flow = _infer_flow(path, header_line, header)
-    columns = FLOWS[flow]
-    parsed, ignored = _parse_header(path, header_line, header, flow)
-    capsules: list[Capsule] = []
-    ids: dict[str, int] = {}
-    commented: list[str] = []
-    for line, row in rows:
-        if line < 0:
-            # A comment after the header: named when it has the fields of a capsule row.
-            if (capsule_like := _row_like_id(path, -line, row, parsed, columns, separator)) is not None:
-                commented.append(capsule_like)
-            continue
-        if len(capsules) == MAX_CAPSULES:
-            raise MeasurementError(f"{path}:{line}: more than {MAX_CAPSULES} capsule rows, the most one file may "
-                                   "hold (split the batch into several files)")
-        capsule_id, raw, contour_cell = _parse_row(path, line, row, parsed, columns, separator)
-        if capsule_id in ids:
-            raise MeasurementError(f"{path}:{line}: id {capsule_id!r} already used on line {ids[capsule_id]}")
-        ids[capsule_id] = line
-        values: dict[str, float] = {}
-        pixel: float | None = None
-        if "pixel_size" in raw:
-            size, _, size_scale = raw["pixel_size"]
-            assert size_scale is not None  # a physical length: the header refuses pixel_size in px
-            pixel = size * size_scale
-        for name, (value, unit, scale) in raw.items():
-            if unit == "px":
-                if pixel is None:
-                    raise MeasurementError(f"{path}:{line}: field {name!r} is in px but the row has no pixel_size")
-                values[name] = value * pixel
-            else:
-                assert scale is not None  # px is the only unit without an SI scale
-                values[name] = value * scale
-            if not math.isfinite(values[name]) or (values[name] == 0 and value != 0):
-                raise MeasurementError(f"{path}:{line}: field {name!r}: {value:g} {unit} is out of range once "
-                                       f"converted to SI ({values[name]:g})")
-            # A zero L_p (no rear dimple) is a measurement, not a slip: only positive values are ranged.
-            if name in plausibility.COLUMNS and values[name] > 0 and plausibility.COLUMNS[name].absurd(values[name]):
-                quantity = plausibility.COLUMNS[name]
-                raise MeasurementError(f"{path}:{line}: field {name!r}: {value:g} {unit} is not a physical value "
-                                       f"(plausible: {quantity.low:g}-{quantity.high:g} {quantity.unit}, and no unit "
-                                       "slip brings it there)")
-        contour = None
-        if contour_cell is not None:
-            contour = _read_row_contour(path, line, contour_cell, pixel, contours_anywhere)
-        capsules.append(Capsule(id=capsule_id, values=values, line=line, contour=contour))
-    if not capsules:
-        raise MeasurementError(f"{path}: no capsule rows after the header")
-    for capsule in capsules:
-        if flow == "tube" and capsule["L_p"] >= capsule["L_z"]:
-            raise MeasurementError(f"{path}:{capsule.line}: field 'L_p' must be smaller than L_z")
-        if flow == "shear" and capsule["L2"] > capsule["L1"]:
-            raise MeasurementError(f"{path}:{capsule.line}: field 'L2' must not exceed L1 (L1 is the major semi-axis)")
-        if flow == "shear" and capsule["D12_err"] >= 1:
-            raise MeasurementError(f"{path}:{capsule.line}: field 'D12_err' must be below 1 (D12 lies in [0, 1))")
-        if flow == "shear" and capsule["theta"] >= math.pi / 2:
-            raise MeasurementError(f"{path}:{capsule.line}: field 'theta' must be below 90 deg (the major axis's "
-                                   "inclination to the flow direction)")
-    # Warned only once the file is read: a file that is refused warns of nothing.
-    for name, quantity in plausibility.COLUMNS.items():
-        outside = [c for c in capsules if math.isfinite(c[name]) and c[name] > 0 and not quantity.contains(c[name])]
-        sentence = plausibility.out_of_range(name, quantity, (c[name] for c in outside),
-                                             _lines([c.line for c in outside])) if outside else None
-        if sentence:
-            warnings.warn(f"{path}: {sentence}", InputWarning, stacklevel=2)
-    if ignored:
-        warnings.warn(f"{path}:{header_line}: ignored column(s) not in the {flow} format: "
-                      f"{', '.join(repr(c) for c in ignored)}", InputWarning, stacklevel=2)
-    if commented:
-        warnings.warn(f"{path}: comment line(s) {', '.join(commented)} have the fields of a capsule row and are "
-                      "left out; if an id starts with '#', quote it (\"#c01\",...)", InputWarning, stacklevel=2)
-    return capsules
+    source = open_source(path, MAX_FILE_BYTES, "measurement file", MeasurementError)
+    origin = TableOrigin(str(path), path.parent, source.separator, source.decimal_comma)
+    return read_rows(origin, source.rows, flow, contours_anywhere)
 
 
-def _lines(numbers: list[int]) -> str:
+def _lines(origin: TableOrigin, numbers: list[int]) -> str:
     """``'line 4'``, ``'lines 2-14'`` or ``'lines 2, 5, 9 ...'`` for the rows a warning is about."""
+    if origin.labels is not None:
+        labels = [str(origin.labels[n - 1]) for n in numbers]
+        return ("row " if len(labels) == 1 else "rows ") + ", ".join(labels[:5]) + (" ..." if len(labels) > 5 else "")
     if len(numbers) == 1:
         return f"line {numbers[0]}"
     if numbers == list(range(numbers[0], numbers[-1] + 1)):
@@ -451,26 +445,31 @@ def _lines(numbers: list[int]) -> str:
     return "lines " + ", ".join(str(n) for n in numbers[:5]) + (" ..." if len(numbers) > 5 else "")
 
 
-def _read_row_contour(path: Path, line: int, cell: tuple[str, str, float | None], pixel: float | None,
+def _read_row_contour(origin: TableOrigin, line: int, cell: tuple[object, str, float | None], pixel: float | None,
                       anywhere: bool = False) -> np.ndarray:
-    """The contour file a row names, in metres."""
-    name, unit, scale = cell
-    contour_path = Path(name) if Path(name).is_absolute() else path.parent / name
-    folder = path.parent.resolve()
-    if not anywhere and not contour_path.resolve().is_relative_to(folder):
-        raise MeasurementError(f"{path}:{line}: field 'contour': {name!r} lies outside the measurement file's folder "
-                               f"{folder}; contours are read only from there and below (move it there, or allow "
-                               "contours anywhere: --contours-anywhere, contours_anywhere=True)")
+    """The contour a row names (a file, or an array a DataFrame holds), in metres."""
+    value, unit, scale = cell
     if unit == "px":
         if pixel is None:
-            raise MeasurementError(f"{path}:{line}: field 'contour' is in px but the row has no pixel_size")
+            raise MeasurementError(f"{origin.at(line)}: field 'contour' is in px but the row has no pixel_size")
         scale = pixel
-    try:
-        contour = read_contour(contour_path)
-    except ContourError as err:
-        raise MeasurementError(f"{path}:{line}: field 'contour': {err}") from None
+    assert scale is not None
+    if isinstance(value, np.ndarray):
+        contour, contour_path = np.asarray(value, dtype=float), "the contour"
+    else:
+        name = str(value)
+        path = Path(name) if Path(name).is_absolute() else origin.folder / name
+        folder = origin.folder.resolve()
+        if not anywhere and not path.resolve().is_relative_to(folder):
+            raise MeasurementError(f"{origin.at(line)}: field 'contour': {name!r} lies outside the measurement "
+                                   f"file's folder {folder}; contours are read only from there and below (move it "
+                                   "there, or allow contours anywhere: --contours-anywhere, contours_anywhere=True)")
+        try:
+            contour, contour_path = read_contour(path), str(path)
+        except ContourError as err:
+            raise MeasurementError(f"{origin.at(line)}: field 'contour': {err}") from None
     contour = contour * scale
-    problem = contour_problem(contour)
+    problem = contour_problem(contour) if contour.ndim == 2 and contour.shape[1:] == (2,) else "not an (n, 2) array"
     if problem is not None:
-        raise MeasurementError(f"{path}:{line}: field 'contour': {contour_path} in metres: {problem}")
+        raise MeasurementError(f"{origin.at(line)}: field 'contour': {contour_path} in metres: {problem}")
     return contour

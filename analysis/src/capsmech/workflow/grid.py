@@ -6,11 +6,11 @@ A grid (``config/<name>.yaml``) names the cases of one database refill: for each
 schema ``workflow/schemas/grid.schema.yaml`` and then for what a schema cannot say (law
 parameters in the kernel's ranges, no duplicate values). Every error names the key.
 
-Law keys are the database's group names and map to kernel flags:
+Law keys are the database's group names (parsed in ``capsmech.io.laws``) and map to kernel flags:
 ``NH`` -> ``--law NH``; ``SK_C1`` -> ``--law SK --C 1``; ``GH_nu0.5`` -> ``--law GH --nu-s 0.5``.
 A key may add effects beyond the base model (issue 6), each a further database dimension:
 ``NH+prestress0.05`` -> ``--law NH --prestress 0.05``, ``NH+kb0.01`` -> ``--law NH --kb 0.01``
-(``EFFECTS`` lists those the kernel has).
+(``capsmech.io.laws.EFFECTS`` lists those the kernel has).
 
 A tube grid with ``settings.branch: true`` (axisymmetric model) computes its cases by
 continuation: one kernel run per (law, a/l), a :class:`Branch`, follows the steady branch up
@@ -22,7 +22,6 @@ same cases (same names, same kernel arguments but ``--ca``); only how they are c
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,8 @@ from typing import Any
 import yaml
 
 from capsmech.errors import CapsmechError
+from capsmech.io import laws
+from capsmech.io.laws import Law, LawKeyError
 from capsmech.workflow.paths import repo_root
 
 FLOWS = ("tube", "shear")
@@ -44,17 +45,6 @@ SETTING_FLAGS = {
 }
 
 
-_NUMBER = r"-?[0-9]+(?:\.[0-9]+)?"
-_LAW_KEY = re.compile(rf"^(?:NH|SK_C(?P<C>{_NUMBER})|GH_nu(?P<nu_s>{_NUMBER}))(?P<effects>(?:\+[a-z_]+{_NUMBER})*)$")
-_EFFECT = re.compile(rf"\+(?P<name>[a-z_]+)(?P<value>{_NUMBER})")
-
-#: Effects a law key may add: name -> (kernel flag, range check, the range in words).
-EFFECTS = {
-    "prestress": ("--prestress", lambda v: 0.0 <= v <= 0.5, "in [0, 0.5]"),
-    "lambda": ("--lambda", lambda v: 0.0 < v <= 1e6, "in (0, 1e6]"),
-    "kb": ("--kb", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
-    "offset": ("--offset", lambda v: 0.0 < v < 0.9, "in (0, 0.9)"),
-}
 #: Flows where the kernel has each effect (others refuse it).
 EFFECT_FLOWS = {"prestress": ("tube", "shear"), "lambda": ("shear", "tube"), "kb": ("tube", "shear"),
                 "offset": ("tube",)}
@@ -72,81 +62,13 @@ def schema_path() -> Path:
     return repo_root() / "workflow" / "schemas" / "grid.schema.yaml"
 
 
-@dataclass(frozen=True)
-class Law:
-    """A membrane law as named by a database key.
-
-    Attributes
-    ----------
-    key : str
-        Database group name, e.g. ``'GH_nu0.5'``.
-    name : str
-        Kernel law: 'NH', 'SK' or 'GH'.
-    nu_s : float or None
-        Surface Poisson ratio [-] (GH only).
-    C : float or None
-        Skalak area-dilatation parameter [-] (SK only).
-    effects : tuple of (str, float)
-        Effects beyond the base model, e.g. ``(('prestress', 0.05),)``.
-    """
-
-    key: str
-    name: str
-    nu_s: float | None = None
-    C: float | None = None
-    effects: tuple[tuple[str, float], ...] = ()
-
-    def kernel_args(self) -> list[str]:
-        """Return the capsim flags that select this law (and its effects)."""
-        args = ["--law", self.name]
-        if self.C is not None:
-            args += ["--C", f"{self.C:g}"]
-        if self.nu_s is not None:
-            args += ["--nu-s", f"{self.nu_s:g}"]
-        for name, value in self.effects:
-            args += [EFFECTS[name][0], repr(value)]
-        return args
-
-
 def parse_law(key: str) -> Law:
-    """Return the :class:`Law` named by a database law key.
-
-    Parameters
-    ----------
-    key : str
-        ``NH``, ``SK_C<C>`` or ``GH_nu<nu_s>``.
-
-    Raises
-    ------
-    GridError
-        If the key has another form or its parameter is outside the kernel's range
-        (-1 < nu_s < 1, C > -0.5).
-    """
-    match = _LAW_KEY.match(key)
-    if match is None:
-        raise GridError(f"unknown law key {key!r}: expected NH, SK_C<C> or GH_nu<nu_s>, "
-                        f"optionally followed by effects +<name><value> ({', '.join(EFFECTS)})")
-    effects: list[tuple[str, float]] = []
-    for effect in _EFFECT.finditer(match["effects"]):
-        name, value = effect["name"], float(effect["value"])
-        if name not in EFFECTS:
-            raise GridError(f"law key {key!r}: unknown effect {name!r} (the kernel has {', '.join(EFFECTS)})")
-        if any(name == seen for seen, _ in effects):
-            raise GridError(f"law key {key!r}: effect {name!r} given twice")
-        if not EFFECTS[name][1](value):
-            raise GridError(f"law key {key!r}: {name} must lie {EFFECTS[name][2]}")
-        effects.append((name, value))
-    if match["C"] is not None:
-        C = float(match["C"])
-        if not C > -0.5:
-            raise GridError(f"law key {key!r}: Skalak C must be > -0.5")
-        return Law(key, "SK", C=C, effects=tuple(effects))
-    if match["nu_s"] is not None:
-        nu_s = float(match["nu_s"])
-        if not -1.0 < nu_s < 1.0:
-            raise GridError(f"law key {key!r}: nu_s must lie in (-1, 1)")
-        return Law(key, "GH", nu_s=nu_s, effects=tuple(effects))
-    return Law(key, "NH", effects=tuple(effects))
+    """``capsmech.io.laws.parse_law`` (where law keys are parsed), its error a ``GridError``:
+    in a grid, a bad law key is the grid's error."""
+    try:
+        return laws.parse_law(key)
+    except LawKeyError as err:
+        raise GridError(str(err)) from None
 
 
 @dataclass(frozen=True)
@@ -470,7 +392,28 @@ def case_settings(grid: Mapping[str, Any], flow: str, Ca_s: float) -> tuple[tupl
     threshold = settings.pop("implicit_below_Ca_s", None)
     if threshold is not None and Ca_s < threshold:
         settings["integrator"] = "implicit"
+    if flow == "shear":
+        settings.update(_base_model_choices(settings, Ca_s))
     return tuple(sorted(settings.items()))
+
+
+#: Below this Ca_s the kernel's ``--integrator auto`` takes implicit steps in shear
+#: (run_options.f90, ``shear_implicit_below_ca``); tests/kernel/test_first_run.py checks that
+#: the kernel says so.
+KERNEL_SHEAR_IMPLICIT_BELOW_CA_S = 0.07
+
+
+def _base_model_choices(settings: Mapping[str, Any], Ca_s: float) -> dict[str, Any]:
+    """The shear model choices a grid leaves open where the kernel's defaults would fill them
+    otherwise, stated as the base model: no bending stiffness, and RK2 steps where ``auto``
+    would step implicitly. The kernel's shear defaults are the shipped database's (k_b 3e-4,
+    implicit steps below Ca_s 0.07) for a run by hand; a grid that names neither still means
+    the model its database was made with, and its cases' arguments change only where the
+    defaults would have changed the case."""
+    stated: dict[str, Any] = {} if "k_b" in settings else {"k_b": 0.0}
+    if "integrator" not in settings and Ca_s < KERNEL_SHEAR_IMPLICIT_BELOW_CA_S:
+        stated["integrator"] = "rk2"
+    return stated
 
 
 #: Settings of a database grid that are model choices rather than resolution (the mesh level,

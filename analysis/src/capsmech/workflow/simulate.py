@@ -1,4 +1,4 @@
-"""Simulations on demand (issue 22, items 4 and 5): a grid run through the workflow into a
+"""Simulations on demand: a grid run through the workflow into a
 cache, so that ``capsmech diagnose --simulate`` closes the loop in one command and
 ``capsmech database simulate`` makes a database of a new law in one command.
 
@@ -22,9 +22,9 @@ import os
 import re
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import yaml
 
@@ -41,6 +41,9 @@ _PLACEMENT_KEYS = ("name", "description", "databases_dir", "results_dir")
 
 #: Snakemake's progress line, "12 of 40 steps (30%) done".
 _PROGRESS = re.compile(r"(\d+) of (\d+) steps \(\d+%\) done")
+
+#: The kernel's progress line (every 2 s of wall time), "capsim: t =     1.430 / 60.0  D12 =  0.02067 ...".
+_KERNEL_PROGRESS = re.compile(r"^capsim: t =\s*(?P<t>\S+) / (?P<t_max>\S+)\s*(?P<measures>.*)$")
 
 
 def case_count(grid: dict[str, Any]) -> int:
@@ -170,3 +173,49 @@ def simulate_grid(grid: dict[str, Any], *, profile: str | Path | None = None, co
         raise SimulationError(f"the workflow stopped (exit {code}) computing {case_count(placed)} cases of "
                               f"{grid['name']}: see {log}" + (f" ({'; '.join(tail)})" if tail else ""))
     return database
+
+
+def relay_kernel_output(lines: Iterable[str], stream: TextIO, *, bar: bool | None = None) -> None:
+    """Write the kernel's output ``lines`` to ``stream``, its progress lines as one progress bar.
+
+    The kernel prints a progress line ("capsim: t = 1.4 / 60.0  D12 = ...") every 2 s of wall
+    time: hundreds for a long run. With a bar (tqdm, over t / t_max, the last shape measures
+    beside it) they update it in place; the bar stays at the time the run ended, which for a
+    steady case is well before t_max. Every other line (degrees of freedom, warnings, the
+    status, the file written) is written as it comes, below the bar.
+
+    Parameters
+    ----------
+    lines : iterable of str
+        The kernel's output, line by line (a ``Popen`` stdout), newlines kept.
+    stream : text stream
+        Where the output goes.
+    bar : bool, optional
+        Draw the bar; the default draws it when ``stream`` is a terminal, and otherwise writes
+        the progress lines as they are (a log keeps them).
+    """
+    from tqdm import tqdm
+
+    draw = stream.isatty() if bar is None else bar
+    progress: Any = None
+    try:
+        for line in lines:
+            match = _KERNEL_PROGRESS.match(line.rstrip("\n")) if draw else None
+            if match is None:
+                if progress is not None:
+                    # The bar stays as the run left it, the status line under it; a later
+                    # stretch of time steps (the next case of a branch) has a bar of its own.
+                    progress.close()
+                    progress = None
+                stream.write(line)
+                stream.flush()
+                continue
+            t, t_max = float(match["t"]), float(match["t_max"])
+            if progress is None:
+                progress = tqdm(total=t_max, desc="capsim t", file=stream, dynamic_ncols=True,
+                                bar_format="{desc}: {n:.2f}/{total:g} |{bar}| {elapsed}{postfix}")
+            progress.n = min(t, t_max)
+            progress.set_postfix_str(" ".join(match["measures"].split()), refresh=True)
+    finally:
+        if progress is not None:
+            progress.close()
