@@ -1,0 +1,423 @@
+!> The closed boundary B of the rectangular duct flow domain: the four side walls |x| = w and
+!> |y| = h for z in [-L/2, L/2] (lengths in duct half-widths: w = 1, h = aspect = H/W), closed
+!> by the entry section at z = -L/2 and the exit section at z = +L/2, as one watertight P1
+!> triangle mesh with the layout of the tube wall (tube_wall_mesh): duct_wall_t extends
+!> tube_wall_t, so its parent component is a tube_wall_t that wall_single_layer can take.
+!> Tags as for the tube: wall_tag_cylinder on the side walls (not on a rim), wall_tag_inlet /
+!> wall_tag_outlet inside the end sections, wall_tag_rim on the two end rings.
+!>
+!> Orientation as for the tube: (x2 - x1) x (x3 - x1) points out of the fluid (the face normal
+!> +-e_x, +-e_y on the side walls, -e_z / +e_z on the entry / exit section), fixed geometrically
+!> after the construction. Every triangle lies in one face, so the mesh is the duct exactly
+!> (area and volume to rounding).
+!>
+!> Structure: rings of nodes around the cross-section at z_k, placed as the tube's rings (the
+!> same graded element size tube_element_size and the same ring placement, so that the two
+!> walls are graded alike: h_centre over |z| <= 1, h_far beyond 1 + grading_length, a C1
+!> smoothstep between). A ring walks the perimeter counter-clockwise from the corner (-w, -h);
+!> an entry on it has the parameter s in [0, 4) (side index + fraction along the side), and
+!> the four corners are nodes of every ring, so no triangle folds over an edge of the duct.
+!> Side j of ring k has n = max(2, nint(side length / h(z_k))) segments; odd rings are
+!> staggered by half a segment (the corner, then the midpoints), so that triangles are nearly
+!> equilateral. Consecutive rings are joined by a zipper that walks both rings and adds a
+!> triangle on one ring's next edge at a time; a triangle must lie on one side (its three
+!> entries share a side), and where both choices may, the shorter new edge wins (which also
+!> keeps the triangles at the duct's edges from turning into slivers).
+!> Each end section is concentric (unstaggered) rectangles inset by steps of about
+!> (sqrt(3)/2) h_end from the rim down to the inset min(w, h), where the rectangle closes to
+!> a point (square) or to a segment along the longer side; a ring's side of zero length keeps
+!> only its start corner (that node then lies on the collapsed side and both neighbours), so
+!> the same zipper joins the rings. h_end is the element size at the ends, h(L/2).
+!>
+!> Measured (duct_probe mesh, tests/kernel/test_duct.py): side-wall triangles have angles
+!> >= 26 degrees and aspect ratios <= 1.7, section triangles >= 18 degrees and <= 2.5.
+module duct_wall_mesh
+   use capsim_kinds, only: dp
+   use vector_algebra, only: cross
+   use tube_wall_mesh, only: tube_wall_t, tube_element_size, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
+                             wall_tag_rim
+   implicit none
+   private
+   public :: duct_wall_t, build_duct_wall, graded_ring_positions
+
+   !> Ring spacing over edge length for equilateral triangles (as the tube's).
+   real(dp), parameter :: ring_step = 0.8660254037844386_dp
+   !> Positions closer than this (in half-widths) are the same node.
+   real(dp), parameter :: same_point = 1.0e-12_dp
+
+   type, extends(tube_wall_t) :: duct_wall_t
+      !> Half-width w (along x, the unit of length) and half-height h (along y).
+      real(dp) :: half_width = 0, half_height = 0
+   end type duct_wall_t
+
+   !> A ring of nodes: node numbers, their perimeter parameters s (increasing in [0, 4)), and
+   !> the sides each entry lies on (bit j: side j; a corner lies on two sides, the node of a
+   !> side of zero length on it and on both neighbours, the single node of a point on all).
+   type :: ring_t
+      integer :: n = 0
+      integer, allocatable :: node(:), sides(:)
+      real(dp), allocatable :: s(:)
+   end type ring_t
+
+   !> Nodes, tags and triangles while the mesh is built (grown by doubling).
+   type :: mesh_builder_t
+      integer :: n_nodes = 0, n_tri = 0
+      real(dp), allocatable :: x(:, :)
+      integer, allocatable :: tag(:), tri(:, :)
+   end type mesh_builder_t
+
+contains
+
+   !> Ring positions z_0 = -L/2 < ... < z_K = L/2 at equal steps of
+   !> s(z) = integral dz / (ring_step h(z)), h = tube_element_size, mirror-symmetric about z = 0:
+   !> the rule build_tube_wall applies inline (duct_probe checks that both give the same rings),
+   !> kept public so that the tube can call it once it is shared.
+   pure subroutine graded_ring_positions(length, h_far, h_centre, z_ring)
+      real(dp), intent(in) :: length, h_far, h_centre
+      real(dp), allocatable, intent(out) :: z_ring(:)
+      integer, parameter :: n_fine = 20000
+      real(dp) :: s_fine(0:n_fine), dz, s_total, s_target, z
+      integer :: j, k, n_rings
+      dz = length / n_fine
+      s_fine(0) = 0.0_dp
+      do j = 1, n_fine
+         s_fine(j) = s_fine(j - 1) + 0.5_dp * dz * (1.0_dp / step_at(-0.5_dp * length + (j - 1) * dz) &
+                                                    + 1.0_dp / step_at(-0.5_dp * length + j * dz))
+      end do
+      s_total = s_fine(n_fine)
+      n_rings = max(2, nint(s_total)) + 1
+      allocate (z_ring(0:n_rings - 1))
+      j = 1
+      do k = 0, n_rings - 1
+         s_target = s_total * k / (n_rings - 1)
+         do while (j < n_fine .and. s_fine(j) < s_target)
+            j = j + 1
+         end do
+         z_ring(k) = -0.5_dp * length + dz * ((j - 1) + (s_target - s_fine(j - 1)) / (s_fine(j) - s_fine(j - 1)))
+      end do
+      z_ring(0) = -0.5_dp * length
+      z_ring(n_rings - 1) = 0.5_dp * length
+      do k = 0, (n_rings - 1) / 2
+         z = 0.5_dp * (z_ring(n_rings - 1 - k) - z_ring(k))
+         z_ring(k) = -z
+         z_ring(n_rings - 1 - k) = z
+      end do
+      if (mod(n_rings, 2) == 1) z_ring((n_rings - 1) / 2) = 0.0_dp
+   contains
+      pure real(dp) function step_at(zz)
+         real(dp), intent(in) :: zz
+         step_at = ring_step * tube_element_size(zz, h_far, h_centre)
+      end function step_at
+   end subroutine graded_ring_positions
+
+   !> Mesh of the duct boundary of length `length` (in half-widths), aspect H/W (default 1,
+   !> the square duct), with edge lengths h_far away from the centre and h_centre over |z| < 1.
+   subroutine build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect)
+      real(dp), intent(in) :: length, h_far, h_centre
+      type(duct_wall_t), intent(out) :: wall
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      real(dp), intent(in), optional :: aspect
+
+      real(dp), allocatable :: z_ring(:)
+      type(ring_t), allocatable :: lateral(:)
+      type(mesh_builder_t) :: builder
+      integer :: k, n_rings
+      real(dp) :: w, h, h_end
+
+      stat = 0
+      errmsg = ''
+      w = 1.0_dp
+      h = 1.0_dp
+      if (present(aspect)) h = aspect
+      if (.not. (h >= 0.1_dp .and. h <= 10.0_dp)) then
+         stat = 1
+         errmsg = 'duct aspect H/W must be in [0.1, 10]'
+         return
+      end if
+      if (.not. (length > 0.0_dp .and. length <= 1.0e3_dp)) then
+         stat = 1
+         errmsg = 'duct length must be in (0, 1000] half-widths'
+         return
+      end if
+      if (.not. (h_centre >= 5.0e-3_dp .and. h_centre <= h_far .and. h_far <= 0.75_dp * min(w, h))) then
+         stat = 1
+         errmsg = 'element sizes must satisfy 0.005 <= h_centre <= h_far <= 0.75 min(1, aspect) (half-widths)'
+         return
+      end if
+      wall%length = length
+      wall%h_far = h_far
+      wall%h_centre = h_centre
+      wall%half_width = w
+      wall%half_height = h
+
+      call graded_ring_positions(length, h_far, h_centre, z_ring)
+      n_rings = size(z_ring)
+      wall%n_rings = n_rings
+      allocate (builder%x(3, 1024), builder%tag(1024), builder%tri(3, 2048))
+      allocate (lateral(0:n_rings - 1))
+      do k = 0, n_rings - 1
+         call add_ring(builder, w, h, tube_element_size(z_ring(k), h_far, h_centre), 2, mod(k, 2) == 1, z_ring(k), &
+                       merge(wall_tag_rim, wall_tag_cylinder, k == 0 .or. k == n_rings - 1), lateral(k))
+      end do
+      do k = 0, n_rings - 2
+         if (stat == 0) call zipper(builder, lateral(k), lateral(k + 1), stat)
+      end do
+      h_end = tube_element_size(0.5_dp * length, h_far, h_centre)
+      if (stat == 0) call add_section(builder, w, h, h_end, lateral(0), wall_tag_inlet, stat)
+      if (stat == 0) call add_section(builder, w, h, h_end, lateral(n_rings - 1), wall_tag_outlet, stat)
+      if (stat /= 0) then
+         errmsg = 'duct wall mesh: two rings could not be joined'
+         return
+      end if
+
+      associate (n_nodes => builder%n_nodes, n_tri => builder%n_tri)
+         allocate (wall%x(3, n_nodes), wall%tag(n_nodes), wall%mesh%tri(3, n_tri))
+         wall%x = builder%x(:, 1:n_nodes)
+         wall%tag = builder%tag(1:n_nodes)
+         wall%mesh%n_nodes = n_nodes
+         wall%mesh%n_tri = n_tri
+         wall%mesh%tri = builder%tri(:, 1:n_tri)
+      end associate
+      call orient_outward(wall, stat, errmsg)
+      if (stat /= 0) return
+      call wall%mesh%build_adjacency()
+   end subroutine build_duct_wall
+
+   !> A new node at p with tag t (arrays grown by doubling).
+   subroutine new_node(builder, p, t, id)
+      type(mesh_builder_t), intent(inout) :: builder
+      real(dp), intent(in) :: p(3)
+      integer, intent(in) :: t
+      integer, intent(out) :: id
+      real(dp), allocatable :: x_new(:, :)
+      integer, allocatable :: tag_new(:)
+      associate (n => builder%n_nodes)
+         if (n == size(builder%tag)) then
+            allocate (x_new(3, 2 * n), tag_new(2 * n))
+            x_new(:, 1:n) = builder%x(:, 1:n)
+            tag_new(1:n) = builder%tag(1:n)
+            call move_alloc(x_new, builder%x)
+            call move_alloc(tag_new, builder%tag)
+         end if
+         n = n + 1
+         id = n
+      end associate
+      builder%x(:, id) = p
+      builder%tag(id) = t
+   end subroutine new_node
+
+   subroutine add_triangle(builder, a, b, c)
+      type(mesh_builder_t), intent(inout) :: builder
+      integer, intent(in) :: a, b, c
+      integer, allocatable :: tri_new(:, :)
+      associate (n => builder%n_tri)
+         if (n == size(builder%tri, 2)) then
+            allocate (tri_new(3, 2 * n))
+            tri_new(:, 1:n) = builder%tri(:, 1:n)
+            call move_alloc(tri_new, builder%tri)
+         end if
+         n = n + 1
+         builder%tri(:, n) = [a, b, c]
+      end associate
+   end subroutine add_triangle
+
+   !> A ring around the rectangle |x| <= ax, |y| <= ay in the plane z (ax, ay >= 0, not both
+   !> 0): side j from corner j to corner j+1 in max(min_segments, nint(length / edge))
+   !> segments, staggered by half a segment when asked. A side of zero length keeps its start
+   !> corner only (the next side then starts without it), so that the collapsed side's nodes
+   !> sit at its start parameter; a position met twice (the two faces of a segment) is one node.
+   subroutine add_ring(builder, ax, ay, edge, min_segments, staggered, z, node_tag, ring)
+      type(mesh_builder_t), intent(inout) :: builder
+      real(dp), intent(in) :: ax, ay, edge, z
+      integer, intent(in) :: min_segments, node_tag
+      logical, intent(in) :: staggered
+      type(ring_t), intent(out) :: ring
+      real(dp) :: corner(2, 0:4), side_length(0:3), frac
+      integer :: side, n_seg, j, first_new
+      corner(:, 0) = [-ax, -ay]
+      corner(:, 1) = [ax, -ay]
+      corner(:, 2) = [ax, ay]
+      corner(:, 3) = [-ax, ay]
+      corner(:, 4) = corner(:, 0)
+      do side = 0, 3
+         side_length(side) = norm2(corner(:, side + 1) - corner(:, side))
+      end do
+      allocate (ring%s(0), ring%node(0), ring%sides(0))
+      first_new = builder%n_nodes + 1
+      do side = 0, 3
+         if (side_length(side) <= same_point) then
+            call put_node(real(side, dp), corner(:, side), &
+                          ibset(ibset(ibset(0, modulo(side - 1, 4)), side), modulo(side + 1, 4)))
+            cycle
+         end if
+         if (side_length(modulo(side - 1, 4)) > same_point) &
+            call put_node(real(side, dp), corner(:, side), ibset(ibset(0, modulo(side - 1, 4)), side))
+         n_seg = max(min_segments, nint(side_length(side) / edge))
+         do j = 0, n_seg - 1
+            if (staggered) then
+               frac = (j + 0.5_dp) / n_seg
+            else
+               if (j == 0) cycle
+               frac = real(j, dp) / n_seg
+            end if
+            call put_node(side + frac, corner(:, side) + frac * (corner(:, side + 1) - corner(:, side)), ibset(0, side))
+         end do
+      end do
+      ring%n = size(ring%node)
+   contains
+      subroutine put_node(s, q, on_sides)
+         real(dp), intent(in) :: s, q(2)
+         integer, intent(in) :: on_sides
+         integer :: m, id
+         id = 0
+         do m = first_new, builder%n_nodes
+            if (norm2(builder%x(1:2, m) - q) <= same_point) id = m
+         end do
+         if (id == 0) call new_node(builder, [q(1), q(2), z], node_tag, id)
+         ring%s = [ring%s, s]
+         ring%node = [ring%node, id]
+         ring%sides = [ring%sides, on_sides]
+      end subroutine put_node
+   end subroutine add_ring
+
+   !> Triangles between ring a (outer or earlier) and ring b, walking both from a's first node
+   !> (b from its last node at or before it in s). Each step adds (a_i, a_i+1, b_j) or
+   !> (a_i, b_j+1, b_j); a triangle must lie on one side (all three entries share a side bit), so
+   !> no triangle folds over an edge of the duct or leaves its trapezoid of a section; when
+   !> both may, the shorter new edge wins (a_i+1 - b_j against a_i - b_j+1). A ring of one
+   !> node is a fan.
+   subroutine zipper(builder, a, b, stat)
+      type(mesh_builder_t), intent(inout) :: builder
+      type(ring_t), intent(in) :: a, b
+      integer, intent(out) :: stat
+      integer :: ia, jb, j0
+      logical :: can_a, can_b, take_a
+      stat = 0
+      if (b%n == 1) then
+         do ia = 1, a%n
+            call add_triangle(builder, a%node(ia), a%node(mod(ia, a%n) + 1), b%node(1))
+         end do
+         return
+      end if
+      j0 = b%n
+      do jb = 1, b%n
+         if (b%s(jb) <= a%s(1) + same_point) j0 = jb
+      end do
+      ia = 0
+      jb = 0
+      do while (ia < a%n .or. jb < b%n)
+         can_a = ia < a%n .and. iand(iand(sides_a(ia), sides_a(ia + 1)), sides_b(jb)) /= 0
+         can_b = jb < b%n .and. iand(iand(sides_a(ia), sides_b(jb + 1)), sides_b(jb)) /= 0
+         if (can_a .and. can_b) then
+            take_a = norm2(builder%x(:, node_a(ia + 1)) - builder%x(:, node_b(jb))) &
+                     < norm2(builder%x(:, node_a(ia)) - builder%x(:, node_b(jb + 1)))
+         else if (can_a .or. can_b) then
+            take_a = can_a
+         else
+            stat = 1
+            return
+         end if
+         if (take_a) then
+            call add_triangle(builder, node_a(ia), node_a(ia + 1), node_b(jb))
+            ia = ia + 1
+         else
+            call add_triangle(builder, node_a(ia), node_b(jb + 1), node_b(jb))
+            jb = jb + 1
+         end if
+      end do
+   contains
+      !> Node and side bits of the q-th step along a (from its entry 1) and b (from entry j0).
+      integer function node_a(q)
+         integer, intent(in) :: q
+         node_a = a%node(mod(q, a%n) + 1)
+      end function node_a
+      integer function sides_a(q)
+         integer, intent(in) :: q
+         sides_a = a%sides(mod(q, a%n) + 1)
+      end function sides_a
+      integer function node_b(q)
+         integer, intent(in) :: q
+         node_b = b%node(mod(j0 - 1 + q, b%n) + 1)
+      end function node_b
+      integer function sides_b(q)
+         integer, intent(in) :: q
+         sides_b = b%sides(mod(j0 - 1 + q, b%n) + 1)
+      end function sides_b
+   end subroutine zipper
+
+   !> End section of the duct |x| <= w, |y| <= h inside the rim ring: rectangles inset by
+   !> t_m = m t_end / M, M steps of about ring_step h_end, down to t_end = min(w, h): a point,
+   !> or a segment along the longer side (a point too when that segment would be shorter than
+   !> h_end / 2).
+   subroutine add_section(builder, w, h, h_end, rim, section_tag, stat)
+      type(mesh_builder_t), intent(inout) :: builder
+      real(dp), intent(in) :: w, h, h_end
+      type(ring_t), intent(in) :: rim
+      integer, intent(in) :: section_tag
+      integer, intent(out) :: stat
+      type(ring_t) :: outer, inner
+      real(dp) :: t_end, t, z_end, ax, ay
+      integer :: m, n_steps, centre
+      stat = 0
+      z_end = builder%x(3, rim%node(1))
+      t_end = min(w, h)
+      n_steps = max(1, nint(t_end / (ring_step * h_end)))
+      outer = rim
+      do m = 1, n_steps
+         t = t_end * m / n_steps
+         ax = w - t
+         ay = h - t
+         if (m == n_steps) then
+            ax = max(ax, 0.0_dp)
+            ay = max(ay, 0.0_dp)
+            if (2 * max(ax, ay) < 0.5_dp * h_end) then
+               ax = 0
+               ay = 0
+            end if
+         end if
+         if (ax <= same_point .and. ay <= same_point) then
+            call new_node(builder, [0.0_dp, 0.0_dp, z_end], section_tag, centre)
+            inner%n = 1
+            inner%node = [centre]
+            inner%s = [0.0_dp]
+            inner%sides = [15]
+         else
+            call add_ring(builder, ax, ay, h_end, 1, .false., z_end, section_tag, inner)
+         end if
+         call zipper(builder, outer, inner, stat)
+         if (stat /= 0) return
+         outer = inner
+      end do
+   end subroutine add_section
+
+   !> Orientation fixed geometrically: the triangle normal must point along the outward normal
+   !> of the one face that holds all three corners; a triangle in no face is an error.
+   subroutine orient_outward(wall, stat, errmsg)
+      type(duct_wall_t), intent(inout) :: wall
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      integer :: t, face
+      real(dp) :: p(3, 3), nrm(3), out(3), plane(6), normals(3, 6)
+      stat = 0
+      errmsg = ''
+      plane = [wall%half_width, wall%half_width, wall%half_height, wall%half_height, &
+               0.5_dp * wall%length, 0.5_dp * wall%length]
+      normals = reshape([1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1], [3, 6]) * 1.0_dp
+      do t = 1, wall%mesh%n_tri
+         p = wall%x(:, wall%mesh%tri(:, t))
+         out = 0
+         do face = 1, 6
+            if (all(abs(matmul(normals(:, face), p) - plane(face)) <= same_point)) out = normals(:, face)
+         end do
+         nrm = cross(p(:, 2) - p(:, 1), p(:, 3) - p(:, 1))
+         if (all(out == 0.0_dp) .or. norm2(nrm) <= same_point) then
+            stat = 1
+            errmsg = 'duct wall mesh: a triangle is degenerate or lies in no face of the duct'
+            return
+         end if
+         if (dot_product(nrm, out) < 0.0_dp) wall%mesh%tri(2:3, t) = wall%mesh%tri([3, 2], t)
+      end do
+   end subroutine orient_outward
+
+end module duct_wall_mesh

@@ -1,0 +1,217 @@
+"""Rectangular duct: the fully developed (Poiseuille) flow and the closed P1 wall mesh.
+
+``bin/duct_probe`` (kernel/tests/duct_probe.f90) measures; this file asserts. The flow is
+checked against published values (Shah & London 1978), against an independent solution (the
+double cosine series of the Poisson problem, summed here with numpy), and against exact
+identities (mean velocity, force balance on the walls, no slip). The mesh is checked for
+topology, exact geometry, element quality, the tube's grading, and the Poiseuille data
+integrated over it.
+
+Units: duct half-width w = 1, half-height h = aspect, mean velocity U = 1, viscosity mu = 1.
+"""
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+PROBE = REPO / "bin" / "duct_probe"
+
+# Ring spacing over edge length (equilateral triangles), and the tube's grading: element size
+# h_centre over |z| <= 1, h_far beyond |z| = 2, a C1 smoothstep between (kernel/src/tube_wall_mesh.f90).
+RING_STEP = math.sqrt(3.0) / 2.0
+CENTRE_HALF_LENGTH = 1.0
+GRADING_LENGTH = 1.0
+
+
+def run_duct_probe(*args: object, check: bool = True) -> dict[str, float | str]:
+    """Run ``bin/duct_probe ARGS`` and parse its "key value" lines (numbers as float)."""
+    if not PROBE.exists():
+        pytest.fail(f"{PROBE} is missing: run `make build` in {REPO} first")
+    result = subprocess.run(
+        [str(PROBE), *map(str, args)], capture_output=True, text=True, check=False, timeout=60
+    )
+    if check and result.returncode != 0:
+        pytest.fail(f"duct_probe {args} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
+    values: dict[str, float | str] = {"returncode": result.returncode, "stderr": result.stderr}
+    for line in result.stdout.splitlines():
+        key, _, value = line.strip().partition(" ")
+        try:
+            values[key] = float(value.strip())
+        except ValueError:
+            values[key] = value.strip()
+    return values
+
+
+def double_series_velocity(x: float, y: float, w: float, h: float, n_odd: int = 2001) -> float:
+    """u / U from the eigenfunction expansion of mu Laplacian(u) = -G on the rectangle:
+    u = G sum_{m,n odd} 16 (-1)^((m+n)/2-1) cos(m pi x / 2w) cos(n pi y / 2h) / (pi^2 m n lambda_mn),
+    lambda_mn = (m pi / 2w)^2 + (n pi / 2h)^2, and its mean sum 64 / (pi^4 m^2 n^2 lambda_mn).
+    Independent of the kernel's single (hyperbolic) series; converges like 1/n_odd^3 here."""
+    m = np.arange(1, 2 * n_odd, 2, dtype=float)
+    lam = (m[:, None] * math.pi / (2 * w)) ** 2 + (m[None, :] * math.pi / (2 * h)) ** 2
+    sign = (-1.0) ** ((m - 1) / 2)
+    mean = np.sum(64.0 / (math.pi**4 * m[:, None] ** 2 * m[None, :] ** 2 * lam))
+    cx = sign * np.cos(m * math.pi * x / (2 * w)) / m
+    cy = sign * np.cos(m * math.pi * y / (2 * h)) / m
+    return float(np.sum(16.0 / math.pi**2 * cx[:, None] * cy[None, :] / lam) / mean)
+
+
+@pytest.fixture(scope="module", params=[1.0, 0.5], ids=["square", "aspect0.5"])
+def flow(request):
+    return request.param, run_duct_probe("flow", request.param)
+
+
+# ---------------------------------------------------------------------------------------
+# Flow
+# ---------------------------------------------------------------------------------------
+
+# Shah & London (1978), Laminar Flow Forced Convection in Ducts, rectangular ducts,
+# fully developed flow: u_max / u_m and f Re (Fanning f, Re on the hydraulic diameter
+# D_h = 4 A / P) for aspect ratios 1 and 0.5, given to 4 and 5 decimals.
+PUBLISHED = {1.0: (2.0963, 14.22708), 0.5: (1.9918, 15.54806)}
+
+
+def test_centre_velocity_and_friction_match_published_values(flow):
+    aspect, r = flow
+    u_max, f_re = PUBLISHED[aspect]
+    w, h = r["half_width"], r["half_height"]
+    assert r["centre_velocity"] == pytest.approx(u_max, abs=5e-5)
+    # Mean wall shear G A / P, so f Re = 2 tau D_h / (mu U) = 8 G (w h)^2 / (w + h)^2.
+    assert 8 * r["pressure_gradient"] * (w * h) ** 2 / (w + h) ** 2 == pytest.approx(f_re, abs=6e-6)
+
+
+def test_series_mean_is_the_mean_velocity(flow):
+    _, r = flow
+    # Gauss-Legendre over the cross-section of the velocity series, against U = 1; the
+    # truncation of every series is far below the check.
+    assert abs(r["mean_gauss_96"] - 1.0) < 1e-10
+    assert abs(r["mean_gauss_96"] - r["mean_gauss_48"]) < 1e-12
+    assert r["mean_gauss_bound_96"] < 1e-13 and r["mean_series_bound"] < 1e-15
+    assert r["centre_velocity_bound"] < 1e-13
+
+
+def test_velocity_matches_an_independent_double_series(flow):
+    aspect, r = flow
+    for k in range(1, 7):
+        x, y = r[f"pt{k}_x"], r[f"pt{k}_y"]
+        assert r[f"pt{k}_u"] == pytest.approx(double_series_velocity(x, y, 1.0, aspect), abs=1e-8)
+        # The gradient series is the termwise derivative of the velocity series.
+        assert r[f"pt{k}_dudx"] == pytest.approx(r[f"pt{k}_dudx_fd"], abs=1e-8)
+        assert r[f"pt{k}_dudy"] == pytest.approx(r[f"pt{k}_dudy_fd"], abs=1e-8)
+
+
+def test_velocity_vanishes_on_the_walls(flow):
+    _, r = flow
+    assert r["wall_velocity_max"] == 0.0 and r["corner_gradient"] == 0.0
+    # Approaching the wall the series goes to zero with the wall shear as its slope:
+    # u(wall - delta n) = -delta du/dn + O(delta^2), so the slope error falls like delta.
+    assert r["slope_error_1e-7"] < 1e-6 * r["wall_shear_max"]
+    assert 300 < r["slope_error_1e-4"] / r["slope_error_1e-7"] < 3000
+
+
+def test_wall_shear_balances_the_pressure_gradient(flow):
+    _, r = flow
+    # Integral of du/dn around the perimeter = -G A (a unit length of duct in equilibrium).
+    error_64 = abs(r["wall_shear_integral_64"] + r["pressure_force"])
+    error_128 = abs(r["wall_shear_integral_128"] + r["pressure_force"])
+    assert error_128 < 2e-8 * r["pressure_force"]
+    assert error_128 < error_64
+
+
+def test_traction_on_side_wall_and_entry_section(flow):
+    _, r = flow
+    # Side wall x = w (n = e_x): f = -p n + (du/dn) e_z, du/dn < 0 (the wall holds the fluid back).
+    assert r["side_traction_x"] == pytest.approx(-r["side_pressure"], rel=1e-14)
+    assert r["side_traction_y"] == 0.0
+    assert r["side_traction_z"] < 0
+    assert r["side_traction_z"] == pytest.approx(r["side_slope"], rel=1e-6)
+    # Entry section (n = -e_z): f = p e_z - (du/dx, du/dy, 0).
+    assert r["inlet_traction_z"] == pytest.approx(r["inlet_pressure"], rel=1e-14)
+    assert r["inlet_traction_x"] == pytest.approx(-r["inlet_dudx_fd"], abs=1e-8)
+    assert r["inlet_traction_y"] == pytest.approx(-r["inlet_dudy_fd"], abs=1e-8)
+
+
+# ---------------------------------------------------------------------------------------
+# Wall mesh
+# ---------------------------------------------------------------------------------------
+
+def element_size(z: float, h_far: float, h_centre: float) -> float:
+    t = min(max((abs(z) - CENTRE_HALF_LENGTH) / GRADING_LENGTH, 0.0), 1.0)
+    return h_centre + (h_far - h_centre) * t * t * (3.0 - 2.0 * t)
+
+
+def nint(value: float) -> int:
+    """Fortran NINT (halves away from zero) for positive values."""
+    return math.floor(value + 0.5)
+
+
+@pytest.mark.parametrize(
+    "length, h_far, h_centre, aspect",
+    [(4.0, 0.28, 0.28, 1.0), (8.0, 0.28, 0.14, 1.0), (4.0, 0.2, 0.2, 0.5), (8.0, 0.28, 0.14, 0.5),
+     (4.0, 0.28, 0.28, 2.0)],
+)
+def test_mesh_is_closed_exact_graded_and_well_shaped(length, h_far, h_centre, aspect):
+    r = run_duct_probe("mesh", length, h_far, h_centre, aspect)
+    n, n_tri = r["n_nodes"], r["n_tri"]
+    w, h = 1.0, aspect
+    # Closed, consistently oriented 2-manifold of genus 0.
+    assert r["unmatched_edges"] == 0 and r["duplicated_edges"] == 0
+    assert r["euler_characteristic"] == 2 and n_tri == 2 * n - 4
+    assert r["adjacency_entries"] == 3 * n_tri
+    # Every triangle's normal points out of the fluid (away from the axis on the side walls,
+    # -e_z / +e_z on the entry / exit sections).
+    assert r["inward_normals"] == 0
+    # Flat faces: area and volume exact to rounding (the volume is signed: positive outward).
+    assert r["area"] == pytest.approx(4 * (w + h) * length + 8 * w * h, rel=1e-12)
+    assert r["volume"] == pytest.approx(4 * w * h * length, rel=1e-12)
+    assert r["face_error"] < 1e-12
+    assert r["half_width"] == w and r["half_height"] == h
+    # Tags as the tube's: side wall, entry, exit, rims (the end rings).
+    assert r["n_side"] + r["n_inlet"] + r["n_outlet"] + r["n_rim"] == n
+    assert r["n_inlet"] == r["n_outlet"] > 0
+    assert r["n_rim_inlet"] == r["ring_nodes_0"]
+    # Element quality (1 = equilateral for the aspect ratio).
+    assert r["side_min_angle_deg"] > 25 and r["side_max_aspect_ratio"] < 1.8
+    assert r["section_min_angle_deg"] > 15 and r["section_max_aspect_ratio"] < 2.6
+    assert r["max_neighbour_size_ratio"] < 1.7
+    # Grading: the tube's rings exactly, spaced by ring_step h(z), with
+    # max(2, nint(side / h(z))) segments a side (odd rings: corner + midpoints, one more).
+    assert r["ring_z_tube_difference"] < 1e-12
+    n_rings = int(r["n_rings"])
+    z = [r[f"ring_z_{k}"] for k in range(n_rings)]
+    assert z[0] == -length / 2 and z[-1] == length / 2
+    for k in range(n_rings - 1):
+        z_mid = 0.5 * (z[k] + z[k + 1])
+        assert 0.9 < (z[k + 1] - z[k]) / (RING_STEP * element_size(z_mid, h_far, h_centre)) < 1.1
+    for k in range(n_rings):
+        size = element_size(z[k], h_far, h_centre)
+        segments = sum(max(2, nint(side / size)) for side in (2 * w, 2 * h, 2 * w, 2 * h))
+        assert r[f"ring_nodes_{k}"] == segments + (4 if k % 2 else 0)
+    assert r["h_centre_mean"] == pytest.approx(h_centre, rel=0.05)
+    # Poiseuille data integrated over the mesh (7-point rule): the flux through each section
+    # is U A, and the exact traction exerts no net force on the closed surface (measured:
+    # flux within 2.1e-6, force within 6e-5; the rule meets the r^2 log r corners of the flow).
+    assert r["inlet_flux"] == pytest.approx(-4 * w * h, rel=1e-5)
+    assert r["outlet_flux"] == pytest.approx(4 * w * h, rel=1e-5)
+    assert abs(r["net_force_x"]) < 1e-12 * r["pressure_drop_force"]
+    assert abs(r["net_force_y"]) < 1e-12 * r["pressure_drop_force"]
+    assert abs(r["net_force_z"]) < 2e-4 * r["pressure_drop_force"]
+    # Same layout as the tube wall: wall_single_layer's operator takes the mesh as it is.
+    assert r["operator_nodes"] == n and r["operator_rim_nodes"] == r["n_rim"]
+    assert r["operator_area"] == pytest.approx(r["area"], rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [((4.0, 2.0, 0.1, 1.0), "element sizes"), ((4.0, 0.5, 0.1, 0.5), "element sizes"),
+     ((4.0, 0.1, 0.1, 0.05), "aspect"), ((-1.0, 0.2, 0.2, 1.0), "length")],
+)
+def test_invalid_mesh_parameters_are_reported(args, message):
+    r = run_duct_probe("mesh", *args, check=False)
+    assert r["returncode"] != 0
+    assert message in str(r["stderr"])
