@@ -99,6 +99,14 @@ def _label(database: Database) -> str:
     return str(getattr(database, "name", "") or database.path)
 
 
+def _naming_database(err: DatabaseError, database: Database) -> DatabaseError:
+    """The error with the database's name in front (the inverters see its rows, not its file),
+    unless it names it already."""
+    name, path = str(getattr(database, "name", "")), str(database.path)
+    label = f"{name} ({path})" if name and name != path else path
+    return err if path in str(err) else DatabaseError(f"{label}: {err}")
+
+
 def _capsules(capsules: CapsulesLike, flow: str) -> list[Capsule]:
     """The capsules of a measurement file, a DataFrame (``capsmech.io.measurement_frames``)
     or a sequence of ``Capsule``; anything else is a ``MeasurementError`` saying what is taken."""
@@ -168,7 +176,12 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
     """
     db = as_database(database, "tube", "fit_tube")
     keys = check_laws(db, laws)
-    frame = _frame(fit_tube_rows(_capsules(capsules, "tube"), db, keys, progress=progress), TUBE_RESULT_UNITS)
+    measured = _capsules(capsules, "tube")
+    try:
+        rows = fit_tube_rows(measured, db, keys, progress=progress)
+    except DatabaseError as err:
+        raise _naming_database(err, db) from None
+    frame = _frame(rows, TUBE_RESULT_UNITS)
     _warn_unfitted(frame, db)
     _warn_implausible_modulus(frame)
     return frame
@@ -182,7 +195,12 @@ def fit_shear(capsules: CapsulesLike, database: DatabaseLike = "shear-paper",
     """
     db = as_database(database, "shear", "fit_shear")
     keys = check_laws(db, laws)
-    frame = _frame(fit_shear_rows(_capsules(capsules, "shear"), db, keys), SHEAR_RESULT_UNITS)
+    measured = _capsules(capsules, "shear")
+    try:
+        rows = fit_shear_rows(measured, db, keys)
+    except DatabaseError as err:
+        raise _naming_database(err, db) from None
+    frame = _frame(rows, SHEAR_RESULT_UNITS)
     _warn_unfitted(frame, db)
     _warn_implausible_modulus(frame)
     return frame

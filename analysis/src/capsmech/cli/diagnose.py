@@ -22,7 +22,7 @@ from capsmech.cli.common import (
 )
 from capsmech.diagnosis.shear import ERROR_PX, LAMBDA_VALUE, PIXEL_SIZE, THETA_ERROR
 from capsmech.errors import CapsmechError, InputWarning
-from capsmech.io.measurements import MeasurementError
+from capsmech.io.measurements import MeasurementError, read_measurements
 
 
 def _levels(text: str, option: str) -> list[float]:
@@ -178,8 +178,11 @@ def _extend_levels(rounds, levels: dict[str, list[float]], family_levels: dict[s
 def _diagnose_batch(args: argparse.Namespace, database, effect_databases: list[str] | None,
                     levels: dict[str, list[float]], family_levels: dict[str, list[float]]):
     """One diagnosis of the batch with the databases known so far."""
+    # Contours outside the file's folder are read only when the user allows it (as fit-tube).
+    batch = read_measurements(args.measurements, "tube", contours_anywhere=True) if args.contours_anywhere \
+        else args.measurements
     try:
-        return diagnose(args.measurements, database, args.law, effect_databases=effect_databases,
+        return diagnose(batch, database, args.law, effect_databases=effect_databases,
                         other_laws=args.other_law, prestress_levels=levels["prestress_levels"],
                         kb_levels=levels["kb_levels"], family_levels=family_levels,
                         candidates=args.candidate, max_effects=args.max_effects,
@@ -391,6 +394,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                            "(default: the shipped table 'offcentre'; none: leave them out unfitted)")
     diag.add_argument("--grid-dir", default="config", metavar="DIR",
                       help="where grids of candidates that need simulations are written (default config)")
+    diag.add_argument("--contours-anywhere", action="store_true",
+                      help="read contour files outside the measurement file's folder too (by default refused)")
     add_report_option(diag, "a Markdown report (figures beside it)")
     add_json_option(diag, "the verdict (effect / none / unexplained), the strengths with their intervals, G_s "
                     "before and after, the goodness of fit and the capsules left out")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -30,11 +31,19 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         os.replace(tmp, path)
     except OSError as err:
-        reason = err.strerror or str(err)
-        raise OutputError(f"{path}: cannot write: {reason}") from None
+        raise OutputError(f"{path}: cannot write: {_reason(err)}") from None
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
+
+
+def _reason(err: OSError) -> str:
+    """The system's reason in a few words, from the error number: h5py's errors carry HDF5's
+    multi-line report as their text, with the number in it ("... errno = 28, ...")."""
+    errno = err.errno or next((int(n) for n in re.findall(r"errno = (\d+)", str(err))), 0)
+    if errno:
+        return os.strerror(errno)
+    return " ".join(str(err.strerror or err).split())
 
 
 def write_text_atomically(path: str | Path, text: str) -> Path:

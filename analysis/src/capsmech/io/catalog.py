@@ -187,6 +187,9 @@ def database_path(name_or_path: str | Path) -> Path:
         return path
     if text in CATALOG:  # a name given as a Path, and no such file here
         return _shipped_path(text)
+    if path.exists():
+        kind = "a folder" if path.is_dir() else "not a regular file (a device, pipe or socket)"
+        raise DatabaseNotFoundError(f"{text!r}: {kind}, not a database file; shipped databases: {', '.join(CATALOG)}")
     raise DatabaseNotFoundError(f"{str(name_or_path)!r}: neither a shipped database nor an existing file; "
                                 f"shipped databases: {', '.join(CATALOG)}")
 

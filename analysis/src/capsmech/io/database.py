@@ -47,6 +47,7 @@ from capsmech.io.case import (
     require_hdf5_file,
 )
 from capsmech.io.catalog import database_path
+from capsmech.io.hdf5_inputs import data_elsewhere
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -396,6 +397,9 @@ def load_database(path: str | Path) -> TubeDatabase | ShearDatabase:
 def _load_open_database(path: Path, where: str) -> TubeDatabase | ShearDatabase:
     """``load_database`` on a file known to exist and to carry HDF5's signature."""
     with h5py.File(path, "r") as f:
+        elsewhere = data_elsewhere(f)
+        if elsewhere is not None:
+            raise DatabaseError(f"{where}: {elsewhere}; a database is read from its own file only")
         provenance = {k: decode_str(v) if isinstance(v, (bytes, str, np.bytes_)) else v
                       for k, v in f.attrs.items()}
         if provenance.get("format") != FORMAT or provenance.get("format_version") != FORMAT_VERSION:

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from capsmech.errors import CapsmechError
+from capsmech.io.hdf5_inputs import data_elsewhere
 from capsmech.io.text import read_text, split_lines
 
 #: Columns population needs (fit-tube writes them all).
@@ -175,6 +176,9 @@ def read_results_h5(path: str | Path, required: Sequence[str] = REQUIRED) -> tup
     except OSError as err:
         raise ResultsFileError(f"{path}: cannot read the results file as HDF5: {err}") from None
     with stream:
+        elsewhere = data_elsewhere(stream)
+        if elsewhere is not None:
+            raise ResultsFileError(f"{path}: {elsewhere}; a results file is read from its own file only")
         # write_results records its column order; a file without it is read in HDF5's (by name).
         order = [str(n.decode() if isinstance(n, bytes) else n) for n in stream.attrs.get("columns", [])]
         names = order if order and set(order) == set(stream.keys()) else list(stream.keys())
