@@ -74,6 +74,14 @@ STRENGTH_KEYS: dict[str, list[str]] = {
 #: Made by ``python tests/python/independent_batches.py pool
 #: tests/data/independent_pool/strength_pool.npz --strengths``.
 STRENGTH_POOL = ROOT / "tests" / "data" / "independent_pool" / "strength_pool.npz"
+#: A membrane stiffer in area than every shipped or default family level (Skalak C 1-8): what
+#: ``diagnose --simulate`` must extend the levels for. Made by ``python
+#: tests/python/independent_batches.py pool tests/data/independent_pool/stiff_pool.npz --stiff``.
+STIFF_KEYS: dict[str, list[str]] = {
+    "SK_C10": ["--law", "SK", "--C", "10"],
+}
+STIFF_POOL = ROOT / "tests" / "data" / "independent_pool" / "stiff_pool.npz"
+STIFF_CAPSULES = 12
 POOL_CAPSULES = 24
 N_MERIDIAN = 96
 A_OVER_L = (0.86, 0.99)
@@ -107,7 +115,7 @@ def latin_hypercube(n: int, seed: int, a_range: tuple[float, float] = A_OVER_L,
 def simulate(capsim: Path, key: str, a_over_l: float, ca: float, folder: Path) -> dict:
     """One steady capsule from the kernel: status, meridian (r, z) [l], L_z, L_p [l], v_c/V."""
     out = folder / f"{key}_{a_over_l:.6f}_{ca:.6f}.h5"
-    subprocess.run([str(capsim), "--flow", "tube", *{**POOL_KEYS, **STRENGTH_KEYS}[key], "--ca", repr(ca), "--a-over-l", repr(a_over_l),
+    subprocess.run([str(capsim), "--flow", "tube", *{**POOL_KEYS, **STRENGTH_KEYS, **STIFF_KEYS}[key], "--ca", repr(ca), "--a-over-l", repr(a_over_l),
                     "--n-meridian", str(N_MERIDIAN), "--threads", "1", "--quiet", "--out", str(out)],
                    check=True, timeout=3600)
     with h5py.File(out) as f:
@@ -319,8 +327,11 @@ def main(argv: list[str] | None = None) -> int:
     make.add_argument("--capsules", type=int, default=POOL_CAPSULES)
     make.add_argument("--deep", action="store_true", help="the deep parachutes' pool (DEEP_*) instead")
     make.add_argument("--strengths", action="store_true", help="the off-level strengths' pool (STRENGTH_KEYS) instead")
+    make.add_argument("--stiff", action="store_true", help="the stiff membranes' pool (STIFF_KEYS) instead")
     args = parser.parse_args(argv)
-    if args.strengths:
+    if args.stiff:
+        make_pool(args.capsim, args.out, args.workers, STIFF_CAPSULES, keys=list(STIFF_KEYS))
+    elif args.strengths:
         make_pool(args.capsim, args.out, args.workers, args.capsules, keys=list(STRENGTH_KEYS))
     elif args.deep:
         make_pool(args.capsim, args.out, args.workers, DEEP_CAPSULES, DEEP_SEED, DEEP_KEYS, DEEP_A_OVER_L, DEEP_CA_S)

@@ -47,6 +47,8 @@ CONFIGS: list[tuple[str, str, str, dict, float]] = [
     ("bending 0.003", "kb", "NH+kb0.003", {}, 0.003),
     ("bending 0.007", "kb", "NH+kb0.007", {}, 0.007),
     ("no effect", "none", "NH", {}, math.nan),
+    # Below the lowest shipped level (0.04), between it and the base law: the strength pool's.
+    ("pre-stress 0.03", "prestress", "NH+prestress0.03", {}, 0.03),
 ]
 FIELDS = ["config", "seed", "capsules", "strength", "low", "high", "covered", "supported",
           "g_s_lengths", "g_s_lengths_low", "g_s_lengths_high", "g_s_lengths_covered",
@@ -77,17 +79,18 @@ def one_batch(config: int, seed: int, n: int = 16) -> dict:
     """Draw and diagnose one batch of configuration ``config``; its row of ``FIELDS``."""
     from capsmech.diagnosis.diagnose import diagnose
     from capsmech.diagnosis.record import g_s_interval
-    from capsmech.diagnosis.scoring import _law_inverter, length_g_s_with_systematic
+    from capsmech.diagnosis.scoring import length_g_s_with_systematic, lengths_inverter
     from capsmech.io.measurements import read_measurements
 
     name, effect, key, keywords, truth = CONFIGS[config]
     with tempfile.TemporaryDirectory() as tmp:
-        batch = ib.draw_batch(ib.load_pool(), key, Path(tmp), "b", seed=seed, n=n, **keywords)
+        pool = ib.load_pool(ib.STRENGTH_POOL if key in ib.STRENGTH_KEYS else ib.POOL)
+        batch = ib.draw_batch(pool, key, Path(tmp), "b", seed=seed, n=n, **keywords)
         capsules = read_measurements(batch.csv, "tube")
     row: dict = {"config": name, "seed": seed, "capsules": len(capsules)}
     g_s = ib.G_S
     if effect == "none":
-        summary, floor = length_g_s_with_systematic(capsules, _law_inverter(_databases(), "NH"))
+        summary, floor = length_g_s_with_systematic(capsules, lengths_inverter(_databases(), "NH"))
         lengths, contours = (*summary, floor), (math.nan, math.nan, 0)
     else:
         result = diagnose(capsules, _databases(), "NH", [_candidate(effect)], screen=False).results[0]

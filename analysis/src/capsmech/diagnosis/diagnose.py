@@ -197,6 +197,9 @@ class Diagnosis:
     #: What the explanation leaves (the chosen candidate at its value, else the base fit),
     #: tested against the noise (``capsmech.diagnosis.goodness``); None when not assessed.
     fit: GoodnessOfFit | None = None
+    #: The ids of the capsules diagnosed, in the order of the scores' arrays (``base``, each
+    #: result's ``after``): those with contours, less those left out.
+    ids: list[str] = field(default_factory=list)
 
     @property
     def rivals(self) -> list[CandidateResult]:
@@ -300,9 +303,12 @@ def edge_text(result: CandidateResult) -> str:
     low, high = result.levels[0], result.levels[-1]
     side = "above the highest" if result.edge == "high" else "below the lowest"
     if result.edge == "base":
+        interpolation = (f"; the interval holds the interpolation error there ({result.parameter} "
+                         f"{result.interpolation_theta:.3g} with the quadratic through the base law and the two "
+                         "lowest levels)" if result.interpolation > 0 else "")
         return (f"between the base law and the lowest level ({result.levels[1]:.3g}), where the blend with "
-                "the base law is the least accurate: a level in between would bracket it (diagnose --simulate "
-                "adds it)")
+                f"the base law is the least accurate{interpolation}: a level in between would bracket it "
+                "(diagnose --simulate adds it)")
     if result.acts_on == "capsules":
         return (f"AT THE EDGE of the range searched ({low:.3g}-{high:.3g}, extended by half a step): the "
                 "strength may lie further out")
@@ -389,7 +395,7 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     fit = chosen.fit if chosen is not None else batch_fit(with_contours, base)
     offcentre = (fit_offcentre(capsules, excluded, base_database, base_law, offcentre_table)
                  if offcentre_table is not None else [])
-    return Diagnosis(base_law, results, chosen, base, excluded, offcentre, fit=fit)
+    return Diagnosis(base_law, results, chosen, base, excluded, offcentre, fit=fit, ids=[c.id for c in with_contours])
 
 
 def _base_database(database: TubeDatabase | DatabaseSet) -> TubeDatabase:

@@ -47,6 +47,39 @@ def g_s_interval(mean: float, sd: float, n: int, systematic: float = 0.0, level:
             "capsules": n, "level": level}
 
 
+#: Fewer of the contour fits' capsules than this fraction inverted by lengths: G_s by lengths
+#: is that of a subset the law happens to reach, not the batch's.
+LENGTHS_MIN_SHARE = 0.5
+
+
+def lengths_left_out(lengths: dict[str, Any] | None, contour: dict[str, Any] | None) -> str:
+    """Why G_s by lengths after an effect is not an answer beside the contour fits' (both as
+    ``g_s_interval`` makes them), or "" when it is: the law reproduces the lengths of fewer than
+    ``LENGTHS_MIN_SHARE`` of the capsules the contour fits use, its interval reaches 0 (no
+    modulus at all is excluded), or the two intervals do not overlap. The contour fits use each
+    capsule's whole contour; the lengths are two numbers a capsule, and under a law whose
+    lengths hardly change with Ca_s (pre-stress, a stiff Skalak membrane's nearly
+    parachute-free shapes) they barely constrain it: on the independent generator's Skalak
+    C = 10 capsules at the level C = 8, G_s by lengths scattered by 79 % a capsule, its interval
+    [-0.0016, 0.068] N/m. (Its scatter alone is no criterion: on one-material batches the
+    lengths scatter 3-8 times more than the contour fits, 6-18 % against 2-3 %.)"""
+    if not contour or contour.get("value") is None or not lengths or lengths.get("value") is None:
+        return ""
+    if lengths["capsules"] < LENGTHS_MIN_SHARE * contour["capsules"]:
+        return (f"the law reproduces the lengths of {lengths['capsules']} of the {contour['capsules']} capsules the "
+                "contour fits use: G_s by lengths would be that subset's; use the contour fits' G_s")
+    (low, high), (c_low, c_high) = lengths["interval"], contour["interval"]
+    if low <= 0:
+        return (f"G_s by lengths {lengths['value']:.4g} [{low:.4g}, {high:.4g}] N/m: its capsules scatter by "
+                f"{100 * lengths['sd'] / lengths['value']:.0f} % and the interval reaches 0: under this law the lengths "
+                "(two numbers a capsule) hardly constrain Ca_s where the whole contour does; use the contour fits' G_s")
+    if high < c_low or low > c_high:
+        return (f"G_s by lengths {lengths['value']:.4g} [{low:.4g}, {high:.4g}] N/m disagrees with the contour fits' "
+                f"{contour['value']:.4g} [{c_low:.4g}, {c_high:.4g}] N/m: under this law the lengths (two numbers a "
+                "capsule) hardly constrain Ca_s where the whole contour does; use the contour fits' G_s")
+    return ""
+
+
 def candidate_record(result: CandidateResult) -> dict[str, Any]:
     """One candidate's evidence."""
     record: dict[str, Any] = {"name": result.name, "supported": result.supported, "note": result.note or None}
@@ -58,6 +91,8 @@ def candidate_record(result: CandidateResult) -> dict[str, Any]:
         "strength": None if result.discrete else _number(result.theta),
         "interval": None if result.discrete else [_number(v) for v in result.interval],
         "interval_systematic": None if result.discrete else _number(result.systematic),
+        # Between the base law and the lowest level: how far the other interpolant moves the strength.
+        "interval_interpolation": _number(result.interpolation) if result.interpolation > 0 else None,
         "levels": None if result.discrete else [_number(v) for v in result.levels],
         "at_edge": (result.edge or None) if not result.discrete else None,
         "capsules": result.capsules, "chi2_base": _number(result.chi2_base), "chi2": _number(result.chi2),
@@ -66,7 +101,11 @@ def candidate_record(result: CandidateResult) -> dict[str, Any]:
         "g_s_contour_fits": {"before": g_s_interval(*result.g_s_before, result.capsules, result.g_s_systematic[0]),
                              "after": g_s_interval(*result.g_s_after, result.capsules, result.g_s_systematic[1])},
         "g_s_lengths": {"before": g_s_interval(*result.g_s_lengths_before, result.g_s_lengths_systematic[0]),
-                        "after": g_s_interval(*result.g_s_lengths_after, result.g_s_lengths_systematic[1])},
+                        "after": g_s_interval(*result.g_s_lengths_after, result.g_s_lengths_systematic[1]),
+                        # (the evidence keeps the number; why it is no answer beside the contour fits')
+                        "after_left_out": lengths_left_out(
+                            g_s_interval(*result.g_s_lengths_after, result.g_s_lengths_systematic[1]),
+                            g_s_interval(*result.g_s_after, result.capsules, result.g_s_systematic[1])) or None},
         "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
     })
     return record
@@ -149,6 +188,11 @@ def diagnosis_record(outcome: Diagnosis | SequentialDiagnosis, batch: str = "") 
         before = g_s_interval(*values[0]) if values and math.isfinite(values[0][0]) else None
         after = g_s_interval(*values[1]) if kind == "effect" and len(values) > 1 else None
         g_s[name] = {"before": before, "after": after}
+    # The two estimators agree, or G_s by lengths after is left out with the reason.
+    excluded = lengths_left_out(g_s["lengths"]["after"], g_s["contour_fits"]["after"])
+    if excluded:
+        g_s["lengths"]["after"] = None
+        g_s["lengths"]["after_left_out"] = excluded
     # A tie still answers: G_s after under each tied candidate, and one interval covering them.
     tied_round = next(iter(_tied_rounds(outcome, first)), None)
     if kind == "cannot_tell" and tied_round is not None:

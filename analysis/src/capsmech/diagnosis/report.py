@@ -112,14 +112,25 @@ def write_figures(diagnosis: Diagnosis, stem: Path) -> dict[str, Path]:
 def batch_heterogeneity(diagnosis: Diagnosis) -> Heterogeneity | None:
     """One material or several (``capsmech.inversion.heterogeneity``) on the per-capsule G_s of
     the contour fits: after the chosen effect, else the base law's. The contour fits carry no
-    per-capsule uncertainty, so the mixture test stands alone. Capsules are named by their
-    rank among those diagnosed (the file's order, less those left out). None without a fit."""
+    per-capsule uncertainty, so the mixture test stands alone. Capsules are named by their ids
+    (by their rank among those diagnosed where the diagnosis has none). None without a fit."""
     from capsmech.inversion.heterogeneity import heterogeneity
 
+    g_s = capsule_g_s(diagnosis)
+    if not g_s:
+        return None
+    return heterogeneity([capsule for capsule, _ in g_s], [g for _, g in g_s])
+
+
+def capsule_g_s(diagnosis: Diagnosis) -> list[tuple[str, float]]:
+    """Each diagnosed capsule's G_s [N/m] by its contour fit (after the chosen effect, else the
+    base law's; NaN where not fitted), by id (``Diagnosis.ids``; "capsule k" by rank without)."""
     score = diagnosis.chosen.after if diagnosis.chosen is not None else diagnosis.base
     if score is None or not len(score.g_s):
-        return None
-    return heterogeneity([f"capsule {k + 1}" for k in range(len(score.g_s))], score.g_s)
+        return []
+    ids = (diagnosis.ids if len(diagnosis.ids) == len(score.g_s) else
+           [f"capsule {k + 1}" for k in range(len(score.g_s))])
+    return [(capsule, float(g)) for capsule, g in zip(ids, score.g_s)]
 
 
 def _lengths(summary: tuple[float, float, int]) -> str:
@@ -176,8 +187,14 @@ def write_report(diagnosis: Diagnosis, out: str | Path, batch: str = "", figures
     mixture = batch_heterogeneity(diagnosis)
     if mixture is not None:
         lines += ["## One material or several", "",
-                  f"On the contour fits' G_s (capsmech.inversion.heterogeneity; capsules by rank among those "
-                  f"diagnosed): {'**' + mixture.line() + '**' if not mixture.one_material else mixture.line()}.", ""]
+                  f"On the contour fits' G_s (capsmech.inversion.heterogeneity): "
+                  f"{'**' + mixture.line() + '**' if not mixture.one_material else mixture.line()}.", ""]
+        each = dict(capsule_g_s(diagnosis))
+        for k, group in enumerate(mixture.groups, start=1):
+            lines.append(f"- group {k}: G_s = {group.g_s:.4g} N/m [{group.interval[0]:.4g}, {group.interval[1]:.4g}], "
+                         f"{len(group.members)} capsules: "
+                         + ", ".join(f"{capsule} ({each[capsule]:.4g})" for capsule in group.members))
+        lines += [""] if mixture.groups else []
     compared = sorted((r for r in diagnosis.results if r.supported and math.isfinite(r.bic_drop_common)),
                       key=lambda r: -r.bic_drop_common)
     if len(compared) > 1:

@@ -4,6 +4,7 @@ the candidate's strength fitted with leave-one-out cross-validation and the BIC 
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
@@ -19,9 +20,10 @@ from capsmech.diagnosis.candidates import (
     Candidate,
     DatabaseSet,
     extrapolation_range,
+    level_inverter,
 )
 from capsmech.diagnosis.goodness import MODEL_FLOOR_REL, GoodnessOfFit
-from capsmech.inversion.fitting import database_g_s_shifts, tube_inverter
+from capsmech.inversion.fitting import database_g_s_shifts
 from capsmech.inversion.inverters import TubeInverter, profile_elongation
 from capsmech.inversion.lengths import contour_lengths
 from capsmech.inversion.noise import CHI2_POINTS, tracing_noise
@@ -123,6 +125,19 @@ class CandidateResult(Evidence):
     g_s_systematic: tuple[float, float] = (0.0, 0.0)
     #: The same for G_s by lengths (``g_s_lengths_before`` and ``g_s_lengths_after``).
     g_s_lengths_systematic: tuple[float, float] = (0.0, 0.0)
+    #: The databases' accuracy's part of G_s by lengths before and after [N/m]
+    #: (``length_g_s_with_systematic``; NaN when not measured).
+    lengths_floor: list[float] = field(default_factory=lambda: [math.nan, math.nan], repr=False)
+    #: Between the base law and the lowest level, the interpolation error: how far the strength
+    #: moves with the other interpolant there (``_add_interpolation_error``; 0 elsewhere), that
+    #: interpolant's estimate and chi2, and how far G_s after moves with it [N/m] by the contour
+    #: fits and by lengths (in ``g_s_systematic`` and ``g_s_lengths_systematic``).
+    interpolation: float = 0.0
+    interpolation_theta: float = math.nan
+    interpolation_chi2: float = math.nan
+    g_s_interpolation: tuple[float, float] = (0.0, 0.0)
+    #: Every strength at which each capsule the criteria use was fitted, with the batch's score.
+    scores: dict[float, BatchScore] = field(default_factory=dict, repr=False)
 
     #: The candidate's values in order (for a model effect, the database levels it is blended
     #: between, the base law's 0 first) and whether the strength sits at an edge of them: ""
@@ -182,18 +197,37 @@ def _central_fits(capsules: Sequence[Capsule], inverter: TubeInverter) -> list[d
     return rows
 
 
+#: Each contour's measured lengths, by the contour array's id with a weak reference to it (an
+#: id is reused only once its array is gone): G_s by lengths is computed several times a
+#: candidate on the same contours (the tube radius leaves them as they are), and measuring
+#: them, a smooth fit about the contour's symmetry axis, was a tenth of a diagnosis's CPU.
+_CONTOUR_LENGTHS: dict[int, tuple[weakref.ref, tuple[float, float]]] = {}
+
+
+def _measured_lengths(contour: np.ndarray) -> tuple[float, float]:
+    known = _CONTOUR_LENGTHS.get(id(contour))
+    if known is not None and known[0]() is contour:
+        return known[1]
+    lengths = contour_lengths(contour)
+    if len(_CONTOUR_LENGTHS) > 4096:
+        for key in [key for key, (ref, _) in _CONTOUR_LENGTHS.items() if ref() is None]:
+            del _CONTOUR_LENGTHS[key]
+    _CONTOUR_LENGTHS[id(contour)] = (weakref.ref(contour), lengths)
+    return lengths
+
+
 def capsule_lengths(capsule: Capsule) -> tuple[float, float]:
     """(L_z, L_p) [m] of a capsule: measured on its contour by a smooth fit where it has one
     (``capsmech.inversion.lengths``: the extremes of noisy points are biased long), else the
     file's."""
     if capsule.contour is not None:
-        L_z, L_p = contour_lengths(capsule.contour)
+        L_z, L_p = _measured_lengths(capsule.contour)
         if math.isfinite(L_z):
             return L_z, L_p
     return capsule["L_z"], capsule["L_p"]
 
 
-def length_g_s(capsules: Sequence[Capsule], inverter: TubeInverter) -> tuple[float, float, int]:
+def length_g_s(capsules: Sequence[Capsule], inverter: TubeInverter | None) -> tuple[float, float, int]:
     """G_s [N/m] of a batch from each capsule's lengths inverted with ``inverter`` (its central
     fit), G_s = mu v_c / (Ca_s v_c/V): (mean, standard deviation, capsules fitted).
 
@@ -204,7 +238,7 @@ def length_g_s(capsules: Sequence[Capsule], inverter: TubeInverter) -> tuple[flo
     return length_g_s_with_systematic(capsules, inverter)[0]
 
 
-def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInverter
+def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInverter | None
                                ) -> tuple[tuple[float, float, int], float]:
     """``length_g_s`` and its systematic half-width [N/m]: how far the databases' own accuracy
     moves the mean. Their lengths are good to ``MODEL_FLOOR_REL`` of L_z on smooth shapes, less
@@ -212,7 +246,9 @@ def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInvert
     capsule that no number of capsules averages away: the mean's shift when L_z, then L_p, then
     v_c/V are moved by that much, added in quadrature (NaN with no G_s). Measured on the
     independent generator's control capsules (96 meridian elements, their true lengths): the
-    mean G_s 0.8 % low; this half-width is about 2.5 %."""
+    mean G_s 0.8 % low; this half-width is about 2.5 %. No inverter (``lengths_inverter``): NaN."""
+    if inverter is None:
+        return (math.nan, math.nan, 0), math.nan
     values: list[float] = []
     shifts: tuple[list[float], ...] = ([], [], [])
     for capsule in capsules:
@@ -233,7 +269,16 @@ def length_g_s_with_systematic(capsules: Sequence[Capsule], inverter: TubeInvert
 
 
 def _law_inverter(database, law: str | BlendedLaw):
-    return law.inverter(database) if isinstance(law, BlendedLaw) else tube_inverter(database, law)
+    # (a law key's inverter made once per database, its lengths fits remembered: every
+    # candidate starts its contour fits from the same base-law fits)
+    return law.inverter(database) if isinstance(law, BlendedLaw) else level_inverter(database, law)
+
+
+def lengths_inverter(database, law: str | BlendedLaw) -> TubeInverter | None:
+    """The inverter of G_s by lengths under ``law``: a blend's own rows (``blended_table``: the
+    lengths of the law the contour fits use), else the law's; None where a blend's levels share
+    too few nodes."""
+    return law.lengths_inverter(database) if isinstance(law, BlendedLaw) else level_inverter(database, law)
 
 
 def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, law: str | BlendedLaw, sigma: np.ndarray,
@@ -402,11 +447,79 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
                        sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour],
                        refine_evaluations: int = REFINE_EVALUATIONS) -> CandidateResult:
     """Refit the batch over the candidate's grid; fit theta (refined with at most
-    ``refine_evaluations`` refits on each side of the best grid value), its interval, the criteria."""
+    ``refine_evaluations`` refits on each side of the best grid value), its interval, the criteria.
+
+    A supported model effect's strength between the base law and the lowest level (edge
+    "base") is fitted a second time with the other interpolant there
+    (``Candidate.near_base_alternative``: the quadratic through the base law and the two lowest
+    levels), and the interval holds both estimates (``_add_interpolation_error``). Only where
+    supported: on a batch without the effect its strength lies near the base law, and the
+    second fit would cost a tenth of the diagnosis for an interval no verdict reports."""
+    result, evaluated, usable = _evaluate(candidate, capsules, database, base_law, sigma, base, prepared,
+                                          refine_evaluations)
+    if result.note:
+        return result
+    alternative = candidate.near_base_alternative
+    if result.edge == "base" and result.supported and alternative is not None:
+        # Outside the segment between the base law and the lowest level both laws are the same.
+        segment = (min(candidate.values), sorted(candidate.values)[1])
+        same = {v: s for v, s in evaluated.items() if not segment[0] < v < segment[1]}
+        # (each interpolant's search can leave out a few capsules it cannot fit: the difference
+        # is then also that of their capsules, which only widens the interval)
+        other, _, _ = _evaluate(alternative, capsules, database, base_law, sigma, base, prepared,
+                                refine_evaluations, known=same,
+                                lengths_before=(result.g_s_lengths_before, result.lengths_floor[0]))
+        if not other.note:
+            _add_interpolation_error(result, other)
+    _g_s_systematic(result, candidate, capsules, database, base_law, usable)
+    return result
+
+
+def _add_interpolation_error(result: CandidateResult, other: CandidateResult) -> None:
+    """Widen ``result``'s strength and G_s intervals by the interpolation error: the difference
+    of the two interpolants' estimates, added in quadrature to each interval, and the strength's
+    interval made to hold the other interpolant's (so widened) too.
+
+    Between the base law and the lowest level the linear blend is the least accurate (pre-stress
+    removes the parachute there). Measured on the independent generator's alpha = 0.03 batches
+    with the shipped levels 0.04-0.08: the linear blend read 0.0307-0.0364, the quadratic
+    through alpha 0, 0.04, 0.06 0.0282-0.0334 (its chi2 lower by 20-90 on 8-14 capsules), and
+    the linear blend's interval alone missed 0.03 on a third of the batches."""
+    difference = abs(result.theta - other.theta)
+    if not math.isfinite(difference):
+        return
+
+    def widened(r: CandidateResult) -> tuple[float, float]:
+        return (r.theta - math.hypot(r.theta - r.interval[0], difference),
+                r.theta + math.hypot(r.interval[1] - r.theta, difference))
+
+    own, others = widened(result), widened(other)
+    result.interval = (min(own[0], others[0]), max(own[1], others[1]))
+    result.interpolation = difference
+    result.interpolation_theta = other.theta
+    result.interpolation_chi2 = other.chi2
+    contour = abs(result.g_s_after[0] - other.g_s_after[0])
+    lengths = abs(result.g_s_lengths_after[0] - other.g_s_lengths_after[0])
+    result.g_s_interpolation = (contour if math.isfinite(contour) else 0.0, lengths if math.isfinite(lengths) else 0.0)
+
+
+def _evaluate(candidate: Candidate, capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet,
+              base_law: str | BlendedLaw, sigma: np.ndarray, base: BatchScore, prepared: Sequence[PreparedContour],
+              refine_evaluations: int, known: dict[float, BatchScore] | None = None,
+              lengths_before: tuple[tuple[float, float, int], float] | None = None
+              ) -> tuple[CandidateResult, dict[float, BatchScore], np.ndarray]:
+    """``evaluate_candidate`` without the systematic part of G_s's intervals: the result, every
+    strength evaluated with its score, and the capsules the criteria use. ``known``: scores
+    already made at some strengths (the candidate's law there is the same), not refitted;
+    ``lengths_before``: G_s by lengths under the base law and its systematic part, when known."""
     result = CandidateResult(candidate.name, candidate.parameter, candidate.unit)
     values = np.array(candidate.values, dtype=float)
+    known = known or {}
 
     def refit(value: float) -> BatchScore:
+        key = round(float(value), 12)
+        if key in known:
+            return known[key]
         changed, law = candidate.apply(capsules, value)
         # Contours the candidate leaves alone keep their prepared halves.
         same = all(c.contour is o.contour for c, o in zip(changed, capsules))
@@ -416,7 +529,7 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     usable = np.all([np.isfinite(score.chi2) for score in grid.values()], axis=0) & np.isfinite(base.chi2)
     if usable.sum() < 3:
         result.note = f"only {int(usable.sum())} capsules fitted at every {candidate.parameter}: not assessed"
-        return result
+        return result, {}, usable
     off_grid: dict[float, BatchScore] = {}
 
     def evaluate(theta: float) -> BatchScore:
@@ -495,28 +608,40 @@ def evaluate_candidate(candidate: Candidate, capsules: Sequence[Capsule], databa
     result.after = after
     result.g_s_before, result.drift_p_before = _g_s_summary(base, usable)
     result.g_s_after, result.drift_p_after = _g_s_summary(after, usable)
-    # G_s after the candidate is computed at the fitted strength, which is itself uncertain:
-    # its interval carries into G_s (half the change of G_s across the strength's interval),
-    # beside the databases' own accuracy (``length_g_s_with_systematic``, for both estimators:
-    # the contour fits match the same profiles). Measured on the independent generator's
-    # batches, G_s by the contour fits held the truth in 40-88 % of them without either, in 64
-    # of 64 with both (docs/validation/diagnosis.md).
-    result.g_s_lengths_before, floor_before = length_g_s_with_systematic(capsules, _law_inverter(database, base_law))
-    result.g_s_lengths_after, floor_after = length_g_s_with_systematic(changed, _law_inverter(database, law))
-    floor_before, floor_after = float(np.nan_to_num(floor_before)), float(np.nan_to_num(floor_after))
+    result.g_s_lengths_before, result.lengths_floor[0] = lengths_before or length_g_s_with_systematic(
+        capsules, lengths_inverter(database, base_law))
+    result.g_s_lengths_after, result.lengths_floor[1] = length_g_s_with_systematic(changed, lengths_inverter(database, law))
+    result.scores = dict(zip(values, scores))
+    return result, {**grid, **off_grid}, usable
+
+
+def _g_s_systematic(result: CandidateResult, candidate: Candidate, capsules: Sequence[Capsule],
+                    database: TubeDatabase | DatabaseSet, base_law: str | BlendedLaw, usable: np.ndarray) -> None:
+    """The systematic parts of G_s's intervals before and after (``CandidateResult.g_s_systematic``).
+
+    G_s after the candidate is computed at the fitted strength, which is itself uncertain:
+    its interval carries into G_s (half the change of G_s across the strength's interval),
+    beside the databases' own accuracy (``length_g_s_with_systematic``, for both estimators:
+    the contour fits match the same profiles) and, near the base law, the interpolation error
+    (``_add_interpolation_error``). Measured on the independent generator's batches, G_s by the
+    contour fits held the truth in 40-88 % of them without the first two, in 64 of 64 with both
+    (docs/validation/diagnosis.md)."""
+    values = np.array(sorted(result.scores))
+    scores = [result.scores[v] for v in values]
+    floor_before, floor_after = (float(np.nan_to_num(v)) for v in result.lengths_floor)
     lengths_change = contour_change = 0.0
     ends = np.clip(result.interval, values.min(), values.max())
     if not result.discrete and np.all(np.isfinite(ends)):
-        lengths_change = _half_change([length_g_s(c, _law_inverter(database, l))[0]
-                                       for c, l in (candidate.apply(capsules, float(end)) for end in ends)])
+        lengths_change = _half_change([length_g_s(c, lengths_inverter(database, law))[0]
+                                       for c, law in (candidate.apply(capsules, float(end)) for end in ends)])
         means = np.array([np.mean(g[np.isfinite(g)]) if np.any(np.isfinite(g)) else np.nan
                           for g in (score.g_s[usable] for score in scores)])
         known = np.isfinite(means)
         if known.sum() > 1:
             contour_change = _half_change(np.interp(ends, values[known], means[known]))
-    result.g_s_lengths_systematic = (floor_before, math.hypot(floor_after, lengths_change))
-    result.g_s_systematic = (floor_before, math.hypot(floor_after, contour_change))
-    return result
+    contour_interpolation, lengths_interpolation = result.g_s_interpolation
+    result.g_s_lengths_systematic = (floor_before, math.hypot(floor_after, lengths_change, lengths_interpolation))
+    result.g_s_systematic = (floor_before, math.hypot(floor_after, contour_change, contour_interpolation))
 
 
 def edge_of_levels(candidate: Candidate, theta: float, interval: tuple[float, float]) -> str:

@@ -26,8 +26,8 @@ from capsmech.diagnosis.scoring import (
     BatchScore,
     CandidateResult,
     _g_s_summary,
-    _law_inverter,
     length_g_s_with_systematic,
+    lengths_inverter,
     noise_levels,
     score_batch,
 )
@@ -454,7 +454,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
     effects = [(c.name, theta) for c, theta in fixed]
     g_s = [rounds[0].chosen.g_s_before if rounds[0].chosen else (math.nan, math.nan)]
     fit, final = rounds[0].fit, None
-    lengths, floor = length_g_s_with_systematic(with_contours, _law_inverter(database, base_law))
+    lengths, floor = length_g_s_with_systematic(with_contours, lengths_inverter(database, base_law))
     floor = float(np.nan_to_num(floor))
     g_s_lengths, contour_systematic, lengths_systematic = [lengths], [floor], [floor]
     if fixed:
@@ -462,7 +462,7 @@ def diagnose_sequential(capsules: Sequence[Capsule], database: TubeDatabase | Da
         final = score_batch(state, database, law, sigma)
         keep = np.isfinite(final.g_s)
         g_s.append(_g_s_summary(final, keep)[0])
-        lengths, floor = length_g_s_with_systematic(state, _law_inverter(database, law))
+        lengths, floor = length_g_s_with_systematic(state, lengths_inverter(database, law))
         g_s_lengths.append(lengths)
         # Each round's strength interval carried into G_s: the largest (an approximation for
         # two effects, whose joint interval is not propagated).
