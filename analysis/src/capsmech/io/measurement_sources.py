@@ -25,7 +25,7 @@ from datetime import date, datetime, time
 from pathlib import Path
 
 from capsmech.errors import CapsmechError
-from capsmech.io.text import ENCODINGS, split_lines
+from capsmech.io.text import ENCODINGS, read_bytes, split_lines
 
 #: A non-blank row: (line of the file or row of the sheet, cells, whether it is a comment).
 Row = tuple[int, list[str], bool]
@@ -65,14 +65,7 @@ def open_source(path: Path, limit: int, what: str, error: type[CapsmechError]) -
         ``error``, naming the file (and the line where there is one): unreadable, over the
         limit, binary, an ``.xls`` or unreadable workbook, or a workbook without openpyxl.
     """
-    try:
-        with open(path, "rb") as stream:
-            data = stream.read(limit + 1)
-    except (OSError, ValueError) as err:      # ValueError: a NUL character in the path
-        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-        raise error(f"{path}: cannot read the {what}: {reason}") from None
-    if len(data) > limit:
-        raise error(f"{path}: larger than {limit / 2**20:g} MiB, the most a {what} may hold (is it the right file?)")
+    data = read_bytes(path, limit, what, error)
     if data.startswith(ZIP_MAGIC):
         return Source(_sheet_rows(path, data, error), "")
     if data.startswith(OLE_MAGIC):

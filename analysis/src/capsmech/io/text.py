@@ -27,6 +27,21 @@ def _mebibytes(size: int) -> str:
     return f"{size / 2**20:g} MiB"
 
 
+def read_bytes(path: Path, limit: int, what: str, error: type[CapsmechError]) -> bytes:
+    """The bytes of a user's file, at most ``limit`` of them in memory (``read_text``'s
+    parameters); ``error`` when it cannot be read or is larger than ``limit``, naming the file."""
+    try:
+        with open(path, "rb") as stream:
+            data = stream.read(limit + 1)
+    except (OSError, ValueError) as err:      # ValueError: a NUL character in the path
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+        raise error(f"{path}: cannot read the {what}: {reason}") from None
+    if len(data) > limit:
+        raise error(f"{path}: larger than {_mebibytes(limit)}, the most a {what} may hold "
+                    "(is it the right file?)")
+    return data
+
+
 def read_text(path: Path, limit: int, what: str, error: type[CapsmechError]) -> str:
     """The text of a user's file, read with at most ``limit`` bytes in memory.
 
@@ -53,15 +68,7 @@ def read_text(path: Path, limit: int, what: str, error: type[CapsmechError]) -> 
         such file), is larger than ``limit``, or holds NUL bytes (binary); the message names
         the file, and for a binary file its first line with a NUL byte.
     """
-    try:
-        with open(path, "rb") as stream:
-            data = stream.read(limit + 1)
-    except (OSError, ValueError) as err:      # ValueError: a NUL character in the path
-        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-        raise error(f"{path}: cannot read the {what}: {reason}") from None
-    if len(data) > limit:
-        raise error(f"{path}: larger than {_mebibytes(limit)}, the most a {what} may hold "
-                    "(is it the right file?)")
+    data = read_bytes(path, limit, what, error)
     nul = data.find(b"\x00")
     if nul >= 0:
         line = data[:nul].count(b"\n") + 1
