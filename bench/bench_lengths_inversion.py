@@ -1,13 +1,16 @@
-"""Time the lengths-only tube inversion of 10^5 capsules: ``TubeInverter.fit_many`` of the
-working tree against the committed one (``git show <rev>:.../inverters.py``, loaded as a
-module of its own), in one run, so that the ratio holds on a shared machine.
+"""Time the lengths-only tube inversion of 10^5 capsules: the committed ``TubeInverter.fit_many``
+(``git show <rev>:.../inverters.py``, loaded as a module of its own) against the working tree's
+``capsmech.inversion.tube_batch.fit_batch`` on one thread and on every core, in one run, so
+that the ratios hold on a shared machine.
 
 The capsules are those of ``bench_inverse.py`` (uniform in the NH steady region of the paper
-database, 2 % noise on the lengths). Prints the times (wall and CPU; the before side is the
-best of two runs), the ratio before/after, whether the flags are the same and the largest
-relative difference of a/l, Ca_s, v_c/V; nothing asserted.
+database, 2 % noise on the lengths). Prints, for each path, the wall and CPU seconds (the
+best of ``--repeats`` runs each, the paths taking turns), the ratios before/after, whether the
+flags are the same and the largest relative difference of a/l, Ca_s, v_c/V; nothing asserted.
+On a loaded machine the wall time of the threaded path says little: its CPU time, and its
+wall time against its own one-thread run, do.
 
-    .venv/bin/python bench/bench_lengths_inversion.py [--capsules 100000] [--rev HEAD]
+    .venv/bin/python bench/bench_lengths_inversion.py [--capsules 100000] [--rev HEAD] [--repeats 2]
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -26,7 +30,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_inverse import capsules, inverter  # noqa: E402
 
-from capsmech.inversion.inverters import TubeFits, TubeInverter  # noqa: E402
+from capsmech.inversion.inverters import TubeFits  # noqa: E402
+from capsmech.inversion.tube_batch import default_workers, fit_batch  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 MODULE = "analysis/src/capsmech/inversion/inverters.py"
@@ -47,33 +52,54 @@ def committed_module(rev: str) -> ModuleType:
     return module
 
 
-def timed(inv: TubeInverter, l_z: np.ndarray, l_p: np.ndarray) -> tuple[TubeFits, float, float]:
+def timed(run: Callable[[], TubeFits]) -> tuple[TubeFits, float, float]:
     start, cpu = time.perf_counter(), time.process_time()
-    result = inv.fit_many(l_z, l_p)
+    result = run()
     return result, time.perf_counter() - start, time.process_time() - cpu
+
+
+def differences(new: TubeFits, old: TubeFits) -> str:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gaps = [np.nanmax(np.abs(getattr(new, k) / getattr(old, k) - 1)) for k in ("a_over_l", "Ca_s", "vc_over_V")]
+    return (f"same flags: {old.flag == new.flag}; largest relative difference (a/l, Ca_s, v_c/V): "
+            + ", ".join(f"{g:.1e}" for g in gaps))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--capsules", type=int, default=100_000)
     parser.add_argument("--rev", default="HEAD", help="the committed version to compare with")
+    parser.add_argument("--repeats", type=int, default=2, help="runs of each path (the best is kept)")
     args = parser.parse_args()
     new_inv = inverter()
     old_inv = committed_module(args.rev).TubeInverter(new_inv.table)
     l_z, l_p = capsules(new_inv, args.capsules)
-    n = len(l_z)
-    print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f} (shared: compare ratios)")
-    old, old_wall, old_cpu = timed(old_inv, l_z, l_p)
-    new, new_wall, new_cpu = timed(new_inv, l_z, l_p)
-    _, old_wall2, old_cpu2 = timed(old_inv, l_z, l_p)
-    old_wall, old_cpu = min(old_wall, old_wall2), min(old_cpu, old_cpu2)
-    print(f"before ({args.rev}): {n} capsules in {old_wall:.2f} s wall, {old_cpu:.2f} s CPU")
-    print(f"after (working tree): {n} capsules in {new_wall:.2f} s wall, {new_cpu:.2f} s CPU")
-    print(f"ratio before/after: {old_wall / new_wall:.2f} wall, {old_cpu / new_cpu:.2f} CPU")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gaps = [np.nanmax(np.abs(getattr(new, k) / getattr(old, k) - 1)) for k in ("a_over_l", "Ca_s", "vc_over_V")]
-    print(f"same flags: {old.flag == new.flag}; largest relative difference (a/l, Ca_s, v_c/V): "
-          + ", ".join(f"{g:.1e}" for g in gaps) + f"; {int(new.ok.sum())} valid")
+    n, workers = len(l_z), default_workers()
+    paths: dict[str, Callable[[], TubeFits]] = {
+        f"before ({args.rev}: fit_many)": lambda: old_inv.fit_many(l_z, l_p),
+        "after (fit_batch, 1 thread)": lambda: fit_batch(new_inv, l_z, l_p, workers=1),
+        f"after (fit_batch, {workers} threads)": lambda: fit_batch(new_inv, l_z, l_p, workers=workers),
+    }
+    print(f"machine: {os.cpu_count()} cores, {workers} usable; load average {os.getloadavg()[0]:.1f} "
+          "(shared: compare ratios)")
+    best: dict[str, tuple[float, float]] = {}
+    results: dict[str, TubeFits] = {}
+    for _ in range(args.repeats):
+        for name, run in paths.items():
+            results[name], wall, cpu = timed(run)
+            previous = best.get(name, (np.inf, np.inf))
+            best[name] = (min(wall, previous[0]), min(cpu, previous[1]))
+    before = next(iter(paths))
+    for name in paths:
+        wall, cpu = best[name]
+        line = f"{name}: {n} capsules in {wall:.2f} s wall, {cpu:.2f} s CPU"
+        if name != before:
+            line += f"; before/after {best[before][0] / wall:.2f} wall, {best[before][1] / cpu:.2f} CPU"
+        print(line)
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
+    for name in list(paths)[1:]:
+        print(f"{name} against before: {differences(results[name], results[before])}; "
+              f"{int(results[name].ok.sum())} valid")
 
 
 if __name__ == "__main__":

@@ -4,17 +4,21 @@
 cycling between neighbour sets) to ``_fit_exact_many``, ``fit``'s own arithmetic stacked over
 the capsules: it must be ``fit``'s result bit for bit, flags included. The stacked weighted
 quadratic fits (normal equations over neighbour-major arrays, SVD where the basis is
-rank-deficient) must equal one ``np.linalg.lstsq`` per capsule to round-off. The capsules are
+rank-deficient) must equal one ``np.linalg.lstsq`` per capsule to round-off. ``tube_batch.fit_batch``
+(threads over chunks, its own refinement and minimum-norm fits) must give ``fit``'s flags and
+values to round-off, the same on one thread as on two. The capsules are
 drawn here, from the database's rows by the test's own triangulation, with 2 % noise on the
 lengths; no timing is asserted (``bench/bench_lengths_inversion.py`` measures it).
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 from scipy.interpolate import LinearNDInterpolator
 
-from capsmech.inversion import inverters
+from capsmech.inversion import inverters, tube_batch
 from capsmech.inversion.fitting import tube_inverter
 from capsmech.io.catalog import database_path
 from capsmech.io.database import load_database
@@ -109,3 +113,115 @@ def test_stacked_lstsq_is_lstsq_with_or_without_the_generalised_ufunc(monkeypatc
     assert np.array_equal(inverters._lstsq_stack(a, b), expected)
     monkeypatch.setattr(np.linalg, "_umath_linalg", None, raising=False)
     assert np.array_equal(inverters._lstsq_stack(a, b), expected)
+
+
+def spy_on_pools(monkeypatch) -> list[int]:
+    """The thread counts of the pools ``tube_batch`` starts, appended as it starts them."""
+    started: list[int] = []
+
+    class Pool(ThreadPoolExecutor):
+        def __init__(self, max_workers: int) -> None:
+            started.append(max_workers)
+            super().__init__(max_workers=max_workers)
+
+    monkeypatch.setattr(tube_batch, "ThreadPoolExecutor", Pool)
+    return started
+
+
+@pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
+def test_threaded_batch_equals_fit_on_drawn_capsules(tube_db, law, monkeypatch):
+    """``tube_batch.fit_batch`` (its own refinement: neighbours asked for only where they can
+    have changed, full-rank fits about the current point, two-line fits by their reduced
+    system) gives ``fit``'s flags and values, on two threads over several chunks; invalid and
+    far lengths get ``fit``'s flags too."""
+    monkeypatch.setattr(tube_batch, "CHUNK", 64)
+    monkeypatch.setattr(tube_batch, "MIN_THREAD_CAPSULES", 16)
+    pools = spy_on_pools(monkeypatch)
+    inverter = tube_inverter(tube_db, law)
+    l_z, l_p = drawn_capsules(inverter.table, 300, seed=15)
+    l_z[:4], l_p[:4] = [np.nan, 1.0, 1e200, 3.0], [0.1, 1.5, 0.5, 2.0]  # not finite, L_p > L_z, far, outside
+    v_c, mu = np.linspace(2e-3, 3e-3, 300), 1.2e-3
+    many = tube_batch.fit_batch(inverter, l_z, l_p, v_c, mu, workers=2)
+    assert pools == [2]
+    for i in range(len(l_z)):
+        reference, batch = inverter.fit(float(l_z[i]), float(l_p[i]), float(v_c[i]), mu), many.row(i)
+        assert batch.flag == reference.flag, i
+        for name in FIELDS:
+            expected, got = getattr(reference, name), getattr(batch, name)
+            if np.isnan(expected):
+                assert np.isnan(got), (i, name)
+            else:
+                assert got == pytest.approx(expected, rel=1e-9, abs=0), (i, name)
+    assert many.ok.sum() > 200
+
+
+def test_threads_do_not_change_the_result(tube_db, monkeypatch):
+    """Each capsule is fitted on its own: the threaded batch equals the one-thread batch bit
+    for bit."""
+    monkeypatch.setattr(tube_batch, "CHUNK", 100)
+    monkeypatch.setattr(tube_batch, "MIN_THREAD_CAPSULES", 100)
+    pools = spy_on_pools(monkeypatch)
+    inverter = tube_inverter(tube_db, "NH")
+    l_z, l_p = drawn_capsules(inverter.table, 1000, seed=16)
+    one, two = (tube_batch.fit_batch(inverter, l_z, l_p, workers=w) for w in (1, 2))
+    assert pools == [2]
+    assert one.flag == two.flag
+    for name in ("a_over_l", "Ca_s", "vc_over_V"):
+        assert np.array_equal(getattr(one, name), getattr(two, name), equal_nan=True), name
+
+
+def test_local_fits_are_lstsq_in_fits_own_basis(tube_db):
+    """``tube_batch._local_fit`` on neighbourhoods of the database's points given about a point
+    s beside them: where the quadratic basis has full rank, its coefficients about s are
+    lstsq's fitted map (value and gradient at s); where the points lie on two grid lines of
+    one coordinate (u^2 = b u: rank-deficient), they are ``np.linalg.lstsq``'s minimum-norm
+    answer in fit's basis (centred on the nearest point) and x is s there; a neighbourhood on
+    two lines of each coordinate (four places, the reduced fit deficient too) gets lstsq's
+    answer as well."""
+    inverter = tube_inverter(tube_db, "NH")
+    rng = np.random.default_rng(17)
+    p = inverter._p_scaled
+    cases = []
+    for axis in (0, 1):
+        lines = np.unique(p[:, axis])
+        for left in range(len(lines) - 1):
+            on_lines = np.flatnonzero((p[:, axis] == lines[left]) | (p[:, axis] == lines[left + 1]))
+            on_lines = on_lines[np.argsort(p[on_lines, 1 - axis])]
+            cases += [on_lines[start:start + 14] for start in range(0, len(on_lines) - 13, 3)]
+    two_line_cases = len(cases)
+    lines = np.unique(p[:, 0])
+    four = np.flatnonzero(np.isin(p[:, 0], lines[:2]))
+    cases.append(np.resize(four[np.argsort(p[four, 1])][:4], 14))
+    for point in rng.uniform(p.min(axis=0), p.max(axis=0), size=(60, 2)):  # the 14 nearest: full rank mostly
+        cases.append(inverter._p_tree.query(point, k=14)[1])
+    index = np.array(cases).T  # neighbour-major (14, m)
+    m = index.shape[1]
+    s = p[index].mean(axis=0) + rng.uniform(-0.2, 0.2, size=(m, 2))
+    u, v = p[index, 0] - s[:, 0], p[index, 1] - s[:, 1]
+    nearest = np.argmin(u * u + v * v, axis=0)
+    centre = index[nearest, np.arange(m)]
+
+    def fit_coordinates(columns):
+        return p[index[:, columns], 0] - p[centre[columns], 0], p[index[:, columns], 1] - p[centre[columns], 1]
+
+    weight = rng.uniform(0.05, 1.0, size=(14, m))
+    values = [inverter._q_z[index], inverter._q_zp[index]]
+    coefficients, x = tube_batch._local_fit(u, v, values, weight, nearest, fit_coordinates)
+    u_fit, v_fit = fit_coordinates(np.arange(m))
+    deficient = 0
+    for i in range(m):
+        sqrt_w = np.sqrt(weight[:, i])[:, None]
+        basis = np.column_stack([u_fit[:, i] ** a * v_fit[:, i] ** b for a, b in inverters._EXPONENTS])
+        expected, _, rank, _ = np.linalg.lstsq(sqrt_w * basis, sqrt_w * np.column_stack([c[:, i] for c in values]),
+                                               rcond=None)
+        if rank < 6:
+            deficient += 1
+            assert np.array_equal(x[:, i], s[i] - p[centre[i]]), i
+            assert np.abs(coefficients[:, :, i] - expected).max() <= 1e-9 * np.abs(expected).max(), i
+        else:
+            assert np.array_equal(x[:, i], [0.0, 0.0]), i
+            value, jacobian = inverters._quadratic_value_and_jacobian(expected, s[i] - p[centre[i]])
+            got_jacobian = coefficients[1:3, :, i].T
+            assert np.abs(coefficients[0, :, i] - value).max() <= 1e-9 * np.abs(value).max(), i
+            assert np.abs(got_jacobian - jacobian).max() <= 1e-9 * np.abs(jacobian).max(), i
+    assert deficient >= two_line_cases + 1

@@ -1,0 +1,407 @@
+"""The lengths-only tube inversion of many capsules at once, on every core of one process.
+
+``TubeInverter.fit_many`` (``capsmech.inversion.inverters``) stays the reference: ``fit_batch``
+gives its result (``fit``'s, to round-off: the same neighbours, weights, roots, iterations and
+flags; the capsules whose refinement still cycles after its 30 steps get ``fit``'s own
+arithmetic, ``TubeInverter._fit_exact_many``, as there) with less arithmetic, and spreads the
+capsules over threads. None of the changes is one of method:
+
+- The parameter-space refinement asks the KD-tree for the neighbours only where they can
+  have changed: the query returns one neighbour more than the fit uses, and while the point
+  stays within half the gap between the 14th and 15th distances of where it was asked, the
+  14 nearest are the same points (triangle inequality); their distances are then computed
+  directly. About two queries in three are saved.
+- A local fit with full rank is written about the current point (a quadratic's least-squares
+  fit does not depend on where its basis is centred): the Newton step is read off its
+  coefficients there. A rank-deficient one (the neighbours on two grid lines of one
+  coordinate: u^2 = (alpha + beta) u - alpha beta; a quarter of the fits in lengths, 3 % in
+  parameters) is lstsq's minimum-norm answer in fit's basis, computed from the fit
+  without the dependent column (the same Cholesky factorisation, that pivot skipped) instead
+  of one SVD per capsule; any other deficiency still gets lstsq's SVD.
+- The weighted moments are sums of products in one pass (einsum), the coefficients stored
+  component-major (6, 2, m), so that the Newton steps work on contiguous vectors.
+- The capsules go in chunks, as many for each thread, to a pool of threads: numpy's
+  operations on whole chunks, the KD-tree's queries and LAPACK release the GIL, so the
+  chunks run on the cores together.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+
+import numpy as np
+
+from capsmech.inversion import inverters
+from capsmech.inversion.inverters import TubeFits, TubeInverter
+
+#: Capsules in one chunk of work: the (14, chunk) work arrays stay in the cache, and 10^5
+#: capsules make enough chunks to keep two threads busy to the end.
+CHUNK = 8192
+#: Fewest capsules worth a thread of their own.
+MIN_THREAD_CAPSULES = 2048
+#: Steps of the parameter-space refinement and its convergence threshold on the step (``fit``'s).
+_REFINE_STEPS = 30
+_REFINE_TOLERANCE = 1e-10
+
+
+def default_workers() -> int:
+    """Threads for a batch: the cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not every platform has sched_getaffinity
+        return max(1, os.cpu_count() or 1)
+
+
+def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.ndarray | float | None = None,
+              mu: np.ndarray | float | None = None, workers: int | None = None) -> TubeFits:
+    """``inverter.fit_many(L_z, L_p, v_c, mu)``, on ``workers`` threads (default: the cores).
+
+    Parameters and result as ``TubeInverter.fit_many``: one entry per capsule, the values
+    ``fit``'s to round-off, the flags ``fit``'s.
+    """
+    L_z, L_p = np.broadcast_arrays(np.atleast_1d(np.asarray(L_z, dtype=float)),
+                                   np.atleast_1d(np.asarray(L_p, dtype=float)))
+    n = len(L_z)
+    has_modulus = v_c is not None and mu is not None
+    v_c_all = np.broadcast_to(np.asarray(v_c if has_modulus else np.nan, dtype=float), (n,))
+    mu_all = np.broadcast_to(np.asarray(mu if has_modulus else np.nan, dtype=float), (n,))
+    # A thread for every MIN_THREAD_CAPSULES at most: for a few capsules, starting threads
+    # costs more than it saves.
+    threads = max(1, min(workers or default_workers(), n // MIN_THREAD_CAPSULES))
+    # Chunks of at most CHUNK capsules, as many for each thread, so that they end together.
+    size = max(1, -(-n // (threads * -(-n // (threads * CHUNK))))) if n else 1
+    starts = range(0, max(n, 1), size)
+
+    def one_chunk(start: int) -> TubeFits:
+        part = slice(start, start + size)
+        return _fit_chunk(inverter, L_z[part], L_p[part], (v_c_all[part], mu_all[part]) if has_modulus else None)
+
+    threads = min(threads, len(starts))
+    if threads <= 1:
+        parts = [one_chunk(start) for start in starts]
+    else:
+        # Scipy builds some of the triangulation's arrays on first use: once, here, not in
+        # two threads at once.
+        inverter._velocity(np.zeros((1, 2)))
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            parts = list(pool.map(one_chunk, starts))
+    a_over_l, Ca_s, vc_over_V, G_s = (np.concatenate([getattr(part, name) for part in parts])
+                                      for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s"))
+    return TubeFits(a_over_l, Ca_s, vc_over_V, G_s, flag=[f for part in parts for f in part.flag])
+
+
+def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray,
+               modulus: tuple[np.ndarray, np.ndarray] | None) -> TubeFits:
+    """``fit_many``'s steps on one chunk, with ``_refine`` for its parameter-space refinement."""
+    n = len(L_z)
+    out = TubeFits(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), flag=[""] * n)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
+    for i in np.flatnonzero(~valid):
+        out.flag[i] = (f"invalid lengths L_z = {float(L_z[i])}, L_p = {float(L_p[i])} "
+                       "(need L_z > 0 and 0 <= L_p < L_z)")
+    with np.errstate(invalid="ignore"):
+        reach = inv._within_reach(np.column_stack([L_z, L_z - L_p]))
+    for i in np.flatnonzero(valid & ~reach):
+        out.flag[i] = inverters._beyond_reach(float(L_z[i]), float(L_p[i]))
+    valid &= reach
+    rows = np.flatnonzero(valid)
+    if rows.size == 0:
+        return out
+    q_star = np.column_stack([L_z[rows], L_z[rows] - L_p[rows]])
+    fallback = np.zeros(len(rows), dtype=bool)
+
+    # The first root: the local forward map over the neighbours in lengths (``fit``'s), its
+    # basis centred on the nearest of them (in fit's coordinates), Newton from there.
+    distance, index = inv._tree.query(q_star / inv._q_scale, k=inv.n_neighbours)
+    index, distance = index.T, distance.T  # neighbour-major (n, m)
+    u = (inv._p[index, 0] - inv._p[index[0], 0]) / inv._p_scale[0]
+    v = (inv._p[index, 1] - inv._p[index[0], 1]) / inv._p_scale[1]
+    weight = (1 - (distance / (1.01 * distance[-1] + 1e-300)) ** 2) ** 2
+    values = [inv._q_z[index], inv._q_zp[index]]
+    # The basis is centred on fit's centre (neighbour 0): the fit is fit's wherever it has rank.
+    coefficients, _ = _local_fit(u, v, values, weight, np.zeros(len(rows), dtype=np.intp), lambda columns: (
+        u[:, columns], v[:, columns]))
+    target = q_star.T.copy()
+    x = np.zeros((2, len(rows)))
+    active = ~fallback
+    for _ in range(50):
+        live = np.flatnonzero(active)
+        if live.size == 0:
+            break
+        x_new, norm, bad = _damped_newton_step(coefficients[:, :, live], x[:, live], target[:, live], 0.5)
+        x[:, live] = x_new
+        fallback[live[bad]] = True
+        active[live[(norm < 1e-12) | bad]] = False
+    q, _ = _quadratic_value_and_jacobian(coefficients, x)
+    tolerance = 1e-6 * np.abs(q_star).max(axis=1)
+    no_root = np.any(np.abs(q - target) > tolerance, axis=0) & ~fallback
+    first = inv._p[index[0]] + x.T * inv._p_scale
+
+    todo = ~no_root & ~fallback
+    scaled, value_at_end, moving, bad = _refine(inv, target, first / inv._p_scale, todo)
+    # As fit_many: a refinement still moving after its steps (cycling between neighbour sets)
+    # ends where round-off takes it, so it gets ``fit``'s own arithmetic below.
+    fallback |= bad | moving
+    todo &= ~fallback
+    refined = todo & ~np.any(np.abs(value_at_end - target) > tolerance, axis=0)
+    p = np.where(refined[:, None], scaled * inv._p_scale, first)
+    first_outside = inv._hull.find_simplex(first / inv._p_scale) < 0
+    inconsistent = todo & ~refined & ~first_outside
+    ok = todo & ~inconsistent
+    outside = np.zeros(len(rows), dtype=bool)
+    outside[ok] = inv._hull.find_simplex(p[ok] / inv._p_scale) < 0
+    ok &= ~outside
+    if modulus is not None:
+        modulus = (np.ascontiguousarray(modulus[0]), np.ascontiguousarray(modulus[1]))
+    inv._store(out, rows, p, ok, no_root, inconsistent, outside, modulus)
+    exact = rows[fallback]
+    p_exact, outcome = inv._fit_exact_many(L_z[exact], L_p[exact])
+    inv._store(out, exact, p_exact, outcome == inverters._EXACT_OK, outcome == inverters._EXACT_NO_ROOT,
+               outcome == inverters._EXACT_INCONSISTENT, outcome == inverters._EXACT_OUTSIDE, modulus)
+    for i in exact[outcome == inverters._EXACT_LEFT]:
+        one = inv.fit(float(L_z[i]), float(L_p[i]), float(modulus[0][i]) if modulus else None,
+                      float(modulus[1][i]) if modulus else None)
+        out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
+        out.flag[i] = one.flag
+    return out
+
+
+def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``_refine_in_parameter_space``'s iteration on the rows ``todo`` of a stack, from the
+    scaled parameters ``scaled`` (m, 2), towards the lengths ``target`` (2, m): (final scaled
+    parameters (m, 2), the last local fit's value there (2, m), rows still moving after the
+    steps, rows with a non-finite step).
+
+    Each step fits q(p) over the 14 database points nearest to the current point s, weighted
+    by their distance to s (``fit``'s fit). Where that fit has full rank, the fitted quadratic
+    does not depend on where its basis is centred, and it is fitted about s itself (the step
+    is then read off the coefficients at s). Where the neighbours make it rank-deficient (on
+    two grid lines: a direction without curvature), lstsq's minimum-norm answer does depend on
+    the centre, and it is taken as ``fit`` takes it, about the nearest database point."""
+    k = inv.n_neighbours
+    m = len(scaled)
+    scaled = scaled.copy()
+    last_coefficients = np.zeros((6, 2, m))
+    last_x = np.zeros((2, m))
+    failed = np.zeros(m, dtype=bool)
+    active = todo.copy()
+    # Per row: its 14 neighbours (neighbour-major), where they were asked for and the margin
+    # (half the gap between the 14th and 15th distances) within which they stay the 14 nearest.
+    neighbours = np.zeros((k, m), dtype=np.intp)
+    asked_at = np.full((m, 2), np.nan)
+    margin = np.full(m, -1.0)
+    for _ in range(_REFINE_STEPS):
+        live = np.flatnonzero(active)
+        if live.size == 0:
+            break
+        s_live = scaled[live]
+        moved = np.hypot(s_live[:, 0] - asked_at[live, 0], s_live[:, 1] - asked_at[live, 1])
+        stale = live[~(moved < margin[live])]  # NaN (never asked) compares False: asked
+        if stale.size:
+            distance, index = inv._p_tree.query(scaled[stale], k=k + 1)
+            neighbours[:, stale] = index[:, :k].T
+            asked_at[stale] = scaled[stale]
+            # The allowance covers the round-off of the distances themselves.
+            margin[stale] = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+        index = neighbours[:, live]
+        u = inv._p_u[index] - s_live[:, 0]
+        v = inv._p_v[index] - s_live[:, 1]
+        distance = np.sqrt(u * u + v * v)
+        weight = (1 - (distance / (1.01 * distance.max(axis=0) + 1e-300)) ** 2) ** 2
+        values = [inv._q_z[index], inv._q_zp[index]]
+        nearest = np.argmin(distance, axis=0)
+        coefficients, x_here = _local_fit(u, v, values, weight, nearest,
+                                          partial(_fit_coordinates, inv, index, nearest))
+        x_new, norm, bad = _damped_newton_step(coefficients, x_here, target[:, live], 0.25)
+        scaled[live] = s_live + (x_new - x_here).T
+        last_coefficients[:, :, live] = coefficients
+        last_x[:, live] = x_new
+        failed[live[bad]] = True
+        active[live[(norm < _REFINE_TOLERANCE) | bad]] = False
+    value_at_end, _ = _quadratic_value_and_jacobian(last_coefficients, last_x)
+    return scaled, value_at_end, active, failed
+
+
+def _fit_coordinates(inv: TubeInverter, index: np.ndarray, nearest: np.ndarray, columns: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """fit's coordinates (to round-off) of the neighbours ``index`` (n, m) at ``columns``,
+    about the nearest (row ``nearest`` (m,)): differences of the scaled parameters, so that the
+    points on one grid line share a coordinate exactly, as in fit."""
+    around, centre = index[:, columns], index[nearest[columns], columns]
+    return inv._p_u[around] - inv._p_u[centre], inv._p_v[around] - inv._p_v[centre]
+
+
+def _local_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.ndarray], w: np.ndarray, nearest: np.ndarray,
+               fit_coordinates: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``fit``'s weighted quadratic fit (``np.linalg.lstsq`` on ``sqrt_w * _quadratic_basis``,
+    centred on the nearest neighbour) of the values over neighbourhoods given about a point
+    s: neighbour-major coordinates u, v relative to s, value columns and weights (n, m); the
+    row of fit's centre among the neighbours, ``nearest`` (m,); and ``fit_coordinates``,
+    which gives fit's own coordinates of the neighbours for some columns.
+
+    -> (coefficients (6, len(value_columns), m), x (2, m): where s lies in the coefficients'
+    basis). Where the basis has full rank the fitted quadratic does not depend on where the
+    basis is centred: the fit about s is fit's, and x = 0. Where the neighbours lie on two grid
+    lines of one coordinate (u in {alpha, beta}: u^2 = (alpha + beta) u - alpha beta, the
+    common deficiency near the edge of a database's region), lstsq's answer is the
+    minimum-norm one in fit's basis: the fit without the u^2 column (``_normal_equations_fit``
+    drops it), carried to fit's centre and made orthogonal to the null vector
+    (0, -b, 0, 1, 0, 0) there (b: the second line's u); likewise for v. Any other deficiency
+    gets ``inverters._weighted_lstsq_neighbour_major``'s SVD (lstsq's cutoff) in fit's
+    coordinates."""
+    coefficients, dropped, deficient = _normal_equations_fit(u, v, value_columns, w)
+    m = u.shape[1]
+    x = np.zeros((2, m))
+    columns = np.flatnonzero(dropped >= 0)
+    if columns.size:
+        a = coefficients[:, :, columns]
+        # fit's centre in the coordinates about s, and s in fit's coordinates (x).
+        centre_u, centre_v = u[nearest[columns], columns], v[nearest[columns], columns]
+        du, dv = -centre_u, -centre_v
+        x[:, columns] = du, dv
+        carried = a.copy()
+        carried[0] = (a[0] - du * a[1] - dv * a[2] + (du * du) * a[3] + (du * dv) * a[4]
+                      + (dv * dv) * a[5])
+        carried[1] = a[1] - (2 * du) * a[3] - dv * a[4]
+        carried[2] = a[2] - du * a[4] - (2 * dv) * a[5]
+        on_u_lines = dropped[columns] == 3
+        # The second line's coordinate in fit's basis: the other value of u (or v).
+        along = np.where(on_u_lines, 1, 2)
+        coordinate = np.where(on_u_lines, u[:, columns] - centre_u, v[:, columns] - centre_v)
+        b = coordinate[np.argmax(np.abs(coordinate), axis=0), np.arange(columns.size)]
+        null = np.zeros((6, columns.size))
+        null[along, np.arange(columns.size)] = -b
+        null[np.where(on_u_lines, 3, 5), np.arange(columns.size)] = 1.0
+        share = np.einsum("km,kqm->qm", null, carried) / np.einsum("km,km->m", null, null)
+        coefficients[:, :, columns] = carried - null[:, None, :] * share[None, :, :]
+    if deficient.any():
+        columns = np.flatnonzero(deficient)
+        u_fit, v_fit = fit_coordinates(columns)
+        x[0, columns], x[1, columns] = -u[nearest[columns], columns], -v[nearest[columns], columns]
+        coefficients[:, :, columns] = inverters._weighted_lstsq_neighbour_major(
+            u_fit, v_fit, [c[:, columns] for c in value_columns], w[:, columns]).transpose(1, 2, 0)
+    return coefficients, x
+
+
+def _normal_equations_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.ndarray], w: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The weighted least-squares quadratic fit (basis 1, u, v, u^2, u v, v^2) of the values
+    on neighbour-major arrays (u, v, value columns, weights (n, m)) by the normal equations,
+    the Cholesky factorisation written out over the stack
+    (``inverters._weighted_lstsq_neighbour_major``'s test of the pivots, without its SVD branch).
+
+    -> (coefficients (6, len(value_columns), m); the column dropped (m,): 3 (u^2) where the
+    points lie on two lines of u (its pivot vanishes, and the fit is the one without it:
+    that column's coefficient 0), 5 (v^2) likewise, -1 elsewhere; rows whose basis is
+    otherwise rank-deficient (a Cholesky pivot below ``_MIN_CHOLESKY_PIVOT``: their
+    coefficients are not meaningful))."""
+    m = u.shape[1]
+    u2, v2 = u * u, v * v
+    u_powers = [np.ones_like(u), u, u2, u2 * u, u2 * u2]
+    v_powers = [np.ones_like(v), v, v2, v2 * v, v2 * v2]
+    # Each sum over the neighbours of a product in one pass (einsum): no temporary array.
+    moment = {}
+    for i in range(5):
+        wu = w if i == 0 else w * u_powers[i]
+        moment[i, 0] = wu.sum(axis=0)
+        for j in range(1, 5 - i):
+            moment[i, j] = np.einsum("nm,nm->m", wu, v_powers[j])
+    exponents = inverters._EXPONENTS
+    k = len(exponents)
+    gram = [[moment[i1 + i2, j1 + j2] for (i2, j2) in exponents] for (i1, j1) in exponents]
+    monomials = {(i, j): u_powers[i] if j == 0 else (v_powers[j] if i == 0 else u * v) for i, j in exponents}
+    weighted_values = [w * column for column in value_columns]
+    rhs = [[wq.sum(axis=0) if (i, j) == (0, 0) else np.einsum("nm,nm->m", wq, monomials[i, j])
+            for wq in weighted_values] for i, j in exponents]
+    deficient = np.zeros(m, dtype=bool)
+    dropped = np.full(m, -1)
+    for r in range(k):
+        deficient |= ~(gram[r][r] > 0)
+    # Cholesky of the Gram matrix itself: its pivots are those of the matrix scaled to a unit
+    # diagonal times the diagonal (the factor's rows scale with it), so the test on the
+    # scaled pivot reads pivot > _MIN_CHOLESKY_PIVOT * gram[j][j].
+    lower: list[list[np.ndarray]] = [[np.zeros(m)] * k for _ in range(k)]
+    inverse_diagonal: list[np.ndarray] = []
+    for j in range(k):
+        pivot = gram[j][j]
+        for t in range(j):
+            pivot = pivot - lower[j][t] * lower[j][t]
+        small = ~(pivot > inverters._MIN_CHOLESKY_PIVOT * gram[j][j]) & ~deficient
+        skip = np.zeros(m, dtype=bool)
+        if j in (3, 5) and small.any():
+            # A square's column in the span of the others: the points on two lines?
+            candidates = np.flatnonzero(small & (dropped < 0))
+            coordinate = (u if j == 3 else v)[:, candidates]
+            first = coordinate[0]
+            other = coordinate[np.argmax(np.abs(coordinate - first), axis=0), np.arange(candidates.size)]
+            two_lines = np.all((coordinate == first) | (coordinate == other), axis=0) & (other != first)
+            skip[candidates[two_lines]] = True
+            dropped[skip] = j
+            small &= ~skip
+        deficient |= small
+        # A dropped column: its coefficient 0, the other columns' fit without it.
+        inverse_diagonal.append(np.where(skip, 0.0, 1 / np.sqrt(np.where(deficient | skip, 1.0, pivot))))
+        for i in range(j + 1, k):
+            entry = gram[i][j]
+            for t in range(j):
+                entry = entry - lower[i][t] * lower[j][t]
+            lower[i][j] = entry * inverse_diagonal[j]
+    n_rhs = len(value_columns)
+    y: list[list[np.ndarray]] = []
+    for i in range(k):
+        row = []
+        for q in range(n_rhs):
+            entry = rhs[i][q]
+            for t in range(i):
+                entry = entry - lower[i][t] * y[t][q]
+            row.append(entry * inverse_diagonal[i])
+        y.append(row)
+    coefficients = np.empty((k, n_rhs, m))
+    for i in reversed(range(k)):
+        for q in range(n_rhs):
+            entry = y[i][q]
+            for t in range(i + 1, k):
+                entry = entry - lower[t][i] * coefficients[t, q]
+            coefficients[i, q] = entry * inverse_diagonal[i]
+    dropped[deficient] = -1
+    return coefficients, dropped, deficient
+
+
+def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted map's value (2, m) and Jacobian (2, 2, m) (rows: the lengths, columns: the
+    coordinates) at x (2, m), coefficients c (6, 2, m)."""
+    u, v = x
+    value = c[0] + c[1] * u + c[2] * v + c[3] * u**2 + c[4] * (u * v) + c[5] * v**2
+    d_du = c[1] + c[3] * (2 * u) + c[4] * v
+    d_dv = c[2] + c[4] * u + c[5] * (2 * v)
+    return value, np.stack([d_du, d_dv], axis=1)
+
+
+def _damped_newton_step(c: np.ndarray, x: np.ndarray, target: np.ndarray, max_step: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``inverters._damped_newton_step_many``'s step, component-major (c (6, 2, m), x and
+    target (2, m)): (new x (2, m), undamped step length (m,), rows whose step is not finite)."""
+    q, jac = _quadratic_value_and_jacobian(c, x)
+    r = target - q
+    a, b, cc, d = jac[0, 0], jac[0, 1], jac[1, 0], jac[1, 1]
+    det = a * d - b * cc
+    scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), np.maximum(np.abs(cc), np.abs(d)))
+    singular = ~(np.abs(det) > 1e-6 * scale**2)
+    det = np.where(singular, 1.0, det)
+    step = np.stack([(d * r[0] - b * r[1]) / det, (a * r[1] - cc * r[0]) / det])
+    if singular.any():
+        u_svd, s, vt = np.linalg.svd(jac[:, :, singular].transpose(2, 0, 1))
+        cutoff = np.finfo(float).eps * 2 * s[:, :1]
+        s_inverse = np.where(s > cutoff, 1 / np.where(s > cutoff, s, 1.0), 0.0)
+        step[:, singular] = np.einsum("mji,mj,mkj,mk->im", vt, s_inverse, u_svd, r[:, singular].T)
+    norm = np.sqrt(step[0] * step[0] + step[1] * step[1])
+    bad = ~np.isfinite(norm)
+    step[:, bad] = 0.0
+    damp = norm > max_step
+    step[:, damp] *= max_step / norm[damp]
+    return x + step, norm, bad
