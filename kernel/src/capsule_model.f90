@@ -266,7 +266,12 @@ contains
             clock_ckpt = clock_now
          end if
          if (.not. opts%quiet .and. real(clock_now - clock_print, dp) / clock_rate >= 2.0_dp) then
-            write (*, '(a,f9.3,a,f0.1,a)') 'capsim: t = ', self%t, ' / ', opts%t_max, '  '//self%progress_text()
+            ! Exponent form for a t_max that fixed notation would write with hundreds of digits.
+            if (opts%t_max < 1.0e6_dp) then
+               write (*, '(a,f9.3,a,f0.1,a)') 'capsim: t = ', self%t, ' / ', opts%t_max, '  '//self%progress_text()
+            else
+               write (*, '(a,es11.3e3,a,es11.3e3,a)') 'capsim: t = ', self%t, ' / ', opts%t_max, '  '//self%progress_text()
+            end if
             flush (6)
             clock_print = clock_now
          end if

@@ -99,3 +99,23 @@ def _wait_for(path: Path, proc: subprocess.Popen, limit: float = 60) -> None:
     while not path.exists() and time.time() < deadline and proc.poll() is None:
         time.sleep(0.01)
     assert path.exists() and proc.poll() is None, "the run ended before it could be killed"
+
+
+def test_a_huge_t_max_is_printed_as_a_number_the_progress_bar_reads(capsim, tmp_path):
+    # Fixed notation wrote t_max = 1e300 with 300 digits; the progress relay must parse the line.
+    # Level 3 at Ca_s 0.05 steps for longer than the 2 s between progress lines.
+    from capsmech.workflow.simulate import _KERNEL_PROGRESS
+
+    proc = subprocess.Popen([str(capsim), "--flow", "shear", "--law", "NH", "--ca", "0.05", "--level", "3",
+                             "--integrator", "rk2", "--kb", "0", "--t-max", "1e300", "--threads", "1",
+                             "--out", str(tmp_path / "x.h5")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = next(text for text in proc.stdout if text.startswith("capsim: t ="))
+    finally:
+        proc.kill()
+        proc.wait()
+    match = _KERNEL_PROGRESS.match(line.strip())
+    assert match is not None, line
+    assert float(match["t_max"]) == pytest.approx(1e300) and 0 < float(match["t"]) < 1e3
+    assert len(line) < 120

@@ -43,7 +43,7 @@ _PLACEMENT_KEYS = ("name", "description", "databases_dir", "results_dir")
 _PROGRESS = re.compile(r"(\d+) of (\d+) steps \(\d+%\) done")
 
 #: The kernel's progress line (every 2 s of wall time), "capsim: t =     1.430 / 60.0  D12 =  0.02067 ...".
-_KERNEL_PROGRESS = re.compile(r"^capsim: t =\s*(?P<t>\S+) / (?P<t_max>\S+)\s*(?P<measures>.*)$")
+_KERNEL_PROGRESS = re.compile(r"^capsim: t =\s*(?P<t>\S+)\s*/\s*(?P<t_max>\S+)\s*(?P<measures>.*)$")
 
 
 def case_count(grid: dict[str, Any]) -> int:
