@@ -292,6 +292,18 @@ def test_fit_tube_against_the_smoke_database_names_it(tmp_path: Path) -> None:
     assert "steady rows" in line and "at least" in line
 
 
+def test_diagnose_against_the_smoke_database_names_it(tmp_path: Path) -> None:
+    """The same database through diagnose (which sees it among the effect databases): the
+    file and the law named, as fit-tube does, not the bare inverter's message."""
+    line = one_error_line(capsmech("diagnose", str(EXAMPLE), "--database", "tube-smoke", "--law", "NH", cwd=tmp_path))
+    assert str(database_path("tube-smoke")) in line and "law NH" in line
+    assert "steady rows" in line and "at least" in line
+    assert line.count(str(database_path("tube-smoke"))) == 1
+    # fit-tube's own naming of the database leaves the inverter's alone: named once
+    fit_line = one_error_line(capsmech("fit-tube", str(EXAMPLE), "--database", "tube-smoke", "--law", "NH", cwd=tmp_path))
+    assert fit_line.count(str(database_path("tube-smoke"))) == 1 and "tube-smoke (" in fit_line
+
+
 @pytest.mark.parametrize("given,words", [("/dev/zero", "not a regular file"), ("{folder}", "a folder")])
 def test_a_database_path_that_is_no_file_is_said_for_what_it_is(tmp_path: Path, given: str, words: str) -> None:
     """It was called 'neither a shipped database nor an existing file', though it exists."""

@@ -7,6 +7,7 @@ import argparse
 import math
 import sys
 import warnings
+from functools import cache
 from pathlib import Path
 
 from capsmech.api import as_database, diagnose, diagnose_shear, make_batch, write_batch
@@ -40,6 +41,7 @@ def _levels(text: str, option: str) -> list[float]:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """``diagnose``: which candidate effect the batch's contour residuals support."""
     from capsmech.diagnosis.effect_grid import cost_text, write_grid
+    from capsmech.diagnosis.record import diagnosis_record
     from capsmech.diagnosis.report import batch_heterogeneity, write_report
     from capsmech.diagnosis.sequential import SequentialDiagnosis
 
@@ -63,7 +65,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         else:
             sequence, result = None, outcome
         rounds = sequence.rounds if sequence is not None else [result]
-        needs = {r.needs["name"]: (r.name, r.needs) for one in rounds for r in one.results if r.needs is not None}
+        needs = {_grid_identity(r.needs): (r.name, r.needs) for one in rounds for r in one.results
+                 if r.needs is not None}
         if not args.simulate:
             break
         if not needs or set(needs) <= set(simulated):
@@ -75,9 +78,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"capsmech diagnose: {added}", flush=True)
             continue
         # Effects on demand: compute what the candidates need, then diagnose again with it.
-        for name, (candidate, grid) in needs.items():
-            if name not in simulated:
-                simulated[name] = _simulate(args, candidate, grid, database)
+        for identity, (candidate, grid) in needs.items():
+            if identity not in simulated:
+                simulated[identity] = _simulate(args, candidate, grid, database)
         if effect_databases is None:
             from capsmech.io.catalog import effect_database_paths
 
@@ -85,7 +88,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         effect_databases += [str(p) for p in simulated.values() if str(p) not in effect_databases]
     for one in rounds:
         for r in one.results:
-            if r.needs is None or r.needs["name"] in simulated:
+            if r.needs is None or _grid_identity(r.needs) in simulated:
                 continue
             path = write_grid(r.needs, Path(args.grid_dir) / f"{r.needs['name']}.yaml",
                               header=f"Written by capsmech diagnose {args.measurements}: the cases the {r.name} "
@@ -107,6 +110,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     mixture = batch_heterogeneity(result)
     if mixture is not None and not mixture.one_material:
         print(f"capsmech diagnose: {mixture.line()}")
+    # The diagnosis as --json writes it, made once: the console says no number the JSON leaves out.
+    record = cache(lambda: diagnosis_record(outcome, Path(args.measurements).name))
     if sequence is not None and sequence.effects:
         for k, later in enumerate(sequence.rounds[1:], start=2):
             # The values each round was run with (the effects list holds the final ones).
@@ -116,22 +121,30 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"with {fixed} fixed: {later.verdict}")
         if sequence.kind == "effect":
             (before, _, n_before), (after, _, n_after) = sequence.g_s_lengths[0], sequence.g_s_lengths[-1]
+            # G_s by lengths after is said only where --json gives it, else why it is left out.
+            left_out = record()["g_s"]["lengths"].get("after_left_out")
+            lengths_after = f"-> left out: {left_out}" if left_out else f"-> {after:.4g} N/m ({n_after})"
             print(f"effects found: {sequence.verdict}; G_s by the lengths (measured on the contours, inverted) {before:.4g} N/m "
-                  f"({n_before} capsules) -> {after:.4g} N/m ({n_after}); by the contour fits "
+                  f"({n_before} capsules) {lengths_after}; by the contour fits "
                   f"{sequence.g_s[0][0]:.4g} -> {sequence.g_s[-1][0]:.4g} N/m")
         else:
             print(f"verdict for the batch: {sequence.verdict}")
     if json_out is not None:
-        from capsmech.diagnosis.record import diagnosis_record
-
-        record = diagnosis_record(outcome, Path(args.measurements).name)
-        print(json_out.wrote(write_json(json_out.path, "diagnose", record)))
+        print(json_out.wrote(write_json(json_out.path, "diagnose", record())))
     if report is not None:
         print(report.wrote(write_report(result, report.path, Path(args.measurements).name)))
         for k, later in enumerate(sequence.rounds[1:] if sequence is not None else [], start=2):
             out = report.path.with_name(f"{report.path.stem}_round{k}{report.path.suffix}")
             print(f"wrote {write_report(later, out, Path(args.measurements).name + f' (round {k})')}")
     return 0
+
+
+def _grid_identity(grid: dict) -> str:
+    """What a candidate's grid computes: its name (one per candidate) and its law groups. A
+    level added to a family whose grid already ran asks for the same name with the new level's
+    group only, and must be computed too. (The nodes are left out: a law group once simulated
+    is in a database, and no candidate asks for it again.)"""
+    return grid["name"] + ":" + ",".join(grid["tube"]["laws"])
 
 
 #: Candidates whose levels --simulate extends, and the option (or law family) holding them.

@@ -51,6 +51,7 @@ from capsmech.inversion.noise import MODEL_FLOOR_REL
 from capsmech.inversion.residuals import size_residual, velocity_residual
 from capsmech.inversion.shape_fit import COVARIANCE_STEP, ShapeFit, fit_shape
 from capsmech.inversion.sharp_edge import interpolated_accuracy, is_steady_root, smooth_accuracy
+from capsmech.inversion.tube_batch import fit_batch
 from capsmech.io.atomic import atomic_path
 from capsmech.io.contours import (
     MAX_ASYMMETRY,
@@ -59,7 +60,7 @@ from capsmech.io.contours import (
     contour_tracing_noise,
     profile_misfit,
 )
-from capsmech.io.database import Database, ShearDatabase, TubeDatabase
+from capsmech.io.database import Database, DatabaseError, ShearDatabase, TubeDatabase
 from capsmech.io.measurements import Capsule
 
 #: Result columns and their units.
@@ -103,15 +104,37 @@ def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
     table = database.law(law)
     rows = table.steady_rows()
     root = np.array([is_steady_root(str(m)) for m in table.message[table.steady]], dtype=bool)
-    return TubeInverter(TubeTable(a_over_l=rows["a_over_l"], Ca_s=rows["Ca_s"], L_z=rows["L_z"],
-                                  L_p=rows["L_p"], vc_over_V=rows["vc_over_V"],
-                                  profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z"), root=root))
+    try:
+        return TubeInverter(TubeTable(a_over_l=rows["a_over_l"], Ca_s=rows["Ca_s"], L_z=rows["L_z"],
+                                      L_p=rows["L_p"], vc_over_V=rows["vc_over_V"],
+                                      profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z"), root=root))
+    except DatabaseError as err:
+        raise _naming_database(err, database, law) from None
 
 
 def shear_inverter(database: ShearDatabase, law: str) -> ShearInverter:
     """The shear inverter of one law, on the database's steady rows."""
     rows = database.law(law).steady_rows()
-    return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"], D12_error_rel=database_d12_error(rows))
+    try:
+        return ShearInverter(rows["Ca_s"], rows["D12"], rows["L3_over_a"], D12_error_rel=database_d12_error(rows))
+    except DatabaseError as err:
+        raise _naming_database(err, database, law) from None
+
+
+def _naming_database(err: DatabaseError, database: Database, law: str) -> DatabaseError:
+    """The inverter's error with the database (name and file) and the law in front: the
+    inverter sees rows, and every command that builds one (fit-tube, diagnose, population)
+    must say which database they came from. Of several seen as one (diagnose's base and effect
+    databases: ``databases``, each law taken from the first that holds it), the one holding the
+    law. Unchanged when it names the file already, or when no file is known."""
+    holder = next((member for member in getattr(database, "databases", ()) if law in member.laws), database)
+    if getattr(holder, "path", None) is None:
+        return err
+    name, path = str(getattr(holder, "name", "") or ""), str(holder.path)
+    if path in str(err):
+        return err
+    label = f"{name} ({path})" if name and name != path else path
+    return DatabaseError(f"{label}, law {law}: {err}")
 
 
 def database_d12_error(rows: dict[str, np.ndarray]) -> np.ndarray:
@@ -333,7 +356,8 @@ def _add_tube_radius_error(row: dict[str, Any], fits: FiveFits, wider: FiveFits,
 
 def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInverter],
                     tube_radius: np.ndarray | None = None) -> dict[str, TubeFits]:
-    """The five fits of every capsule with every law, in one ``fit_many`` call per law:
+    """The five fits of every capsule with every law, in one ``fit_batch`` call per law
+    (``TubeInverter.fit_many``'s result, faster: ``capsmech.inversion.tube_batch``):
     ``result[law].row(j * len(capsules) + k)`` is fit j of ``FIVE_FITS`` for capsule k, what
     ``inverters[law].five_fits`` gives (v_c and mu only where both are finite); lengths in
     ``tube_radius`` where given (one per capsule), else in each capsule's own."""
@@ -349,7 +373,7 @@ def _five_fits_many(capsules: Sequence[Capsule], inverters: dict[str, TubeInvert
     five_z = np.concatenate([l_z * fz for _, fz, _ in FIVE_FITS])
     five_p = np.concatenate([l_p * fp for _, _, fp in FIVE_FITS])
     n_fits = len(FIVE_FITS)
-    return {law: inverter.fit_many(five_z, five_p, np.tile(v_c, n_fits), np.tile(mu, n_fits))
+    return {law: fit_batch(inverter, five_z, five_p, np.tile(v_c, n_fits), np.tile(mu, n_fits))
             for law, inverter in inverters.items()}
 
 

@@ -46,12 +46,21 @@ _REFINE_STEPS = 30
 _REFINE_TOLERANCE = 1e-10
 
 
+#: The environment variable that bounds a process's threads (OpenMP's, which BLAS, batch
+#: schedulers and job scripts already set): processes run side by side, each told its share
+#: of the cores, do not start a thread per core each.
+THREADS_ENV = "OMP_NUM_THREADS"
+
+
 def default_workers() -> int:
-    """Threads for a batch: the cores this process may run on."""
+    """Threads for a batch: the cores this process may run on, at most ``THREADS_ENV``'s
+    number where that is a positive integer."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cores = max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not every platform has sched_getaffinity
-        return max(1, os.cpu_count() or 1)
+        cores = max(1, os.cpu_count() or 1)
+    bound = os.environ.get(THREADS_ENV, "").strip()
+    return min(cores, int(bound)) if bound.isdigit() and int(bound) > 0 else cores
 
 
 def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.ndarray | float | None = None,
