@@ -1,7 +1,7 @@
 """An independent picture of a glass channel's walls, for the wall-finding tests.
 
-Not the package's renderer (``capsmech.imaging.rendering`` draws each wall as a thin line
-centred on the interface): here the glass lies outside the liquid and shows as the optics of a
+Not the package's renderer (``capsmech.imaging.rendering`` draws each wall as one thin uniform
+line just outside the interface): here the glass lies outside the liquid and shows as the optics of a
 bright-field microscope make it look. Each wall is a dark band of ``band_px`` whose inner
 (liquid-side) edge is the interface, box-shaped and blurred by a Gaussian point spread
 (erf edges, averaged over each pixel's height by 5 sub-rows), optionally with

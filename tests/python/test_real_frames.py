@@ -2,9 +2,9 @@
 
 The frames, backgrounds, reference masks / contours and a survey of each channel are in
 tests/data/real_frames/ (GPL-2.0-or-later, see its README.md). Per recording that shows a
-channel: the walls are found (against the survey's inner wall lines; the width against the
-nominal one, and where the chip itself differs from its nominal width by more than 10 %, as the
-survey measured on three of them, against the survey's width), the tilt is removed, the traced
+channel: the walls are found (each on the channel's side of the survey's inner wall line, at its
+liquid-side edge: test_walls_real_edges.py locates those edges apart from the package and checks
+the walls and the width against them), the tilt is removed, the traced
 object's extent along the flow is within max(one line width, 2 px) of the reference mask's in at
 least 80 % of the frames where one object lies fully in view, and every frame that is not
 measured says why. No recording is a film of one object (each page is another event), so the
@@ -59,6 +59,9 @@ SHORT = {
                                         "itself a crescent fragment (columns 768-815) of the cell, whose rim spans "
                                         "753-822 against those rows",
 }
+#: How far a wall line's liquid-side edge lies from its centre at most, on these recordings: the
+#: lines are 3-6 px wide and brighten towards the liquid over up to 4 rows from their darkest.
+LINE_REACH_PX = 4.0
 CHANNELS = sorted(p.name for p in DATA.iterdir() if p.is_dir() and p.name not in NO_CHANNEL) if DATA.is_dir() else []
 
 
@@ -162,28 +165,26 @@ pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="tests/data/real_frame
 def test_walls_found_and_tilt_removed(name):
     out = outcome_of(name)
     walls, survey = out.channel.walls, out.survey
-    nominal = survey["channel_width_nominal_px"]
     if survey.get("inner_walls_rows"):
         top, bottom = survey["inner_walls_rows"]
-        assert walls.top_row == pytest.approx(top, abs=1.5) and walls.bottom_row == pytest.approx(bottom, abs=1.5), \
+        # The survey's rows are the wall lines' centres; each wall is its line's liquid-side edge,
+        # on the channel's side of the centre, within the line's reach (LINE_REACH_PX;
+        # test_walls_real_edges.py compares the walls with those edges, located apart from the
+        # package, to 1.5 px).
+        assert 0 < walls.top_row - top <= LINE_REACH_PX and 0 < bottom - walls.bottom_row <= LINE_REACH_PX, \
             (walls, survey["inner_walls_rows"])
-        if abs(survey["width_vs_nominal_pct"]) <= 10:
-            assert abs(walls.width_px / nominal - 1) <= 0.10, (walls.width_px, nominal)
-        else:
-            # The chip itself is off its nominal width (the survey measured it): compare with that.
-            assert walls.width_px == pytest.approx(survey["channel_width_px"], rel=0.03)
         tilts = survey["wall_tilt_deg"]
         # Real walls are not quite parallel (up to 0.24 deg apart): within 0.1 deg of their range.
         assert min(tilts) - 0.1 <= out.channel.tilt_deg <= max(tilts) + 0.1, (out.channel.tilt_deg, tilts)
     else:
         # The top wall is cut by the image edge: the bottom line is found, the top placed at the width.
         (line,) = [d["row_at_centre"] for d in survey["dark_lines"]]
-        assert walls.bottom_row == pytest.approx(line, abs=1.5)
+        assert 0 < line - walls.bottom_row <= LINE_REACH_PX, (walls, line)
         assert "placed at the channel width" in walls.source
     # Tilt removed: the levelled background's walls are level to 0.05 deg (the channel and its
     # walls only: black padding rows, rotated too, are no wall).
     if out.channel.background is not None:
-        rows = slice(max(0, int(walls.top_row) - 4), int(walls.bottom_row) + 5)
+        rows = slice(max(0, int(min(walls.top_row, *walls.lines)) - 4), int(max(walls.bottom_row, *walls.lines)) + 5)
         assert abs(estimate_tilt(out.channel.background[rows])) < 0.05
     # Every frame that is not measured says why.
     assert all(r.good or r.flag for r in out.results)

@@ -113,7 +113,6 @@ def stack_background(frames: Sequence[np.ndarray]) -> StackBackground | None:
         return None
     picks = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_FRAMES_TEMPORAL)).round().astype(int))
     stack = np.stack([np.asarray(frames[k], dtype=np.float32) for k in picks])
-    plain = np.median(stack, axis=0)
     rows = np.median(stack, axis=2, keepdims=True)
     safe_rows = np.maximum(rows, max(float(rows.max()) * 1e-3, 1e-6))
     # Each frame's rows times the lamp's trend along them: against the rows alone an
@@ -140,6 +139,7 @@ def stack_background(frames: Sequence[np.ndarray]) -> StackBackground | None:
     free = len(stack) - masks.sum(axis=0)
     vouched = np.zeros_like(covered)
     if covered.any():
+        plain = np.median(stack, axis=0)
         row_level = np.median(rows, axis=0)[:, :1] * trend[0]
         fill, vouched = _covered_background(stack, masks, covered, plain, row_level, interiors)
         background = np.where(covered, fill, background)
@@ -211,14 +211,22 @@ def _nanmedian_first_axis(stack: np.ndarray) -> np.ndarray:
     return 0.5 * (low + high)
 
 
-def flat_field(image: np.ndarray, background: np.ndarray) -> np.ndarray:
+#: Background pixels darker than this fraction of its 90th percentile are black (no contrast).
+FLOOR_FRACTION = 0.05
+
+
+def flat_field(image: np.ndarray, background: np.ndarray, floor: float | None = None) -> np.ndarray:
     """Contrast ``1 - image / background``: the object's absorption (dark > 0, bright < 0).
 
-    Pixels where the background is black (padding rows, masked corners) get zero contrast.
+    Pixels where the background is black (padding rows, masked corners), below ``floor``
+    (default :data:`FLOOR_FRACTION` of its 90th percentile, at least 1e-6), get zero contrast.
     """
     image = np.asarray(image, dtype=np.float32)
     background = np.asarray(background, dtype=np.float32)
-    floor = max(float(np.percentile(background, 90)) * 0.05, 1e-6)
+    floor = max(float(np.percentile(background, 90)) * FLOOR_FRACTION if floor is None else floor, 1e-6)
+    if background.min() >= np.float32(floor):
+        # No black pixel (the usual case): the floor changes nothing (it is compared in float32).
+        return 1 - image / background
     out = 1 - image / np.maximum(background, floor)
     out[background < floor] = 0.0
     return out

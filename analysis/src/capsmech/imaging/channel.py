@@ -7,15 +7,16 @@ rotated level before anything is detected. The walls are then found on the level
 background's row profile: where the glass shows as a band (a thin one, with or without a bright
 refraction line beside it, or a thick one), the wall is the band's liquid-side edge, located to a
 fraction of a pixel where the darkness changes fastest; where it shows as a thin line (the
-interface's own image), the line's centre. Each wall carries its uncertainty, from locating it
-again in strips of columns. Angles follow the image's axes: ``tilt_deg = atan(d row / d column)`` with rows
-counted downwards (a wall that descends to the right has a positive tilt).
+interface's own image, 3-5 px), that line's liquid-side edge alike: the glass lies outside the
+liquid. Each wall carries its uncertainty, from locating it again in strips of columns. Angles
+follow the image's axes: ``tilt_deg = atan(d row / d column)`` with rows counted downwards (a
+wall that descends to the right has a positive tilt).
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -37,16 +38,23 @@ class Walls:
     ----------
     top_row, bottom_row : float
         Rows of the walls: the liquid-side edge of a band (the glass shown in its thickness)
-        or the centre of a thin line (the interface's own image), or placed by the user.
+        or of a thin line (the interface's own image), or placed by the user.
     source : str
-        How they were found: ``detected``, ``given`` (user's rows) or
-        ``one wall detected, the other placed at the channel width``.
+        How they were found: ``detected``, ``given`` (user's rows),
+        ``one wall detected, the other placed at the channel width`` or ``one wall detected, the
+        other placed by the objects' symmetry line`` (:func:`axis_from_objects`).
     columns : (int, int) or None
         First and last column of the straight channel, where the detected wall lines lie at
         their rows (:func:`straight_columns`); None: the whole width.
     top_sigma_px, bottom_sigma_px : float
         Standard uncertainty of each row [px] (:func:`wall_uncertainty`); NaN where unknown
         (rows given by the user).
+    lines : tuple of float
+        Centres of the wall lines (the interface's thin dark image) whose liquid-side edges the
+        walls are; empty where the walls are bands' edges, given or placed.
+    placed_side : str
+        ``top`` or ``bottom``: the wall placed (at the channel width or by the objects' symmetry
+        line); '' where both were found or given.
     """
 
     top_row: float
@@ -55,6 +63,8 @@ class Walls:
     columns: tuple[int, int] | None = None
     top_sigma_px: float = math.nan
     bottom_sigma_px: float = math.nan
+    lines: tuple[float, ...] = ()
+    placed_side: str = ""
 
     @property
     def radius_px(self) -> float:
@@ -540,6 +550,28 @@ def _half_depth_row(dark: np.ndarray, edge: float, into_band: int, band_px: floa
     return float(best)
 
 
+#: How far from a line's darkest row [px] its liquid-side edge is looked for: the dclab
+#: recordings' wall lines brighten towards the liquid within 4 rows of it.
+LINE_EDGE_REACH_PX = 4
+
+
+def _line_edge(dark: np.ndarray, line_row: float, towards: int, kinds: dict[float, tuple[str, float]]) -> float:
+    """The liquid-side edge of the wall line centred near ``line_row`` (``towards`` +1: the liquid
+    lies below it, -1: above): where the darkness falls fastest from its darkest row (within 1 px
+    of the centre) towards the liquid, within :data:`LINE_EDGE_REACH_PX` (:func:`_edge_row`).
+    Records the edge in ``kinds`` (an ``upper``/``lower edge`` of a band as wide as twice its
+    distance from the darkest row) for its uncertainty; the centre itself where no fall is found."""
+    rows = dark.size
+    lo, hi = max(0, int(round(line_row)) - 1), min(rows, int(round(line_row)) + 2)
+    darkest = lo + int(np.argmax(dark[lo:hi]))
+    reach = LINE_EDGE_REACH_PX / 2
+    edge = _edge_row(dark, darkest + towards * reach, -towards, reach_px=reach)
+    if edge == darkest + towards * reach or (edge - darkest) * towards <= 0:
+        return line_row
+    kinds[edge] = ("lower edge" if towards > 0 else "upper edge", 2 * abs(edge - darkest))
+    return edge
+
+
 def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: float | None = None,
                min_darkness: float = 0.04, channel_width_sigma_px: float = 0.0) -> Walls:
     """The channel's two walls in a levelled background image, each with its uncertainty.
@@ -547,7 +579,8 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
     The channel is the widest bright interval between consecutive dark lines or band edges:
     glass shown as a band (:func:`thin_bands`, :func:`dark_bands`), whose liquid-side edge is
     the wall, located where the darkness changes fastest (:func:`_edge_row`); beside a doubled
-    wall line it is the inner line that bounds it, a bright band between two lines of one wall
+    wall line it is the inner line that bounds it, read by its liquid-side edge too
+    (:func:`_line_edge`), a bright band between two lines of one wall
     is narrower than the channel, and the inside of a band is no candidate. When that interval
     reaches the image's edge, the wall there is outside the view: it is placed at
     ``channel_width_px`` (uncertainty ``channel_width_sigma_px``) from the other, when given.
@@ -565,7 +598,7 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
               if not any(first - 1 < band[1] and band[0] < last + 1 for first, last in bands)]
     bands.sort()
     # An edge is kind 'upper edge' (a band below it) or 'lower edge', with its band's width; a
-    # line's centre, 'line'.
+    # line's centre, 'line' (the line bounding the channel is then read by its liquid-side edge).
     kinds = {edge: (kind, last - first) for first, last in bands
              for edge, kind in ((first, "upper edge"), (last, "lower edge")) if -0.5 < edge < rows - 0.5}
     # A line within a band, or touching it, is part of the glass's picture, not another wall.
@@ -585,13 +618,22 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
             gaps[i] = 0.0                 # inside the glass
     k = int(np.argmax(gaps))
     top, bottom = edges[k], edges[k + 1]
+    # A line bounding the channel is read, as a band is, by its liquid-side edge: the glass lies
+    # outside the liquid, and the line's far half is its picture, not the liquid's.
+    line_rows = []
+    if top in kinds and kinds[top][0] == "line":
+        line_rows.append(top)
+        top = _line_edge(dark, top, +1, kinds)
+    if bottom in kinds and kinds[bottom][0] == "line":
+        line_rows.append(bottom)
+        bottom = _line_edge(dark, bottom, -1, kinds)
 
     def sigma(row: float) -> float:
         return wall_uncertainty(background, row, *kinds[row])
 
     placed = "one wall detected, the other placed at the channel width"
     if 0 < k < len(edges) - 2:
-        walls = Walls(top, bottom, top_sigma_px=sigma(top), bottom_sigma_px=sigma(bottom))
+        walls = Walls(top, bottom, top_sigma_px=sigma(top), bottom_sigma_px=sigma(bottom), lines=tuple(line_rows))
     elif channel_width_px is None:
         seen = "top" if k > 0 else "bottom"
         raise ExtractionError(f"{label}: only the {seen} wall is in view (line at row "
@@ -599,11 +641,12 @@ def find_walls(background: np.ndarray, label: str = "frames", channel_width_px: 
     elif k == 0 and len(edges) > 2:
         seen_sigma = sigma(bottom)
         walls = Walls(bottom - channel_width_px, bottom, placed, top_sigma_px=math.hypot(seen_sigma, channel_width_sigma_px),
-                      bottom_sigma_px=seen_sigma)
+                      bottom_sigma_px=seen_sigma, lines=tuple(line_rows), placed_side="top")
     elif k > 0:
         seen_sigma = sigma(top)
         walls = Walls(top, top + channel_width_px, placed, top_sigma_px=seen_sigma,
-                      bottom_sigma_px=math.hypot(seen_sigma, channel_width_sigma_px))
+                      bottom_sigma_px=math.hypot(seen_sigma, channel_width_sigma_px), lines=tuple(line_rows),
+                      placed_side="bottom")
     else:
         raise ExtractionError(f"{label}: found no channel wall in the background{hint}")
     if walls.radius_px < 5:
@@ -639,9 +682,7 @@ def straight_columns(background: np.ndarray, walls: Walls, strip_px: int = STRAI
         return None
     # The walls that are lines: not one placed at the channel width, nor a glass band's edge (a
     # step, not a line: it has no depth against the rows either side).
-    lines = wall_lines(image)
-    rows_in_view = [r for r in (walls.top_row, walls.bottom_row)
-                    if 3 <= round(r) <= rows - 4 and any(abs(r - line) < 1.5 for line in lines)]
+    rows_in_view = [r for r in walls.lines if 3 <= round(r) <= rows - 4]
     present = np.ones(n, dtype=bool)
     # Per column (a running mean over 5): the line at half its depth or more, to place the ends.
     column_present = np.ones(cols, dtype=bool)
@@ -757,19 +798,52 @@ def check_width(walls: Walls, given_px: float, tolerance: float = DEFAULT_WIDTH_
     return WidthCheck(head + ", within the uncertainties: the width found is used", False, "agrees")
 
 
-def check_axis(walls: Walls, object_rows: Sequence[float]) -> tuple[str, bool]:
-    """Where one wall was placed at the given width: the axis against the objects' own
-    symmetry line (the median row of their centroids). Returns the sentence and whether the two
-    differ by more than 1 px and twice their combined uncertainty."""
+def symmetry_line(object_rows: Sequence[float]) -> tuple[float, float, int]:
+    """The objects' own symmetry line: the median row of their centroids, its standard error
+    and the number of objects (NaN, NaN under 3)."""
     rows = np.asarray([r for r in object_rows if math.isfinite(r)], dtype=float)
     if rows.size < 3:
+        return math.nan, math.nan, int(rows.size)
+    # The median's standard error, 1.2533 times the mean's for normal scatter.
+    return float(np.median(rows)), 1.2533 * float(np.std(rows, ddof=1)) / math.sqrt(rows.size), int(rows.size)
+
+
+def check_axis(walls: Walls, object_rows: Sequence[float]) -> tuple[str, bool]:
+    """Where one wall was placed at the given width: the axis against the objects' own
+    symmetry line (:func:`symmetry_line`). Returns the sentence and whether the two
+    differ by more than 1 px and twice their combined uncertainty."""
+    line, error, count = symmetry_line(object_rows)
+    if count < 3:
         return "the axis placed could not be checked against the objects (fewer than 3 traced)", False
-    line = float(np.median(rows))
-    error = 1.2533 * float(np.std(rows, ddof=1)) / math.sqrt(rows.size)      # the median's standard error
     axis_sigma = walls.width_sigma_px / 2 if math.isfinite(walls.width_sigma_px) else 0.0
     off = line - walls.axis_row
     allowed = max(1.0, 2 * math.hypot(error, axis_sigma))
     if abs(off) > allowed:
-        return (f"the objects' symmetry line (row {line:.1f}, {rows.size} objects) lies {off:+.1f} px from the axis "
+        return (f"the objects' symmetry line (row {line:.1f}, {count} objects) lies {off:+.1f} px from the axis "
                 f"placed at row {walls.axis_row:.1f}: the width given or the wall in view is off", True)
-    return f"the objects' symmetry line (row {line:.1f}, {rows.size} objects) confirms the axis placed ({off:+.1f} px)", False
+    return f"the objects' symmetry line (row {line:.1f}, {count} objects) confirms the axis placed ({off:+.1f} px)", False
+
+
+def axis_from_objects(walls: Walls, object_rows: Sequence[float]) -> Walls:
+    """The placed wall moved so that the axis is the objects' symmetry line (:func:`symmetry_line`).
+
+    Capsules flowing in a tube are centred on its axis: where the wall placed at the given width
+    puts the axis off their symmetry line beyond both uncertainties (:func:`check_axis`), the
+    width given (or the pixel size) is off, and the line they share is the better axis. The
+    placed wall's uncertainty is then twice the line's standard error and the seen wall's, in
+    quadrature.
+
+    Raises
+    ------
+    ValueError
+        When no wall was placed or fewer than 3 objects are traced.
+    """
+    line, error, count = symmetry_line(object_rows)
+    if walls.placed_side not in ("top", "bottom") or count < 3:
+        raise ValueError("the axis is taken from the objects only where one wall was placed and 3 objects are traced")
+    source = "one wall detected, the other placed by the objects' symmetry line"
+    if walls.placed_side == "top":
+        sigma = math.hypot(2 * error, walls.bottom_sigma_px)
+        return replace(walls, top_row=2 * line - walls.bottom_row, top_sigma_px=sigma, source=source)
+    sigma = math.hypot(2 * error, walls.top_sigma_px)
+    return replace(walls, bottom_row=2 * line - walls.top_row, bottom_sigma_px=sigma, source=source)

@@ -66,12 +66,14 @@ import dataclasses
 import math
 import sys
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
 
 from capsmech.imaging.background import (
+    FLOOR_FRACTION,
+    MAX_FRAMES_TEMPORAL,
     MAX_NOISE_PAIRS,
     MIN_FRAMES_TEMPORAL,
     MIN_FREE_FRAMES,
@@ -83,6 +85,7 @@ from capsmech.imaging.background import (
 from capsmech.imaging.channel import (
     DEFAULT_WIDTH_TOLERANCE,
     Walls,
+    axis_from_objects,
     check_axis,
     check_width,
     estimate_tilt,
@@ -192,6 +195,8 @@ class Channel:
     background_check: str = ""
     geometry_check: str = ""
     independent_events: str = ""
+    _reference: tuple[np.ndarray, np.ndarray, float] | None = field(default=None, init=False, repr=False, compare=False)
+    _reference_key: tuple[np.ndarray, Walls] | None = field(default=None, init=False, repr=False, compare=False)
 
     def background_trusted_under(self, trace: TracedObject) -> bool:
         """Whether the background under a traced object's contour can be trusted: at most
@@ -217,11 +222,27 @@ class Channel:
         levelled = self.levelled(image)
         if self.background is None:
             return flat_field(levelled, row_background(levelled, self.walls.columns))
-        inside = _inside(levelled.shape, self.walls)[::2, ::2]
-        ratio = (levelled[::2, ::2][inside] / np.maximum(self.background[::2, ::2][inside], 1e-6)
-                 if inside.any() else np.ones(1))
-        gain = float(np.median(ratio)) if np.isfinite(np.median(ratio)) and np.median(ratio) > 0 else 1.0
-        return flat_field(levelled, gain * self.background)
+        inside, reference, bright = self._gain_reference()
+        ratio = levelled[::2, ::2][inside] / reference if reference.size else np.ones(1)
+        median = float(np.median(ratio))
+        gain = median if math.isfinite(median) and median > 0 else 1.0
+        # The floor of the scaled background is the gain times the background's own (its 90th
+        # percentile scales with it): no percentile of every frame's background.
+        return flat_field(levelled, gain * self.background, floor=FLOOR_FRACTION * gain * bright)
+
+    def _gain_reference(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """What every frame's brightness match reads of the stack background, found once: the
+        channel's pixels on every other row and column, the background there (at least 1e-6),
+        and the background's 90th percentile (the flat field's floor, before the gain)."""
+        assert self.background is not None
+        key = self._reference_key
+        if key is None or key[0] is not self.background or key[1] is not self.walls:
+            inside = _inside(self.background.shape, self.walls)[::2, ::2]
+            reference = np.maximum(self.background[::2, ::2][inside], 1e-6)
+            self._reference = (inside, reference, float(np.percentile(self.background, 90)))
+            self._reference_key = (self.background, self.walls)
+        assert self._reference is not None
+        return self._reference
 
 
 def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tuple[float, float] | Walls | None = None,
@@ -257,9 +278,8 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
         if background.shape != frames[0].shape:
             raise ExtractionError(f"background: {background.shape[1]}x{background.shape[0]} px, the frames are "
                                   f"{frames[0].shape[1]}x{frames[0].shape[0]} px")
-    picks = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), 101)).round().astype(int))
-    raw = background if background is not None else np.median(
-        np.stack([np.asarray(frames[k], dtype=np.float32) for k in picks]), axis=0)
+    picks = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_FRAMES_TEMPORAL)).round().astype(int))
+    raw = background if background is not None else _temporal_median([frames[k] for k in picks])
     tilt = estimate_tilt(raw) if tilt_deg is None else float(tilt_deg)
     untrusted, trust_check = None, ""
     if background is not None:
@@ -300,6 +320,16 @@ def prepare(stack: FrameStack, background: np.ndarray | None = None, walls: tupl
     return Channel(found, tilt, levelled_bg, source, given.text if given else "", untrusted=untrusted,
                    background_check=trust_check, geometry_check=geometry,
                    width_disagrees=given.disagrees if given else False, width_verdict=given.verdict if given else "")
+
+
+def _temporal_median(frames: list[np.ndarray]) -> np.ndarray:
+    """The frames' median, pixel by pixel, as float32. Integer frames of up to 16 bits are
+    sorted as they are (their median, a whole or a half grey level, is exact in float32; a
+    partition of 8-bit values is twice as fast as of their float copies)."""
+    stack = np.stack([np.asarray(frame) for frame in frames])
+    if stack.dtype.kind not in "ui" or stack.dtype.itemsize > 2:
+        stack = stack.astype(np.float32)
+    return np.median(stack, axis=0).astype(np.float32)
 
 
 def _inside(shape: tuple[int, int], walls: Walls, margin: int = 3) -> np.ndarray:
@@ -575,11 +605,27 @@ def extract_stack(stack: FrameStack, settings: ExtractionSettings = DEFAULT_SETT
             "confirmed by the motion" if step > 0 else
             f"but the objects move the other way ({abs(step):.2f} px a frame): check --flow-direction"))
     if "placed" in channel.walls.source:
-        sentence, off = check_axis(channel.walls, [r.centroid_y for r in results if r.objects == 1 and r.traces])
-        channel.width_check = f"{channel.width_check}; {sentence}" if channel.width_check else sentence
+        rows = [r.centroid_y for r in results if r.objects == 1 and r.traces]
+        sentence, off = check_axis(channel.walls, rows)
         if off:
+            # The capsules are centred on the tube's axis: the wall placed at the width given is
+            # moved to make their symmetry line the axis, and the frames are measured again.
+            before = channel
+            moved = axis_from_objects(channel.walls, rows)
+            channel, results = _analyse(stack, settings, progress, moved, background, channel_width_px,
+                                        before.tilt_deg, rate, channel_width_tolerance)
+            channel.flow_direction, channel.flow_check = before.flow_direction, before.flow_check
+            channel.background_source = before.background_source
+            given = f"{channel_width_px:.1f} px given" if channel_width_px else "the width given"
+            sentence += (f"; the {moved.placed_side} wall is moved to row "
+                         f"{moved.top_row if moved.placed_side == 'top' else moved.bottom_row:.1f}, the axis to that "
+                         f"line: the width is {moved.width_px:.1f} +- {moved.width_sigma_px:.1f} px ({given}) and "
+                         f"the frames are measured against it")
+            channel.width_check = before.width_check
             channel.width_disagrees = True
-            channel.width_verdict = "placed, axis off the objects' symmetry line"
+            channel.width_verdict = (f"axis from the objects' symmetry line ({moved.axis_row - before.walls.axis_row:+.1f} px "
+                                     f"from the one placed at the width given)")
+        channel.width_check = f"{channel.width_check}; {sentence}" if channel.width_check else sentence
     return channel, results
 
 

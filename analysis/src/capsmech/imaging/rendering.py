@@ -2,11 +2,12 @@
 
 A bright-field microscope focused on the tube's mid-plane shows the capsule's membrane as a
 dark line (the meridian mirrored about the axis) and the capillary's two walls as dark
-horizontal lines at the axis +- l. ``render_frame`` draws that picture from a simulated
-meridian (``capsmech.diagnosis.synthetic.simulate_tube`` or a database profile): each line is a band of
-a given width centred on the true curve, convolved with a Gaussian blur (focus), multiplied
-into a uniform bright background (transmission: darkenings multiply), plus Gaussian noise,
-quantised to 8 or 16 bits. Image convention (the one ``capsmech.imaging.extraction`` reads): the tube
+horizontal lines just outside the axis +- l (the glass lies outside the liquid: each line's
+liquid-side edge is the wall). ``render_frame`` draws that picture from a simulated
+meridian (``capsmech.diagnosis.synthetic.simulate_tube`` or a database profile): the membrane is
+a band of a given width centred on the true curve, each wall a band ending at the wall on its
+liquid side, convolved with a Gaussian blur (focus), multiplied into a uniform bright background
+(transmission: darkenings multiply), plus Gaussian noise, quantised to 8 or 16 bits. Image convention (the one ``capsmech.imaging.extraction`` reads): the tube
 axis along x (columns), the flow in +x, so the capsule's front is at the largest x.
 
 The blurred band is computed in closed form from the distance to the curve (the convolution
@@ -38,7 +39,8 @@ class FrameStyle:
     shape : (rows, columns)
         Image size in pixels.
     tube_radius_px : float
-        Inner radius l of the capillary in pixels (the wall lines are centred at axis +- l).
+        Inner radius l of the capillary in pixels (the wall lines' liquid-side edges lie at
+        axis +- l, the lines outside them).
     axis_row : float or None
         Row (y, may be fractional) of the tube axis; None puts it at the image's middle.
     membrane_width_px, wall_width_px : float
@@ -152,7 +154,9 @@ def render_frame(capsules: Sequence[tuple[np.ndarray, float]], style: FrameStyle
     axis = style.axis
     y = np.arange(rows, dtype=float)
     transmission = np.ones(style.shape)
-    for wall_row in (axis - style.tube_radius_px, axis + style.tube_radius_px):
+    # Each wall line lies in the glass, outside the liquid: its liquid-side edge is the wall.
+    outside = style.tube_radius_px + style.wall_width_px / 2
+    for wall_row in (axis - outside, axis + outside):
         wall = _band_absorption(y - wall_row, style.wall_width_px, style.blur_px, style.wall_darkness)
         transmission *= (1 - wall)[:, None]
     reach = style.membrane_width_px / 2 + 5 * style.blur_px + 1
