@@ -93,8 +93,16 @@ contains
       if (tube) then
          if (stat == 0) call f%write_attr('/', 'a_over_l', opts%a_over_l, stat, errmsg)
          if (stat == 0) call f%write_attr('/', 'model', trim(opts%model), stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'length_scale', 'l (tube radius)', stat, errmsg)
-         if (stat == 0) call f%write_attr('/', 'time_scale', 'l/V (V mean velocity)', stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'channel', trim(opts%channel), stat, errmsg)
+         if (stat == 0) call f%write_attr('/', 'aspect', opts%aspect, stat, errmsg)
+         if (trim(opts%channel) == 'tube') then
+            if (stat == 0) call f%write_attr('/', 'length_scale', 'l (tube radius)', stat, errmsg)
+            if (stat == 0) call f%write_attr('/', 'time_scale', 'l/V (V mean velocity)', stat, errmsg)
+         else
+            ! The duct's half-width w plays the tube radius's part (a_over_l is a/w).
+            if (stat == 0) call f%write_attr('/', 'length_scale', 'w (duct half-width)', stat, errmsg)
+            if (stat == 0) call f%write_attr('/', 'time_scale', 'w/V (V mean velocity)', stat, errmsg)
+         end if
       else
          if (stat == 0) call f%write_attr('/', 'length_scale', 'a (capsule radius)', stat, errmsg)
          if (stat == 0) call f%write_attr('/', 'time_scale', '1/gamma_dot', stat, errmsg)

@@ -34,20 +34,33 @@
 module duct_wall_mesh
    use capsim_kinds, only: dp
    use vector_algebra, only: cross
-   use tube_wall_mesh, only: tube_wall_t, tube_element_size, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
-                             wall_tag_rim
+   use duct_poiseuille, only: duct_flow_t, build_duct_flow
+   use tube_wall_mesh, only: tube_wall_t, tube_element_size, graded_ring_positions, wall_tag_cylinder, &
+                             wall_tag_inlet, wall_tag_outlet, wall_tag_rim
    implicit none
    private
-   public :: duct_wall_t, build_duct_wall, graded_ring_positions
+   public :: duct_wall_t, build_duct_wall
 
    !> Ring spacing over edge length for equilateral triangles (as the tube's).
    real(dp), parameter :: ring_step = 0.8660254037844386_dp
    !> Positions closer than this (in half-widths) are the same node.
    real(dp), parameter :: same_point = 1.0e-12_dp
+   !> A point this close to a face's plane (in half-widths) lies on it.
+   real(dp), parameter :: on_face = 1.0e-9_dp
 
    type, extends(tube_wall_t) :: duct_wall_t
       !> Half-width w (along x, the unit of length) and half-height h (along y).
       real(dp) :: half_width = 0, half_height = 0
+      !> The duct's Poiseuille flow (mean velocity 1): the undisturbed flow.
+      type(duct_flow_t) :: flow
+   contains
+      procedure :: side_normal => duct_side_normal
+      procedure :: side_face_normal => duct_side_face_normal
+      procedure :: side_clearance => duct_side_clearance
+      procedure :: undisturbed_velocity => duct_undisturbed_velocity
+      procedure :: undisturbed_gradient => duct_undisturbed_gradient
+      procedure :: channel_name => duct_channel_name
+      procedure :: geometry_signature => duct_geometry_signature
    end type duct_wall_t
 
    !> A ring of nodes: node numbers, their perimeter parameters s (increasing in [0, 4)), and
@@ -68,47 +81,73 @@ module duct_wall_mesh
 
 contains
 
-   !> Ring positions z_0 = -L/2 < ... < z_K = L/2 at equal steps of
-   !> s(z) = integral dz / (ring_step h(z)), h = tube_element_size, mirror-symmetric about z = 0:
-   !> the rule build_tube_wall applies inline (duct_probe checks that both give the same rings),
-   !> kept public so that the tube can call it once it is shared.
-   pure subroutine graded_ring_positions(length, h_far, h_centre, z_ring)
-      real(dp), intent(in) :: length, h_far, h_centre
-      real(dp), allocatable, intent(out) :: z_ring(:)
-      integer, parameter :: n_fine = 20000
-      real(dp) :: s_fine(0:n_fine), dz, s_total, s_target, z
-      integer :: j, k, n_rings
-      dz = length / n_fine
-      s_fine(0) = 0.0_dp
-      do j = 1, n_fine
-         s_fine(j) = s_fine(j - 1) + 0.5_dp * dz * (1.0_dp / step_at(-0.5_dp * length + (j - 1) * dz) &
-                                                    + 1.0_dp / step_at(-0.5_dp * length + j * dz))
-      end do
-      s_total = s_fine(n_fine)
-      n_rings = max(2, nint(s_total)) + 1
-      allocate (z_ring(0:n_rings - 1))
-      j = 1
-      do k = 0, n_rings - 1
-         s_target = s_total * k / (n_rings - 1)
-         do while (j < n_fine .and. s_fine(j) < s_target)
-            j = j + 1
-         end do
-         z_ring(k) = -0.5_dp * length + dz * ((j - 1) + (s_target - s_fine(j - 1)) / (s_fine(j) - s_fine(j - 1)))
-      end do
-      z_ring(0) = -0.5_dp * length
-      z_ring(n_rings - 1) = 0.5_dp * length
-      do k = 0, (n_rings - 1) / 2
-         z = 0.5_dp * (z_ring(n_rings - 1 - k) - z_ring(k))
-         z_ring(k) = -z
-         z_ring(n_rings - 1 - k) = z
-      end do
-      if (mod(n_rings, 2) == 1) z_ring((n_rings - 1) / 2) = 0.0_dp
-   contains
-      pure real(dp) function step_at(zz)
-         real(dp), intent(in) :: zz
-         step_at = ring_step * tube_element_size(zz, h_far, h_centre)
-      end function step_at
-   end subroutine graded_ring_positions
+   !> Outward unit normal of the side wall at x: the face's (+-e_x, +-e_y); on a long edge of
+   !> the duct (on two faces) the x face's, the node's own face (the y face's triangles there
+   !> take the traction through the wall operator's edge map).
+   pure function duct_side_normal(self, x) result(n)
+      class(duct_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: n(3)
+      n = 0.0_dp
+      if (self%half_width - abs(x(1)) <= on_face) then
+         n(1) = sign(1.0_dp, x(1))
+      else
+         n(2) = sign(1.0_dp, x(2))
+      end if
+   end function duct_side_normal
+
+   !> The face of a side triangle is the one its centroid lies on (the nearer plane).
+   pure function duct_side_face_normal(self, x, centroid) result(n)
+      class(duct_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3), centroid(3)
+      real(dp) :: n(3)
+      n = 0.0_dp
+      ! The face by the centroid (inside one face); its side by the node (on that face).
+      if (self%half_width - abs(centroid(1)) <= self%half_height - abs(centroid(2))) then
+         n(1) = sign(1.0_dp, x(1))
+      else
+         n(2) = sign(1.0_dp, x(2))
+      end if
+   end function duct_side_face_normal
+
+   pure real(dp) function duct_side_clearance(self, p)
+      class(duct_wall_t), intent(in) :: self
+      real(dp), intent(in) :: p(3)
+      duct_side_clearance = min(self%half_width - abs(p(1)), self%half_height - abs(p(2)))
+   end function duct_side_clearance
+
+   pure function duct_undisturbed_velocity(self, x) result(v)
+      class(duct_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: v(3)
+      v = [0.0_dp, 0.0_dp, self%flow%velocity(x(1), x(2))]
+   end function duct_undisturbed_velocity
+
+   pure function duct_undisturbed_gradient(self, x) result(g)
+      class(duct_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: g(3)
+      g(1:2) = self%flow%velocity_gradient(x(1), x(2))
+      g(3) = 0.0_dp
+   end function duct_undisturbed_gradient
+
+   pure function duct_channel_name(self) result(name)
+      class(duct_wall_t), intent(in) :: self
+      character(len=:), allocatable :: name
+      if (self%half_height == self%half_width) then
+         name = 'square'
+      else
+         name = 'rect'
+      end if
+   end function duct_channel_name
+
+   function duct_geometry_signature(self) result(text)
+      class(duct_wall_t), intent(in) :: self
+      character(len=:), allocatable :: text
+      character(len=80) :: buffer
+      write (buffer, '(a,es24.16)') ' mesh=duct_wall_mesh aspect=', self%half_height / self%half_width
+      text = trim(buffer)
+   end function duct_geometry_signature
 
    !> Mesh of the duct boundary of length `length` (in half-widths), aspect H/W (default 1,
    !> the square duct), with edge lengths h_far away from the centre and h_centre over |z| < 1.
@@ -150,6 +189,8 @@ contains
       wall%h_centre = h_centre
       wall%half_width = w
       wall%half_height = h
+      call build_duct_flow(w, h, wall%flow, stat, errmsg)
+      if (stat /= 0) return
 
       call graded_ring_positions(length, h_far, h_centre, z_ring)
       n_rings = size(z_ring)

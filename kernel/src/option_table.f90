@@ -69,6 +69,13 @@ module option_table
       option_spec_t(name='--model', arg='axi|3d', group='tube', &
                     help='tube model: axisymmetric (fast path) or 3D boundary elements', &
                     contexts='tube-axi tube-3d'), &
+      option_spec_t(name='--channel', arg='tube|square|rect', group='tube', &
+                    help='cross-section: circular tube, square or rectangular duct (--model 3d; lengths in the '// &
+                         'half-width)', &
+                    contexts='tube-axi tube-3d'), &
+      option_spec_t(name='--aspect', arg='H/W', group='tube', unit='dimensionless: height / width', &
+                    help='aspect ratio of the rectangular duct (--channel rect), 0.1 to 10; the height along y', &
+                    contexts='tube-3d'), &
       option_spec_t(name='--tube-length', arg='LENGTH', group='tube', unit='l (tube radius)', &
                     help='length of the modelled tube, 4 to 40', &
                     contexts='tube-axi tube-3d'), &

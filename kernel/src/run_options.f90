@@ -46,6 +46,10 @@ module run_options
       !> Tube flow: size ratio a/l and the solver ('axi' fast path or '3d').
       real(dp) :: a_over_l = -huge(1.0_dp)
       character(len=16) :: model = 'axi'
+      !> Cross-section of the channel: 'tube' (circular, radius l), 'square' or 'rect' (a duct
+      !> of half-width w along x, the length scale then, and half-height aspect w along y).
+      character(len=16) :: channel = 'tube'
+      real(dp) :: aspect = 1.0_dp
       !> Axisymmetric model: number of meridian elements from pole to pole, and the solver
       !> ('newton': steady shape by Newton with continuation in Ca; 'rk2': time stepping;
       !> 'auto': Newton for nearly rigid capsules, Ca < 0.005, implicit steps otherwise and after
@@ -302,6 +306,10 @@ contains
          call real_field(opts%a_over_l)
       case ('--integrator')
          call word_field(opts%integrator)
+      case ('--channel')
+         call word_field(opts%channel)
+      case ('--aspect')
+         call real_field(opts%aspect)
       case ('--tube-length')
          call real_field(opts%tube_length)
       case ('--wall-h-far')
@@ -889,6 +897,22 @@ contains
             errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton, implicit or rk2)'
          else if (trim(opts%model) == '3d' .and. all(trim(opts%integrator) /= [character(len=4) :: 'auto', 'rk2'])) then
             errmsg = '--integrator: the 3d tube model steps with rk2 only, got "'//trim(opts%integrator)//'"'
+         else if (all(trim(opts%channel) /= [character(len=6) :: 'tube', 'square', 'rect'])) then
+            errmsg = '--channel: unknown channel "'//trim(opts%channel)//'" (expected tube, square or rect)'
+         else if (trim(opts%channel) /= 'tube' .and. trim(opts%model) /= '3d') then
+            errmsg = '--channel: a '//trim(opts%channel)//' duct needs --model 3d (the axisymmetric model is the '// &
+                     'circular tube)'
+         else if (.not. (opts%aspect >= 0.1_dp .and. opts%aspect <= 10.0_dp)) then
+            errmsg = '--aspect: must be between 0.1 and 10 (height over width), got '//real_text(opts%aspect)
+         else if (trim(opts%channel) /= 'rect' .and. opts%aspect /= 1.0_dp) then
+            errmsg = '--aspect: only for --channel rect (a '//trim(opts%channel)//' has aspect 1), got '// &
+                     real_text(opts%aspect)
+         else if (trim(opts%channel) == 'rect' .and. opts%a_over_l > 0.9_dp * min(1.0_dp, opts%aspect)) then
+            errmsg = '--a-over-l: the capsule must fit the duct, a/w <= 0.9 min(1, aspect) = '// &
+                     real_text(0.9_dp * min(1.0_dp, opts%aspect))//', got '//real_text(opts%a_over_l)
+         else if (trim(opts%channel) /= 'tube' .and. opts%wall_h_far > 0.75_dp * min(1.0_dp, opts%aspect)) then
+            errmsg = '--wall-h-far: must be at most 0.75 min(1, aspect) half-widths in a duct, got '// &
+                     real_text(opts%wall_h_far)
          else if (opts%tube_length < 4.0_dp .or. opts%tube_length > 40.0_dp) then
             errmsg = '--tube-length: must be between 4 and 40 tube radii, got '//real_text(opts%tube_length)
          else if (opts%n_meridian < 8 .or. opts%n_meridian > 1024) then
@@ -1255,6 +1279,10 @@ contains
       call append_effect(sig, 'kb', opts%kb, 0.0_dp)
       call append_effect(sig, 'offset', opts%offset, 0.0_dp)
       if (trim(opts%offset_mode) == 'held') sig = sig//' offset_mode held'
+      if (trim(opts%channel) /= 'tube') then
+         write (buf, '(a,es23.16)') ' channel '//trim(opts%channel)//' aspect ', opts%aspect
+         sig = sig//trim(buf)
+      end if
       ! The 3D model's full self quadrature (its default) is a different model from the vertex
       ! rule: old 3D checkpoints (vertex) resume only with --self-quadrature vertex.
       if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d' .and. trim(opts%self_quadrature) /= 'vertex') &

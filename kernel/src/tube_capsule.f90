@@ -19,6 +19,8 @@
 !> to mid-tube axially only: it drifts radially as the flow moves it (history column r_c),
 !> and L_p and /profile are measured along its own axis (parallel to the tube's, through the
 !> centroid).
+!> In a rectangular duct (--channel square|rect, duct_wall_mesh) the same holds with the duct's
+!> wall and Poiseuille flow; lengths are then in the duct's half-width w.
 !>
 !> Viscosity ratio lambda /= 1 (inner/outer): the membrane velocity u solves
 !>     (1+lambda)/2 u - (1-lambda) D[u] = v_inf + (S_capsule f + S_wall g)/Ca
@@ -51,8 +53,9 @@ module tube_capsule
    use triangle_quadrature, only: quadrature_rule_t, dunavant7_rule
    use surface_diagnostics, only: area_and_volume, shear_plane_contour
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall
+   use duct_wall_mesh, only: duct_wall_t, build_duct_wall
    use triangle_cells, only: triangle_cells_t
-   use wall_single_layer, only: wall_operator_t, poiseuille_velocity, leaf_ratio, leaf_strengths, triangle_correction
+   use wall_single_layer, only: wall_operator_t, leaf_ratio, leaf_strengths, triangle_correction
    use run_options, only: run_options_t
    use case_output, only: write_surface_mesh
    use tube_history, only: h_t, h_area, h_volume, h_lz, h_lp, h_vc, h_rmax, h_energy, h_stretch, &
@@ -85,7 +88,9 @@ module tube_capsule
       !> Bending stiffness (--kb); set up only when k_b > 0.
       type(bending_t) :: bending
       type(single_layer_t) :: single_layer
-      type(tube_wall_t) :: wall
+      !> The channel's closed boundary: the circular tube's, or the rectangular duct's
+      !> (duct_wall_t, --channel square|rect), whose shape the wall operator asks of it.
+      class(tube_wall_t), allocatable :: wall
       type(wall_operator_t) :: wall_op
       type(quadrature_rule_t) :: near_rule
       real(dp) :: a = 0, ca = 0, h_min = 0, energy = 0, v_c = 0
@@ -223,7 +228,17 @@ contains
          errmsg = '--tube-length: the tube must reach at least 1 l beyond the capsule on both sides'
          return
       end if
-      call build_tube_wall(opts%tube_length, opts%wall_h_far, opts%wall_h_centre, self%wall, stat, errmsg)
+      if (trim(opts%channel) == 'tube') then
+         allocate (tube_wall_t :: self%wall)
+      else
+         allocate (duct_wall_t :: self%wall)
+      end if
+      select type (wall => self%wall)
+      type is (duct_wall_t)
+         call build_duct_wall(opts%tube_length, opts%wall_h_far, opts%wall_h_centre, wall, stat, errmsg, opts%aspect)
+      type is (tube_wall_t)
+         call build_tube_wall(opts%tube_length, opts%wall_h_far, opts%wall_h_centre, wall, stat, errmsg)
+      end select
       if (stat /= 0) then
          errmsg = '--wall-h-far/--wall-h-centre: '//errmsg
          stat = 2
@@ -247,7 +262,8 @@ contains
       call self%wall_op%init(self%wall, cache_dir, stat, errmsg)
       if (stat /= 0) return
       self%wall_seconds = omp_get_wtime() - t0
-      if (.not. opts%quiet) write (*, '(a,i0,a,f0.2,a)') 'capsim: tube wall of ', self%wall%mesh%n_nodes, &
+      if (.not. opts%quiet) write (*, '(a,i0,a,f0.2,a)') 'capsim: '//self%wall%channel_name()//' wall of ', &
+         self%wall%mesh%n_nodes, &
          ' nodes ready in ', self%wall_seconds, ' s (cache: '//self%wall_op%cache_message//')'
 
       allocate (self%x_pred(3, n), self%u0(3, n), self%u1(3, n), self%force(3, n), self%density(3, n))
@@ -363,7 +379,7 @@ contains
          self%seconds_self_near_field = self%seconds_self_near_field + (omp_get_wtime() - t3)
       end if
       do i = 1, n
-         u(:, i) = poiseuille_velocity(x(:, i)) + (u(:, i) + self%u_wall(:, i)) / self%ca
+         u(:, i) = self%wall%undisturbed_velocity(x(:, i)) + (u(:, i) + self%u_wall(:, i)) / self%ca
       end do
       if (self%lambda /= 1.0_dp) call self%interface_velocity(x, u)
       call volume_gradients(self%mesh, x, self%grad, self%moment_grad, volume, moment)

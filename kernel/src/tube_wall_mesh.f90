@@ -26,7 +26,7 @@ module tube_wall_mesh
    use sphere_mesh, only: surface_mesh_t
    implicit none
    private
-   public :: tube_wall_t, build_tube_wall, tube_element_size
+   public :: tube_wall_t, build_tube_wall, tube_element_size, graded_ring_positions, poiseuille_velocity
    public :: wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, wall_tag_rim
    public :: centre_half_length, grading_length
 
@@ -46,9 +46,94 @@ module tube_wall_mesh
       integer, allocatable :: tag(:)
       !> Number of rings on the cylinder (K + 1, both rims included).
       integer :: n_rings = 0
+   contains
+      !> What the wall operator and the capsule model need of the channel's shape, so that
+      !> they serve every channel (duct_wall_t overrides these for the rectangular duct).
+      procedure :: side_normal
+      procedure :: side_face_normal
+      procedure :: side_clearance
+      procedure :: undisturbed_velocity
+      procedure :: undisturbed_gradient
+      procedure :: channel_name
+      procedure :: geometry_signature
    end type tube_wall_t
 
 contains
+
+   !> Undisturbed Poiseuille flow in the tube, mean velocity 1: v = 2 (1 - x^2 - y^2) e_z.
+   pure function poiseuille_velocity(x) result(v)
+      real(dp), intent(in) :: x(3)
+      real(dp) :: v(3)
+      v = [0.0_dp, 0.0_dp, 2.0_dp * (1.0_dp - x(1)**2 - x(2)**2)]
+   end function poiseuille_velocity
+
+   !> Outward unit normal of the side wall at a point x on it (the cylinder's: radial).
+   pure function side_normal(self, x) result(n)
+      class(tube_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: n(3)
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      n = [x(1), x(2), 0.0_dp] / norm2(x(1:2))
+   end function side_normal
+
+   !> Outward unit normal, at the node x, of the side face that holds a side-wall triangle
+   !> with this centroid (the cylinder is one face: its normal at x).
+   pure function side_face_normal(self, x, centroid) result(n)
+      class(tube_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3), centroid(3)
+      real(dp) :: n(3)
+      associate (unused => centroid)  ! the cylinder is one face
+      end associate
+      n = self%side_normal(x)
+   end function side_face_normal
+
+   !> Distance of a point inside the channel to its side walls (negative outside).
+   pure real(dp) function side_clearance(self, p)
+      class(tube_wall_t), intent(in) :: self
+      real(dp), intent(in) :: p(3)
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      side_clearance = 1.0_dp - norm2(p(1:2))
+   end function side_clearance
+
+   !> The channel's undisturbed (Poiseuille) flow of mean velocity 1 at x.
+   pure function undisturbed_velocity(self, x) result(v)
+      class(tube_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: v(3)
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      v = poiseuille_velocity(x)
+   end function undisturbed_velocity
+
+   !> Gradient (du/dx, du/dy, 0) of the undisturbed axial velocity u at x: v = u e_z.
+   pure function undisturbed_gradient(self, x) result(g)
+      class(tube_wall_t), intent(in) :: self
+      real(dp), intent(in) :: x(3)
+      real(dp) :: g(3)
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      g = [-4.0_dp * x(1), -4.0_dp * x(2), 0.0_dp]
+   end function undisturbed_gradient
+
+   !> The channel as the case file names it: tube, square or rect.
+   pure function channel_name(self) result(name)
+      class(tube_wall_t), intent(in) :: self
+      character(len=:), allocatable :: name
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      name = 'tube'
+   end function channel_name
+
+   !> The mesh family and its shape parameters, for the wall cache's signature.
+   function geometry_signature(self) result(text)
+      class(tube_wall_t), intent(in) :: self
+      character(len=:), allocatable :: text
+      associate (unused => self)  ! the circular tube of radius 1 needs nothing of the instance
+      end associate
+      text = ' mesh=tube_wall_mesh'
+   end function geometry_signature
 
    !> Target edge length at axial position z (even in z).
    pure real(dp) function tube_element_size(z, h_far, h_centre) result(h)
@@ -58,6 +143,49 @@ contains
       h = h_centre + (h_far - h_centre) * t * t * (3.0_dp - 2.0_dp * t)
    end function tube_element_size
 
+   !> Ring positions z_0 = -L/2 < ... < z_K = L/2 at equal steps of
+   !> s(z) = integral dz / (ring_step h(z)), h = tube_element_size, so that the ring spacing
+   !> follows the graded element size; s is tabulated and inverted linearly. Exactly
+   !> mirror-symmetric about z = 0 (the linear inversion is symmetric only to rounding). The
+   !> tube and the duct share it, so that their walls are graded alike.
+   pure subroutine graded_ring_positions(length, h_far, h_centre, z_ring)
+      real(dp), intent(in) :: length, h_far, h_centre
+      real(dp), allocatable, intent(out) :: z_ring(:)
+      integer, parameter :: n_fine = 20000
+      real(dp) :: s_fine(0:n_fine), dz, s_total, s_target, z
+      integer :: j, k, n_rings
+      dz = length / n_fine
+      s_fine(0) = 0.0_dp
+      do j = 1, n_fine
+         s_fine(j) = s_fine(j - 1) + 0.5_dp * dz * (1.0_dp / step_at(-0.5_dp * length + (j - 1) * dz) &
+                                                    + 1.0_dp / step_at(-0.5_dp * length + j * dz))
+      end do
+      s_total = s_fine(n_fine)
+      n_rings = max(2, nint(s_total)) + 1
+      allocate (z_ring(0:n_rings - 1))
+      j = 1
+      do k = 0, n_rings - 1
+         s_target = s_total * k / (n_rings - 1)
+         do while (j < n_fine .and. s_fine(j) < s_target)
+            j = j + 1
+         end do
+         z_ring(k) = -0.5_dp * length + dz * ((j - 1) + (s_target - s_fine(j - 1)) / (s_fine(j) - s_fine(j - 1)))
+      end do
+      z_ring(0) = -0.5_dp * length
+      z_ring(n_rings - 1) = 0.5_dp * length
+      do k = 0, (n_rings - 1) / 2
+         z = 0.5_dp * (z_ring(n_rings - 1 - k) - z_ring(k))
+         z_ring(k) = -z
+         z_ring(n_rings - 1 - k) = z
+      end do
+      if (mod(n_rings, 2) == 1) z_ring((n_rings - 1) / 2) = 0.0_dp
+   contains
+      pure real(dp) function step_at(zz)
+         real(dp), intent(in) :: zz
+         step_at = ring_step * tube_element_size(zz, h_far, h_centre)
+      end function step_at
+   end subroutine graded_ring_positions
+
    !> Mesh of the tube boundary of length `length` (in tube radii) with edge lengths h_far
    !> away from the centre and h_centre over |z| < 1.
    subroutine build_tube_wall(length, h_far, h_centre, wall, stat, errmsg)
@@ -66,10 +194,9 @@ contains
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
 
-      integer, parameter :: n_fine = 20000
-      real(dp), allocatable :: z_ring(:), s_fine(:), phase(:)
+      real(dp), allocatable :: z_ring(:), phase(:)
       integer, allocatable :: n_phi(:), first(:)
-      real(dp) :: dz, s_total, s_target, z, h_end
+      real(dp) :: h_end
       integer :: k, j, n_rings, n_nodes, n_tri, max_tri, m, n_disk_rings, node
       integer, allocatable :: tri(:, :)
       integer :: disk
@@ -90,35 +217,9 @@ contains
       wall%h_far = h_far
       wall%h_centre = h_centre
 
-      ! Ring positions: equal steps of s(z) = integral dz / (ring_step h(z)), so that the ring
-      ! spacing follows the graded element size; s is tabulated and inverted linearly.
-      allocate (s_fine(0:n_fine))
-      dz = length / n_fine
-      s_fine(0) = 0.0_dp
-      do j = 1, n_fine
-         s_fine(j) = s_fine(j - 1) + 0.5_dp * dz * (1.0_dp / step_at(-0.5_dp * length + (j - 1) * dz) &
-                                                    + 1.0_dp / step_at(-0.5_dp * length + j * dz))
-      end do
-      s_total = s_fine(n_fine)
-      n_rings = max(2, nint(s_total)) + 1
-      allocate (z_ring(0:n_rings - 1), n_phi(0:n_rings - 1), phase(0:n_rings - 1), first(0:n_rings - 1))
-      j = 1
-      do k = 0, n_rings - 1
-         s_target = s_total * k / (n_rings - 1)
-         do while (j < n_fine .and. s_fine(j) < s_target)
-            j = j + 1
-         end do
-         z_ring(k) = -0.5_dp * length + dz * ((j - 1) + (s_target - s_fine(j - 1)) / (s_fine(j) - s_fine(j - 1)))
-      end do
-      z_ring(0) = -0.5_dp * length
-      z_ring(n_rings - 1) = 0.5_dp * length
-      ! Exact mirror symmetry about z = 0 (the linear inversion is symmetric only to rounding).
-      do k = 0, (n_rings - 1) / 2
-         z = 0.5_dp * (z_ring(n_rings - 1 - k) - z_ring(k))
-         z_ring(k) = -z
-         z_ring(n_rings - 1 - k) = z
-      end do
-      if (mod(n_rings, 2) == 1) z_ring((n_rings - 1) / 2) = 0.0_dp
+      call graded_ring_positions(length, h_far, h_centre, z_ring)
+      n_rings = size(z_ring)
+      allocate (n_phi(0:n_rings - 1), phase(0:n_rings - 1), first(0:n_rings - 1))
       n_nodes = 0
       do k = 0, n_rings - 1
          n_phi(k) = max(8, nint(2.0_dp * pi / tube_element_size(z_ring(k), h_far, h_centre)))
@@ -165,11 +266,6 @@ contains
       call wall%mesh%build_adjacency()
 
    contains
-
-      pure real(dp) function step_at(zz)
-         real(dp), intent(in) :: zz
-         step_at = ring_step * tube_element_size(zz, h_far, h_centre)
-      end function step_at
 
       pure integer function disk_ring_nodes(mm)
          integer, intent(in) :: mm

@@ -40,6 +40,12 @@
 !> f^cyl = -p' e_r. For Poiseuille, c = (+-4 e_r + 4 e_z) (poiseuille_rim_jump). The
 !> corner map keeps the system square (3 unknowns and 3 equations per node); with it the
 !> same errors are 0.8 %, 0.28 %, 0.09 % and 0.27 %, 0.03 % (order 3).
+!> The same holds wherever the wall's normal turns: in the rectangular duct (duct_wall_mesh)
+!> also along the four long edges and at the eight box corners. In general a node keeps the
+!> traction of its own face (wall%side_normal; the section's inside a section) as unknown, and
+!> each other face it touches has a slot with M = I + (n_face - n_own) n_own^T (the tube: one
+!> slot per rim node, its corner map). The shape of the channel comes from the wall's
+!> type-bound procedures (side normal, face of a side triangle, clearance, undisturbed flow).
 !>
 !> Poiseuille check (total flow, no capsule): u = 0 on the cylinder and u = v_inf =
 !> 2 (1 - x^2 - y^2) e_z on both disks, so the double layer is known data over the disks
@@ -88,7 +94,7 @@ module wall_single_layer
    use file_ops, only: replace_file
    use triangle_cells, only: triangle_cells_t
    use tube_wall_mesh, only: tube_wall_t, wall_tag_inlet, wall_tag_outlet, wall_tag_rim, centre_half_length, &
-                             grading_length
+                             grading_length, poiseuille_velocity
    implicit none
    private
    public :: wall_operator_t, poiseuille_velocity, poiseuille_rim_jump, corner_map
@@ -107,6 +113,8 @@ module wall_single_layer
    !> Largest matrix order accepted (3 n_wall): 40000 is a 12.8 GB matrix.
    integer, parameter :: max_order = 40000
    integer, parameter :: kernel_single_layer = 1, kernel_double_layer = 2
+   !> Most mapped slots of one node (a box corner of the duct has two).
+   integer, parameter :: max_slots = 4
 
    type :: wall_operator_t
       integer :: n_nodes = 0, n_rim = 0
@@ -120,11 +128,16 @@ module wall_single_layer
       real(dp), allocatable :: rim_disk(:, :)
       !> Reciprocal condition number (1-norm of A) of the factorised matrix (dgecon).
       real(dp) :: rcond = 0
-      !> Rim nodes: rim_node(r) is the node of rim slot r; rim_index(k) its slot or 0.
-      integer, allocatable :: rim_node(:), rim_index(:)
-      !> Node areas that carry the nodal value f_k (area_main: all, or the cylinder side of a
-      !> rim node) and the disk-side value M_k f_k + c_k (area_mapped: rim nodes only).
-      real(dp), allocatable :: area_main(:), area_mapped(:)
+      !> Mapped slots: a node where the wall's normal turns (a rim of the tube; in the duct
+      !> also a long edge, and a box corner twice) has one slot per face other than its own,
+      !> r = 1 .. n_rim in node order: rim_node(r) its node, slot_face(:, r) that face's normal
+      !> (its corner map, slot_corner_map: M = I + (n_face - n_own) n_own^T), slot_area(r) the
+      !> node area on that face, which carries M f_k + c_k. tri_slot(m, t): the slot that vertex m of triangle t uses, or 0
+      !> (the node's own value f_k); node_slots(:, k): the slots of node k (0-padded).
+      integer, allocatable :: rim_node(:), tri_slot(:, :), node_slots(:, :)
+      real(dp), allocatable :: slot_face(:, :), slot_area(:)
+      !> Node areas that carry the nodal value f_k (the node's own face).
+      real(dp), allocatable :: area_main(:)
       !> Flux weights a (a^T f = int_B n . f dS) and unit node normals (the gauge).
       real(dp), allocatable :: flux_weight(:, :), node_normal(:, :)
       !> Fixed wall geometry per triangle.
@@ -172,38 +185,57 @@ module wall_single_layer
 
 contains
 
-   !> Undisturbed Poiseuille flow, mean velocity 1: v = 2 (1 - x^2 - y^2) e_z.
-   pure function poiseuille_velocity(x) result(v)
-      real(dp), intent(in) :: x(3)
-      real(dp) :: v(3)
-      v = [0.0_dp, 0.0_dp, 2.0_dp * (1.0_dp - x(1)**2 - x(2)**2)]
-   end function poiseuille_velocity
-
-   !> Corner map of a rim node at x: disk-side traction = M cylinder-side traction (+ c).
+   !> Corner map of a tube rim node at x: disk-side traction = M cylinder-side traction (+ c).
    pure function corner_map(x) result(m)
       real(dp), intent(in) :: x(3)
-      real(dp) :: m(3, 3), er(3), nd(3)
-      integer :: a
-      er = [x(1), x(2), 0.0_dp] / norm2(x(1:2))
-      nd = [0.0_dp, 0.0_dp, sign(1.0_dp, x(3))]
-      do a = 1, 3
-         m(:, a) = (nd - er) * er(a)
-         m(a, a) = m(a, a) + 1.0_dp
-      end do
+      real(dp) :: m(3, 3)
+      m = face_map([x(1), x(2), 0.0_dp] / norm2(x(1:2)), [0.0_dp, 0.0_dp, sign(1.0_dp, x(3))])
    end function corner_map
 
-   !> Rim jumps c_k of the Poiseuille data (zero off the rims): the strain at the rim is
-   !> e_rz = e_zr = -2, so c = 2 e . (n_d - e_r) = +4 e_r + 4 e_z (entry), -4 e_r + 4 e_z (exit).
+   !> Corner map of slot r: from the node's own face (its side wall's: only side-wall and rim
+   !> nodes have slots) to the slot's face.
+   pure function slot_corner_map(self, wall, r) result(m)
+      class(wall_operator_t), intent(in) :: self
+      class(tube_wall_t), intent(in) :: wall
+      integer, intent(in) :: r
+      real(dp) :: m(3, 3)
+      m = face_map(wall%side_normal(wall%x(:, self%rim_node(r))), self%slot_face(:, r))
+   end function slot_corner_map
+
+   !> Map of the traction across a turn of the wall's normal from n_own to n_face:
+   !> M = I + (n_face - n_own) n_own^T (so -p n_own goes to -p n_face).
+   pure function face_map(n_own, n_face) result(m)
+      real(dp), intent(in) :: n_own(3), n_face(3)
+      real(dp) :: m(3, 3)
+      integer :: a
+      do a = 1, 3
+         m(:, a) = (n_face - n_own) * n_own(a)
+         m(a, a) = m(a, a) + 1.0_dp
+      end do
+   end function face_map
+
+   !> Rim jumps c_k of the Poiseuille data (zero off the rims). In the tube the strain at the
+   !> rim is e_rz = e_zr = -2, so c = 2 e . (n_d - e_r) = +4 e_r + 4 e_z (entry), -4 e_r + 4 e_z
+   !> (exit). In general, with v = u e_z and g = grad u: e = (g e_z^T + e_z g^T) / 2 and
+   !> c = 2 (e - e_ss I) . (n_d - n_s), e_ss = n_s . e . n_s (zero: g . e_z = 0 = n_s . e_z).
    pure subroutine poiseuille_rim_jump(wall, c)
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       real(dp), intent(out) :: c(:, :)
       integer :: k
-      real(dp) :: er(3)
+      real(dp) :: er(3), g(3), jump(3)
       c = 0.0_dp
       do k = 1, wall%mesh%n_nodes
          if (wall%tag(k) /= wall_tag_rim) cycle
-         er = [wall%x(1, k), wall%x(2, k), 0.0_dp] / norm2(wall%x(1:2, k))
-         c(:, k) = -sign(4.0_dp, wall%x(3, k)) * er + [0.0_dp, 0.0_dp, 4.0_dp]
+         select type (wall)
+         type is (tube_wall_t)
+            er = [wall%x(1, k), wall%x(2, k), 0.0_dp] / norm2(wall%x(1:2, k))
+            c(:, k) = -sign(4.0_dp, wall%x(3, k)) * er + [0.0_dp, 0.0_dp, 4.0_dp]
+         class default
+            g = wall%undisturbed_gradient(wall%x(:, k))
+            jump = [0.0_dp, 0.0_dp, sign(1.0_dp, wall%x(3, k))] - wall%side_normal(wall%x(:, k))
+            ! e . d = (g (e_z . d) + e_z (g . d)) / 2.
+            c(:, k) = g * jump(3) + [0.0_dp, 0.0_dp, dot_product(g, jump)]
+         end select
       end do
    end subroutine poiseuille_rim_jump
 
@@ -211,13 +243,15 @@ contains
    !> velocity_at and section_double_layer.
    subroutine prepare(self, wall, stat, errmsg, duffy_order, pressure_gauge)
       class(wall_operator_t), intent(inout) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
       integer, intent(in), optional :: duffy_order
       logical, intent(in), optional :: pressure_gauge
-      integer :: n, t, m, k, r
-      real(dp) :: e(3), v3(3, 3), side(3), half_z
+      integer :: n, t, m, k, r, j
+      real(dp) :: e(3), v3(3, 3), side(3), half_z, n_own(3), n_face(3)
+      integer, allocatable :: slot_of(:, :), renumber(:)
+      real(dp), allocatable :: slot_normal(:, :)
 
       stat = 0
       errmsg = ''
@@ -237,20 +271,20 @@ contains
          return
       end if
       self%n_nodes = n
-      self%n_rim = count(wall%tag == wall_tag_rim)
       if (allocated(self%rim_node)) then
-         deallocate (self%rim_node, self%rim_index, self%area_main, self%area_mapped, self%flux_weight, self%node_normal)
+         deallocate (self%rim_node, self%tri_slot, self%node_slots, self%slot_face, self%slot_area)
+         deallocate (self%area_main, self%flux_weight, self%node_normal)
          deallocate (self%tri_area, self%tri_normal, self%tri_centroid, self%tri_diameter, self%disk_tri)
          deallocate (self%xs, self%ys, self%zs, self%qx, self%qy, self%qz, self%f_disk, self%quad_point, self%quad_weight)
          deallocate (self%tri_traction, self%quad_strength, self%vertex_strength)
          deallocate (self%tri_corner)
       end if
       if (allocated(self%lu)) deallocate (self%lu, self%ipiv, self%rim_disk)
-      allocate (self%rim_node(self%n_rim), self%rim_index(n), self%area_main(n), self%area_mapped(n))
+      allocate (self%area_main(n))
       allocate (self%flux_weight(3, n), self%node_normal(3, n))
       allocate (self%tri_area(wall%mesh%n_tri), self%tri_normal(3, wall%mesh%n_tri), self%tri_centroid(3, wall%mesh%n_tri))
       allocate (self%tri_diameter(wall%mesh%n_tri), self%disk_tri(wall%mesh%n_tri))
-      allocate (self%xs(n), self%ys(n), self%zs(n), self%qx(n), self%qy(n), self%qz(n), self%f_disk(3, self%n_rim))
+      allocate (self%xs(n), self%ys(n), self%zs(n), self%qx(n), self%qy(n), self%qz(n))
       self%leaf_rule = dunavant7_rule(0)
       do m = 1, 3
          self%duffy(m) = duffy_rule(self%duffy_order, m)
@@ -260,19 +294,66 @@ contains
       allocate (self%tri_traction(3, 3, wall%mesh%n_tri), self%vertex_strength(3, 3, wall%mesh%n_tri))
       allocate (self%tri_corner(3, 3, wall%mesh%n_tri))
       allocate (self%quad_strength(3, size(self%leaf_rule%weight), wall%mesh%n_tri))
-      self%rim_index = 0
-      r = 0
-      do k = 1, n
-         if (wall%tag(k) /= wall_tag_rim) cycle
-         r = r + 1
-         self%rim_node(r) = k
-         self%rim_index(k) = r
-      end do
       call triangle_areas(wall%mesh, wall%x, self%tri_area)
       self%total_area = sum(self%tri_area)
       half_z = 0.5_dp * wall%length
+      ! Slots: a triangle vertex whose face normal differs from the node's own (its side
+      ! wall's; the section's inside a section) gets the slot of that face.
+      allocate (self%tri_slot(3, wall%mesh%n_tri), slot_of(max_slots, n), slot_normal(3, max_slots * n))
+      slot_of = 0
+      r = 0
+      do t = 1, wall%mesh%n_tri
+         v3 = wall%x(:, wall%mesh%tri(:, t))
+         self%disk_tri(t) = all(abs(abs(v3(3, :)) - half_z) <= 1.0e-12_dp)
+         do m = 1, 3
+            k = wall%mesh%tri(m, t)
+            n_own = own_normal(k)
+            if (self%disk_tri(t)) then
+               n_face = [0.0_dp, 0.0_dp, sign(1.0_dp, wall%x(3, k))]
+            else
+               n_face = wall%side_face_normal(wall%x(:, k), sum(v3, dim=2) / 3.0_dp)
+            end if
+            self%tri_slot(m, t) = 0
+            if (all(n_face == n_own)) cycle
+            do j = 1, max_slots
+               if (slot_of(j, k) == 0) then
+                  r = r + 1
+                  slot_of(j, k) = r
+                  slot_normal(:, r) = n_face
+               end if
+               if (all(slot_normal(:, slot_of(j, k)) == n_face)) exit
+            end do
+            if (j > max_slots) then
+               stat = 1
+               errmsg = 'wall single layer: a wall node lies on more than 5 faces'
+               return
+            end if
+            self%tri_slot(m, t) = slot_of(j, k)
+         end do
+      end do
+      ! Slots in node order.
+      self%n_rim = r
+      allocate (self%rim_node(r), self%slot_face(3, r), self%slot_area(r), self%node_slots(max_slots, n))
+      allocate (self%f_disk(3, r), renumber(r))
+      r = 0
+      self%node_slots = 0
+      do k = 1, n
+         do j = 1, max_slots
+            if (slot_of(j, k) == 0) exit
+            r = r + 1
+            renumber(slot_of(j, k)) = r
+            self%rim_node(r) = k
+            self%node_slots(j, k) = r
+            self%slot_face(:, r) = slot_normal(:, slot_of(j, k))
+         end do
+      end do
+      do t = 1, wall%mesh%n_tri
+         do m = 1, 3
+            if (self%tri_slot(m, t) > 0) self%tri_slot(m, t) = renumber(self%tri_slot(m, t))
+         end do
+      end do
       self%area_main = 0.0_dp
-      self%area_mapped = 0.0_dp
+      self%slot_area = 0.0_dp
       self%flux_weight = 0.0_dp
       self%node_normal = 0.0_dp
       do t = 1, wall%mesh%n_tri
@@ -282,15 +363,15 @@ contains
          self%tri_centroid(:, t) = sum(v3, dim=2) / 3.0_dp
          self%tri_corner(:, :, t) = v3
          self%tri_diameter(t) = max(norm2(v3(:, 2) - v3(:, 1)), norm2(v3(:, 3) - v3(:, 2)), norm2(v3(:, 1) - v3(:, 3)))
-         self%disk_tri(t) = all(abs(abs(v3(3, :)) - half_z) <= 1.0e-12_dp)
          self%quad_point(:, :, t) = matmul(v3, self%leaf_rule%bary)
          self%quad_weight(:, t) = self%tri_area(t) * self%leaf_rule%weight
          do m = 1, 3
             k = wall%mesh%tri(m, t)
             side = e / 6.0_dp
-            if (self%disk_tri(t) .and. self%rim_index(k) > 0) then
-               self%area_mapped(k) = self%area_mapped(k) + self%tri_area(t) / 3.0_dp
-               self%flux_weight(:, k) = self%flux_weight(:, k) + matmul(side, corner_map(wall%x(:, k)))
+            r = self%tri_slot(m, t)
+            if (r > 0) then
+               self%slot_area(r) = self%slot_area(r) + self%tri_area(t) / 3.0_dp
+               self%flux_weight(:, k) = self%flux_weight(:, k) + matmul(side, slot_corner_map(self, wall, r))
             else
                self%area_main(k) = self%area_main(k) + self%tri_area(t) / 3.0_dp
                self%flux_weight(:, k) = self%flux_weight(:, k) + side
@@ -306,6 +387,17 @@ contains
       self%zs = wall%x(3, 1:n)
       self%max_diameter = maxval(self%tri_diameter)
       self%cells_radius = -1
+   contains
+      !> The node's own normal: its section's inside a section, its side wall's otherwise.
+      pure function own_normal(node) result(nrm)
+         integer, intent(in) :: node
+         real(dp) :: nrm(3)
+         if (wall%tag(node) == wall_tag_inlet .or. wall%tag(node) == wall_tag_outlet) then
+            nrm = [0.0_dp, 0.0_dp, sign(1.0_dp, wall%x(3, node))]
+         else
+            nrm = wall%side_normal(wall%x(:, node))
+         end if
+      end function own_normal
    end subroutine prepare
 
    !> Index the triangles for the near-field search of velocity_at at the current mid_radius:
@@ -323,7 +415,7 @@ contains
    !> be written is not an error (the operator is complete); cache_message says why.
    subroutine init(self, wall, cache_dir, stat, errmsg, duffy_order, pressure_gauge)
       class(wall_operator_t), intent(inout) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       character(len=*), intent(in) :: cache_dir
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
@@ -427,7 +519,7 @@ contains
    !> check at h = 0.28, L = 4: 11 % error with it, 0.8 % without).
    subroutine assemble(self, wall, at, rim_disk)
       class(wall_operator_t), intent(in) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       real(dp), intent(out) :: at(:, :), rim_disk(:, :)
       real(dp), allocatable :: dbuf(:, :)
       integer :: n, i, t, m, corner, v(3), r, k
@@ -449,21 +541,21 @@ contains
                if (v(m) == i) corner = m
             end do
             if (corner > 0) then
-               call add_rule(self%duffy(corner), xi, wall%x(:, v), self%tri_area(t), v, self%disk_tri(t), &
-                             self%rim_index(v), at(:, 3 * i - 2:3 * i), dbuf)
+               call add_rule(self%duffy(corner), xi, wall%x(:, v), self%tri_area(t), v, .true., &
+                             self%tri_slot(:, t), at(:, 3 * i - 2:3 * i), dbuf)
             else if (norm2(xi - self%tri_centroid(:, t)) > leaf_ratio * self%tri_diameter(t)) then
                call add_far_triangle(self%quad_point(:, :, t), self%quad_weight(:, t), self%leaf_rule%bary, xi, v, &
-                                     self%disk_tri(t), self%rim_index(v), at(:, 3 * i - 2:3 * i), dbuf)
+                                     .true., self%tri_slot(:, t), at(:, 3 * i - 2:3 * i), dbuf)
             else
-               call add_adaptive_blocks(self%leaf_rule, xi, wall%x(:, v), self%tri_area(t), v, self%disk_tri(t), &
-                                        self%rim_index(v), at(:, 3 * i - 2:3 * i), dbuf, identity_corners(), 0)
+               call add_adaptive_blocks(self%leaf_rule, xi, wall%x(:, v), self%tri_area(t), v, .true., &
+                                        self%tri_slot(:, t), at(:, 3 * i - 2:3 * i), dbuf, identity_corners(), 0)
             end if
          end do
-         ! Disk side of the rim nodes through the corner map: A_ik += D_ik M_k.
+         ! The mapped faces' side of the slots through their maps: A_ik += D_ik M_k.
          do r = 1, self%n_rim
             k = self%rim_node(r)
             at(3 * k - 2:3 * k, 3 * i - 2:3 * i) = at(3 * k - 2:3 * k, 3 * i - 2:3 * i) &
-                                                   + matmul(transpose(corner_map(wall%x(:, k))), dbuf(3 * r - 2:3 * r, :))
+                                                   + matmul(transpose(slot_corner_map(self, wall, r)), dbuf(3 * r - 2:3 * r, :))
          end do
          at(:, 3 * i - 2:3 * i) = scale * at(:, 3 * i - 2:3 * i)
          rim_disk(:, 3 * i - 2:3 * i) = scale * dbuf
@@ -603,7 +695,7 @@ contains
    !> the cell index (triangle_cells; the first call, or a changed mid_radius, builds it).
    subroutine velocity_at(self, wall, f_wall, points, u, rim_jump)
       class(wall_operator_t), intent(inout) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       real(dp), intent(in) :: f_wall(:, :), points(:, :)
       real(dp), intent(out) :: u(:, :)
       real(dp), intent(in), optional :: rim_jump(:, :)
@@ -613,13 +705,15 @@ contains
       n = self%n_nodes
       do r = 1, self%n_rim
          k = self%rim_node(r)
-         self%f_disk(:, r) = matmul(corner_map(wall%x(:, k)), f_wall(:, k))
+         self%f_disk(:, r) = matmul(slot_corner_map(self, wall, r), f_wall(:, k))
          if (present(rim_jump)) self%f_disk(:, r) = self%f_disk(:, r) + rim_jump(:, k)
       end do
       do k = 1, n
          g = self%area_main(k) * f_wall(:, k)
-         r = self%rim_index(k)
-         if (r > 0) g = g + self%area_mapped(k) * self%f_disk(:, r)
+         do r = 1, max_slots
+            if (self%node_slots(r, k) == 0) exit
+            g = g + self%slot_area(self%node_slots(r, k)) * self%f_disk(:, self%node_slots(r, k))
+         end do
          self%qx(k) = g(1)
          self%qy(k) = g(2)
          self%qz(k) = g(3)
@@ -628,8 +722,8 @@ contains
       do t = 1, size(self%tri_area)
          do m = 1, 3
             self%tri_traction(:, m, t) = f_wall(:, wall%mesh%tri(m, t))
-            r = self%rim_index(wall%mesh%tri(m, t))
-            if (self%disk_tri(t) .and. r > 0) self%tri_traction(:, m, t) = self%f_disk(:, r)
+            r = self%tri_slot(m, t)
+            if (r > 0) self%tri_traction(:, m, t) = self%f_disk(:, r)
          end do
          call leaf_strengths(self%leaf_rule, self%tri_area(t), self%tri_traction(:, :, t), self%quad_strength(:, :, t), &
                              self%vertex_strength(:, :, t))
@@ -646,7 +740,7 @@ contains
          call add_stokeslets(n, self%xs, self%ys, self%zs, self%qx, self%qy, self%qz, p, 1, n, acc)
          ! Distance to the nearest triangle centroid is at least this (centroids lie within a
          ! diameter of the surface).
-         clearance = min(1.0_dp - norm2(p(1:2)), 0.5_dp * wall%length - abs(p(3))) - self%max_diameter
+         clearance = min(wall%side_clearance(p), 0.5_dp * wall%length - abs(p(3))) - self%max_diameter
          if (clearance < reach) acc = acc + near_corrections(self, p)
          u(:, k) = acc / (8.0_dp * pi)
       end do
@@ -813,8 +907,9 @@ contains
    !> (1/area) int over the sub-triangle with barycentric corners b (columns) of the triangle
    !> xv, by recursive subdivision into 4 near the target p. Kernels: the single layer
    !> J(p - y) . f(y) with P1 f from the vertex values fv; the Poiseuille double layer
-   !> -6 (r . v) (r . n) r / |r|**5 with v = poiseuille_velocity(y) and n = fv(:, 1).
-   pure recursive function adaptive_integral(rule, kernel, p, xv, fv, b, depth) result(acc)
+   !> -6 (r . v) (r . n) r / |r|**5 with v = the wall's undisturbed velocity at y and n = fv(:, 1).
+   pure recursive function adaptive_integral(wall, rule, kernel, p, xv, fv, b, depth) result(acc)
+      class(tube_wall_t), intent(in) :: wall
       type(quadrature_rule_t), intent(in) :: rule
       integer, intent(in) :: kernel, depth
       real(dp), intent(in) :: p(3), xv(3, 3), fv(3, 3), b(3, 3)
@@ -833,7 +928,7 @@ contains
                g = matmul(fv, bb)
                acc = acc + (rule%weight(q) * rinv) * (g + r * (dot_product(r, g) * rinv**2))
             else
-               g = poiseuille_velocity(matmul(xv, bb))
+               g = wall%undisturbed_velocity(matmul(xv, bb))
                acc = acc - (6.0_dp * rule%weight(q) * dot_product(r, g) * dot_product(r, fv(:, 1)) * rinv**5) * r
             end if
          end do
@@ -843,10 +938,10 @@ contains
          bm(:, 1) = 0.5_dp * (b(:, 1) + b(:, 2))
          bm(:, 2) = 0.5_dp * (b(:, 2) + b(:, 3))
          bm(:, 3) = 0.5_dp * (b(:, 3) + b(:, 1))
-         acc = adaptive_integral(rule, kernel, p, xv, fv, reshape([b(:, 1), bm(:, 1), bm(:, 3)], [3, 3]), depth + 1) &
-               + adaptive_integral(rule, kernel, p, xv, fv, reshape([bm(:, 1), b(:, 2), bm(:, 2)], [3, 3]), depth + 1) &
-               + adaptive_integral(rule, kernel, p, xv, fv, reshape([bm(:, 3), bm(:, 2), b(:, 3)], [3, 3]), depth + 1) &
-               + adaptive_integral(rule, kernel, p, xv, fv, bm, depth + 1)
+         acc = adaptive_integral(wall, rule, kernel, p, xv, fv, reshape([b(:, 1), bm(:, 1), bm(:, 3)], [3, 3]), depth + 1) &
+               + adaptive_integral(wall, rule, kernel, p, xv, fv, reshape([bm(:, 1), b(:, 2), bm(:, 2)], [3, 3]), depth + 1) &
+               + adaptive_integral(wall, rule, kernel, p, xv, fv, reshape([bm(:, 3), bm(:, 2), b(:, 3)], [3, 3]), depth + 1) &
+               + adaptive_integral(wall, rule, kernel, p, xv, fv, bm, depth + 1)
       end if
    end function adaptive_integral
 
@@ -857,7 +952,7 @@ contains
    !> cylinder next to a rim are nearly singular).
    subroutine section_double_layer(self, wall, points, u_dl)
       class(wall_operator_t), intent(in) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       real(dp), intent(in) :: points(:, :)
       real(dp), intent(out) :: u_dl(:, :)
       integer :: k, t
@@ -872,7 +967,7 @@ contains
             if (abs(p(3) - xv(3, 1)) <= 1.0e-12_dp) cycle
             nv = 0.0_dp
             nv(:, 1) = self%tri_normal(:, t)
-            acc = acc + self%tri_area(t) * adaptive_integral(self%leaf_rule, kernel_double_layer, p, xv, nv, &
+            acc = acc + self%tri_area(t) * adaptive_integral(wall, self%leaf_rule, kernel_double_layer, p, xv, nv, &
                                                              identity_corners(), 0)
          end do
          u_dl(:, k) = acc / (8.0_dp * pi)
@@ -886,7 +981,7 @@ contains
    !> Poiseuille wall traction. Needs init (rim_disk).
    subroutine poiseuille_rhs(self, wall, rhs)
       class(wall_operator_t), intent(in) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       real(dp), intent(out) :: rhs(:, :)
       real(dp) :: jump(3, wall%mesh%n_nodes)
       integer :: i, r
@@ -895,7 +990,7 @@ contains
       do i = 1, wall%mesh%n_nodes
          rhs(:, i) = -rhs(:, i)
          if (wall%tag(i) == wall_tag_inlet .or. wall%tag(i) == wall_tag_outlet) &
-            rhs(:, i) = rhs(:, i) + 0.5_dp * poiseuille_velocity(wall%x(:, i))
+            rhs(:, i) = rhs(:, i) + 0.5_dp * wall%undisturbed_velocity(wall%x(:, i))
          do r = 1, self%n_rim
             rhs(:, i) = rhs(:, i) - matmul(jump(:, self%rim_node(r)), self%rim_disk(3 * r - 2:3 * r, 3 * i - 2:3 * i))
          end do
@@ -906,11 +1001,11 @@ contains
    !> when it matches exactly.
    function cache_signature(self, wall) result(signature)
       class(wall_operator_t), intent(in) :: self
-      type(tube_wall_t), intent(in) :: wall
+      class(tube_wall_t), intent(in) :: wall
       character(len=:), allocatable :: signature
       character(len=400) :: buffer
       write (buffer, '(a,i0,4a,es24.16,a,es24.16,a,es24.16,a,es24.16,a,es24.16,a,i0,a,es24.16,a,l1,a,i0,a,i0)') &
-         'capsmech tube wall LU format=', cache_format, ' code=', code_version, ' mesh=tube_wall_mesh', &
+         'capsmech tube wall LU format=', cache_format, ' code=', code_version, wall%geometry_signature(), &
          ' L=', wall%length, ' h_far=', wall%h_far, ' h_centre=', wall%h_centre, &
          ' centre_half_length=', centre_half_length, ' grading_length=', grading_length, &
          ' duffy=', self%duffy_order, ' leaf_ratio=', leaf_ratio, ' gauge=', self%pressure_gauge, &

@@ -5,6 +5,8 @@
 !>   duct_probe flow ASPECT                        (series: centre, mean, walls, shear, traction)
 !>   duct_probe mesh L H_FAR H_CENTRE ASPECT       (wall mesh: topology, geometry, quality, grading,
 !>                                                  Poiseuille data on it, the tube wall's operator)
+!>   duct_probe poiseuille L H_FAR H_CENTRE ASPECT (the wall alone: the wall integral equation for
+!>                                                  the total Poiseuille flow; traction and velocity)
 program duct_probe
    use capsim_kinds, only: dp
    use command_args, only: real_arg, put, put_int
@@ -14,7 +16,7 @@ program duct_probe
                              wall_tag_rim
    use duct_poiseuille, only: duct_flow_t, build_duct_flow
    use duct_wall_mesh, only: duct_wall_t, build_duct_wall
-   use wall_single_layer, only: wall_operator_t
+   use wall_single_layer, only: wall_operator_t, poiseuille_rim_jump
    implicit none
 
    character(len=64) :: command
@@ -24,8 +26,10 @@ program duct_probe
       call probe_flow(make_flow(real_arg(2)))
    case ('mesh')
       call probe_mesh(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
+   case ('poiseuille')
+      call probe_poiseuille(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
    case default
-      write (*, '(a)') 'usage: duct_probe flow ASPECT | duct_probe mesh L H_FAR H_CENTRE ASPECT'
+      write (*, '(a)') 'usage: duct_probe flow ASPECT | duct_probe mesh|poiseuille L H_FAR H_CENTRE ASPECT'
       error stop 2
    end select
 
@@ -373,14 +377,94 @@ contains
          call put('net_force_y', net_force(2))
          call put('net_force_z', net_force(3))
          call put('pressure_drop_force', flow%pressure_gradient * length * 4 * w * h)
-         ! The tube wall's operator takes the duct's parent component (the shared layout).
-         call single_layer%prepare(wall%tube_wall_t, stat, errmsg)
+         ! The wall operator on the duct: its mapped slots (rims, long edges, box corners).
+         call single_layer%prepare(wall, stat, errmsg)
          if (stat /= 0) error stop errmsg
          call put('operator_area', single_layer%total_area)
          call put_int('operator_nodes', single_layer%n_nodes)
-         call put_int('operator_rim_nodes', single_layer%n_rim)
+         call put_int('operator_slots', single_layer%n_rim)
       end associate
    end subroutine probe_mesh
+
+   !> The duct wall alone (the total Poiseuille flow in the closed duct): the wall equation
+   !> solved for the traction (wall_operator_t's poiseuille_rhs, with the duct's data), against
+   !> the exact one on the side walls away from the ends (|z| <= L/2 - 1) and off the long
+   !> edges, and the velocity it gives inside (single layer of the traction plus the sections'
+   !> double layer) against the series. Errors relative to u_max and to the largest wall shear.
+   subroutine probe_poiseuille(length, h_far, h_centre, aspect)
+      real(dp), intent(in) :: length, h_far, h_centre, aspect
+      type(duct_wall_t) :: wall
+      type(wall_operator_t) :: op
+      real(dp), allocatable :: rhs(:, :), f(:, :), jump(:, :)
+      real(dp), parameter :: fractions(2, 4) = reshape([0.0_dp, 0.0_dp, 0.5_dp, 0.3_dp, 0.8_dp, 0.0_dp, &
+                                                        0.7_dp, 0.7_dp], [2, 4])
+      real(dp) :: points(3, 8), u_sl(3, 8), u_dl(3, 8), n(3), g(3), shear_exact, shear_scale, shear_max, shear_sum
+      real(dp) :: z, grad, vel_err, worst(3)
+      real(dp), allocatable :: z_central(:), p_central(:)
+      integer :: i, k, stat, n_central
+      character(len=:), allocatable :: errmsg
+
+      call build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect)
+      if (stat /= 0) error stop errmsg
+      call op%init(wall, '', stat, errmsg)
+      if (stat /= 0) error stop errmsg
+      op%mid_radius = 100.0_dp
+      allocate (rhs(3, wall%mesh%n_nodes), f(3, wall%mesh%n_nodes), jump(3, wall%mesh%n_nodes))
+      call poiseuille_rim_jump(wall, jump)
+      call op%poiseuille_rhs(wall, rhs)
+      call op%solve(rhs, f, stat, errmsg)
+      if (stat /= 0) error stop errmsg
+
+      shear_scale = maxval(abs(wall%flow%velocity_gradient(1.0_dp, 0.0_dp)))
+      shear_scale = max(shear_scale, maxval(abs(wall%flow%velocity_gradient(0.0_dp, aspect))))
+      shear_max = 0
+      shear_sum = 0
+      n_central = 0
+      allocate (z_central(0), p_central(0))
+      do i = 1, wall%mesh%n_nodes
+         if (wall%tag(i) /= wall_tag_cylinder) cycle
+         z = wall%x(3, i)
+         if (abs(z) > 0.5_dp * length - 1.0_dp + 1.0e-9_dp) cycle
+         ! Off the long edges, where the traction jumps.
+         if (abs(abs(wall%x(1, i)) - 1.0_dp) < 1.0e-9_dp .and. abs(abs(wall%x(2, i)) - aspect) < 1.0e-9_dp) cycle
+         n = wall%side_normal(wall%x(:, i))
+         g = wall%undisturbed_gradient(wall%x(:, i))
+         shear_exact = dot_product(g, n)
+         n_central = n_central + 1
+         if (abs(f(3, i) - shear_exact) > shear_max) worst = wall%x(:, i)
+         shear_max = max(shear_max, abs(f(3, i) - shear_exact))
+         shear_sum = shear_sum + (f(3, i) - shear_exact)**2
+         z_central = [z_central, z]
+         p_central = [p_central, -dot_product(f(:, i), n)]
+      end do
+      ! Least-squares slope dp/dz of the wall pressure -f . n over the central nodes.
+      z_central = z_central - sum(z_central) / n_central
+      grad = sum(z_central * p_central) / sum(z_central**2)
+
+      do k = 1, 4
+         points(:, k) = [fractions(1, k), fractions(2, k) * aspect, 0.0_dp]
+         points(:, k + 4) = [-fractions(1, k), fractions(2, k) * aspect, 0.37_dp]
+      end do
+      call op%velocity_at(wall, f, points, u_sl, jump)
+      call op%section_double_layer(wall, points, u_dl)
+      vel_err = 0
+      do k = 1, 8
+         vel_err = max(vel_err, norm2(u_sl(:, k) + u_dl(:, k) - wall%undisturbed_velocity(points(:, k))))
+      end do
+      call put_int('n_nodes', wall%mesh%n_nodes)
+      call put_int('n_central', n_central)
+      call put('centre_velocity', wall%flow%centre_velocity())
+      call put('pressure_gradient_exact', wall%flow%pressure_gradient)
+      call put('pressure_gradient', -grad)
+      call put('shear_scale', shear_scale)
+      call put('shear_error_max', shear_max)
+      call put('shear_error_rms', sqrt(shear_sum / n_central))
+      call put('shear_error_max_x', worst(1))
+      call put('shear_error_max_y', worst(2))
+      call put('shear_error_max_z', worst(3))
+      call put('velocity_error_max', vel_err)
+      call put('u_centre', u_sl(3, 1) + u_dl(3, 1))
+   end subroutine probe_poiseuille
 
    !> Sorted distinct z of the side-wall and rim nodes (the rings).
    function ring_positions(x, tag) result(z)

@@ -32,6 +32,25 @@ def run_probe(*args: object) -> dict[str, float]:
     return values
 
 
+def run_keyed_probe(name: str, *args: object, check: bool = True, timeout: float = 120) -> dict[str, float | str]:
+    """Run ``bin/NAME ARGS`` and parse its "key value" lines (numbers as float, other values as
+    text), with its exit status and stderr under "returncode" and "stderr"; ``check``: a
+    non-zero exit fails the test with the probe's output."""
+    result = subprocess.run([str(_executable(name)), *map(str, args)], capture_output=True, text=True,
+                            check=False, timeout=timeout)
+    if check and result.returncode != 0:
+        pytest.fail(f"{name} {args} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
+    values: dict[str, float | str] = {"returncode": result.returncode, "stderr": result.stderr}
+    for line in result.stdout.splitlines():
+        key, _, value = line.strip().partition(" ")
+        value = value.strip()
+        try:
+            values[key] = float(value)
+        except ValueError:
+            values[key] = value
+    return values
+
+
 def axi(*args: object) -> dict[str, float]:
     """Run `bin/axi_probe ARGS` on one thread and parse its "key value" lines; repr() keeps
     all 17 digits of a float, so the probe sees exactly the caller's point."""

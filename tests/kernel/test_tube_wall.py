@@ -12,13 +12,10 @@ Units: tube radius l = 1, mean velocity V = 1, viscosity mu = 1.
 from __future__ import annotations
 
 import math
-import subprocess
-from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-PROBE = REPO / "bin" / "wall_probe"
+from conftest import run_keyed_probe
 
 # Quadrature of the wall matrix: Duffy order on touching triangles.
 DUFFY = 4
@@ -30,22 +27,7 @@ DEFAULT_MID_RADIUS = 0.5
 
 def run_wall_probe(*args: object, check: bool = True) -> dict[str, float | str]:
     """Run ``bin/wall_probe ARGS`` and parse its "key value" lines (numbers as float)."""
-    if not PROBE.exists():
-        pytest.fail(f"{PROBE} is missing: run `make build` in {REPO} first")
-    result = subprocess.run(
-        [str(PROBE), *map(str, args)], capture_output=True, text=True, check=False, timeout=120
-    )
-    if check and result.returncode != 0:
-        pytest.fail(f"wall_probe {args} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
-    values: dict[str, float | str] = {"returncode": result.returncode, "stderr": result.stderr}
-    for line in result.stdout.splitlines():
-        key, _, value = line.strip().partition(" ")
-        value = value.strip()
-        try:
-            values[key] = float(value)
-        except ValueError:
-            values[key] = value
-    return values
+    return run_keyed_probe("wall_probe", *args, check=check, timeout=120)
 
 
 # ---------------------------------------------------------------------------------------
