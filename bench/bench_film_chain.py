@@ -30,12 +30,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "python"))
 
-from capillary_films import PIXEL_SIZE_UM, passage, pool_capsules  # noqa: E402
+from capillary_films import PIXEL_SIZE_UM, film_batch, passage, pool_capsules  # noqa: E402
 from glass_walls import Glass  # noqa: E402
 
 from capsmech.cli.main import main  # noqa: E402
@@ -47,23 +45,11 @@ TEST_CAPSULES = [1, 7, 9, 10, 11, 14, 19, 20, 22, 12, 23]
 
 
 def films(count: int, seed: int = 40) -> list[tuple[int, Glass, bool]]:
-    """``count`` films as the film-chain test draws its batch: pool capsules taken in turn, every
-    third film a thick (15 px) band, the others thin bands (6-10 px) with or without a refraction
-    line, tilt up to 2 deg, gradients 5-25 %, noise 2-4 grey levels, half of them upside down."""
-    rng = np.random.default_rng(seed)
+    """``count`` films as the film-chain test draws its batch (``capillary_films.film_batch``):
+    pool capsules taken in turn, every third film a thick (15 px) band, the others thin bands."""
     # The film-chain test's capsules (its batch and its held-out pair) first, then the pool's others.
     pool = [c.index for c in pool_capsules("NH")]
-    chosen = (TEST_CAPSULES + [i for i in pool if i not in TEST_CAPSULES])[:count]
-    out = []
-    for n, index in enumerate(chosen):
-        thick = n % 3 == 2
-        glass = Glass(15.0 if thick else float(rng.choice([6, 7, 8, 9, 10])),
-                      "none" if thick else str(rng.choice(["liquid", "glass", "none"])),
-                      darkness=float(rng.uniform(0.35, 0.6)), blur_px=float(rng.uniform(0.8, 1.2)),
-                      tilt_deg=float(rng.uniform(-2, 2)), gradient=float(rng.uniform(0.05, 0.25)),
-                      noise=float(rng.uniform(2, 4)))
-        out.append((index, glass, bool(rng.integers(2))))
-    return out
+    return film_batch((TEST_CAPSULES + [i for i in pool if i not in TEST_CAPSULES])[:count], seed)
 
 
 def _cpu() -> float:

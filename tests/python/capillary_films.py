@@ -129,6 +129,24 @@ def dirt(rng: np.random.Generator, specks: int = 14) -> np.ndarray:
     return transmission
 
 
+def film_batch(indices: list[int], seed: int = 40) -> list[tuple[int, Glass, bool]]:
+    """The film-chain batch's films: the pool capsules ``indices`` in turn, the glass of each
+    film (every third a thick 15 px band, the others thin 6-10 px bands with or without a
+    refraction line; tilt up to 2 deg, gradients 5-25 %, noise 2-4 grey levels, drawn from
+    ``seed``) and whether its image is upside down (about half of them)."""
+    rng = np.random.default_rng(seed)
+    films = []
+    for n, index in enumerate(indices):
+        thick = n % 3 == 2
+        glass = Glass(15.0 if thick else float(rng.choice([6, 7, 8, 9, 10])),
+                      "none" if thick else str(rng.choice(["liquid", "glass", "none"])),
+                      darkness=float(rng.uniform(0.35, 0.6)), blur_px=float(rng.uniform(0.8, 1.2)),
+                      tilt_deg=float(rng.uniform(-2, 2)), gradient=float(rng.uniform(0.05, 0.25)),
+                      noise=float(rng.uniform(2, 4)))
+        films.append((index, glass, bool(rng.integers(2))))
+    return films
+
+
 def passage(capsule: Capsule, glass: Glass, seed: int, frames: int = 22, step_px: float = 16.0,
             flip: bool = False, optics: Optics = MEMBRANE) -> Film:
     """One passage of ``capsule`` through the channel: ``frames`` frames, about ``step_px`` a frame

@@ -12,7 +12,6 @@ exact 60 x 8000 x 8000 px TIFF under an address-space limit, and the smoke datab
 """
 from __future__ import annotations
 
-import os
 import resource
 import shutil
 import subprocess
@@ -23,6 +22,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+import small_disk
 import tifffile
 
 from capsmech.io.catalog import database_path
@@ -197,32 +197,10 @@ def test_an_infinite_g_s_in_an_hdf5_results_file_is_refused(results_h5: Path) ->
 
 # -- a full or read-only disk: one line, no partial file ------------------------------------------------------
 
-#: Mounts a tmpfs of one page at $D (read-only if $RO), fills it, runs the command, lists $D.
-ON_A_SMALL_DISK = r"""
-mount -t tmpfs -o size=4k tmpfs "$D" || exit 77
-head -c 4096 /dev/zero > "$D/filler" 2>/dev/null
-if [ -n "$RO" ]; then mount -o remount,ro "$D" || exit 77; fi
-"$@" >"$W/stdout" 2>"$W/stderr"
-echo $? >"$W/rc"
-ls -A "$D" >"$W/listing"
-"""
-
-
 def on_a_small_disk(tmp_path: Path, read_only: bool, *args: str) -> tuple[int, str, list[str]]:
-    disk, work = tmp_path / "disk", tmp_path / "w"
-    disk.mkdir()
-    work.mkdir()
-    env = {**os.environ, "D": str(disk), "W": str(work), "RO": "1" if read_only else ""}
-    command = [sys.executable, "-m", "capsmech.cli", *(a.replace("DISK", str(disk)) for a in args)]
-    try:
-        subprocess.run(["unshare", "-rm", "sh", "-c", ON_A_SMALL_DISK, "sh", *command], env=env,
-                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    except FileNotFoundError:
-        pytest.skip("unshare is not installed")
-    if not (work / "rc").exists():
-        pytest.skip("cannot mount a private tmpfs here")
-    left = [name for name in (work / "listing").read_text().split() if name != "filler"]
-    return int((work / "rc").read_text()), (work / "stderr").read_text(), left
+    """``capsmech *args`` (DISK: the small disk's folder) on a full one-page disk."""
+    command = [sys.executable, "-m", "capsmech.cli", *(a.replace("DISK", str(tmp_path / "disk")) for a in args)]
+    return small_disk.on_a_small_disk(tmp_path, *command, read_only=read_only, timeout=120, cwd=tmp_path)
 
 
 @pytest.mark.parametrize("read_only,args,written", [

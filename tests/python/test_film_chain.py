@@ -39,29 +39,13 @@ import numpy as np
 import pandas as pd
 import pytest
 import tifffile
-from capillary_films import G_S, PIXEL_SIZE_UM, TUBE_RADIUS_UM, Capsule, passage, pool_capsules
+from capillary_films import G_S, PIXEL_SIZE_UM, TUBE_RADIUS_UM, Capsule, film_batch, passage, pool_capsules
 from glass_walls import Glass
 
 from capsmech.cli.main import main
 
-
-def _batch_films() -> list[tuple[int, Glass, bool]]:
-    """The batch: pool capsules (by index), the glass of their films (every third a thick band,
-    the others thin bands at random conditions, seeded) and whether the image is upside down."""
-    rng = np.random.default_rng(40)
-    films = []
-    for n, index in enumerate([1, 7, 9, 10, 11, 14, 19, 20, 22]):
-        thick = n % 3 == 2
-        glass = Glass(15.0 if thick else float(rng.choice([6, 7, 8, 9, 10])),
-                      "none" if thick else str(rng.choice(["liquid", "glass", "none"])),
-                      darkness=float(rng.uniform(0.35, 0.6)), blur_px=float(rng.uniform(0.8, 1.2)),
-                      tilt_deg=float(rng.uniform(-2, 2)), gradient=float(rng.uniform(0.05, 0.25)),
-                      noise=float(rng.uniform(2, 4)))
-        films.append((index, glass, bool(rng.integers(2))))
-    return films
-
-
-BATCH = _batch_films()
+#: The batch: pool capsules (by index), the glass of their films and whether each image is upside down.
+BATCH = film_batch([1, 7, 9, 10, 11, 14, 19, 20, 22])
 HELD_OUT: list[tuple[int, Glass, bool]] = [
     (12, Glass(7.0, "glass", darkness=0.45, tilt_deg=-1.9, gradient=0.23, noise=3.4), True),
     (23, Glass(15.0, "none", darkness=0.55, blur_px=1.1, tilt_deg=1.6, gradient=0.2, noise=2.6), False),

@@ -45,6 +45,18 @@ def drawn_capsules(table: inverters.TubeTable, n: int, seed: int) -> tuple[np.nd
     return drawn[:, 0], drawn[:, 1]
 
 
+def assert_same_fit(reference: inverters.TubeFit, batch: inverters.TubeFit, i: int) -> None:
+    """Capsule i of a batch is ``fit``'s: the same flag, each value to 1e-9 relative (NaN where
+    fit's is NaN)."""
+    assert batch.flag == reference.flag, i
+    for name in FIELDS:
+        expected, got = getattr(reference, name), getattr(batch, name)
+        if np.isnan(expected):
+            assert np.isnan(got), (i, name)
+        else:
+            assert got == pytest.approx(expected, rel=1e-9, abs=0), (i, name)
+
+
 @pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
 def test_stacked_exact_path_is_fit_bit_for_bit(tube_db, law):
     inverter = tube_inverter(tube_db, law)
@@ -73,14 +85,7 @@ def test_batch_equals_fit_on_drawn_capsules(tube_db, law, monkeypatch):
     l_z, l_p = drawn_capsules(inverter.table, 300, seed=12)
     many = inverter.fit_many(l_z, l_p, 2.5e-3, 1.2e-3)
     for i in range(len(l_z)):
-        reference, batch = inverter.fit(float(l_z[i]), float(l_p[i]), 2.5e-3, 1.2e-3), many.row(i)
-        assert batch.flag == reference.flag, i
-        for name in FIELDS:
-            expected, got = getattr(reference, name), getattr(batch, name)
-            if np.isnan(expected):
-                assert np.isnan(got), (i, name)
-            else:
-                assert got == pytest.approx(expected, rel=1e-9, abs=0), (i, name)
+        assert_same_fit(inverter.fit(float(l_z[i]), float(l_p[i]), 2.5e-3, 1.2e-3), many.row(i), i)
 
 
 def test_stacked_weighted_fits_equal_lstsq_per_capsule(tube_db):
@@ -144,14 +149,7 @@ def test_threaded_batch_equals_fit_on_drawn_capsules(tube_db, law, monkeypatch):
     many = tube_batch.fit_batch(inverter, l_z, l_p, v_c, mu, workers=2)
     assert pools == [2]
     for i in range(len(l_z)):
-        reference, batch = inverter.fit(float(l_z[i]), float(l_p[i]), float(v_c[i]), mu), many.row(i)
-        assert batch.flag == reference.flag, i
-        for name in FIELDS:
-            expected, got = getattr(reference, name), getattr(batch, name)
-            if np.isnan(expected):
-                assert np.isnan(got), (i, name)
-            else:
-                assert got == pytest.approx(expected, rel=1e-9, abs=0), (i, name)
+        assert_same_fit(inverter.fit(float(l_z[i]), float(l_p[i]), float(v_c[i]), mu), many.row(i), i)
     assert many.ok.sum() > 200
 
 

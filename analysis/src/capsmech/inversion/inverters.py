@@ -26,6 +26,7 @@ D12 below 0.35 is flagged as too imprecise (paper: +-20 % on D12 from blurred co
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -173,6 +174,30 @@ class TubeFits:
         return TubeFit(G_s=float(self.G_s[i]), flag=self.flag[i], a_over_l=float(self.a_over_l[i]),
                        Ca_s=float(self.Ca_s[i]), vc_over_V=float(self.vc_over_V[i]))
 
+    @classmethod
+    def concatenate(cls, parts: list[TubeFits]) -> TubeFits:
+        """The results of consecutive groups of capsules as one."""
+        a_over_l, Ca_s, vc_over_V, G_s = (np.concatenate([getattr(part, name) for part in parts])
+                                          for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s"))
+        return cls(a_over_l, Ca_s, vc_over_V, G_s, flag=[f for part in parts for f in part.flag])
+
+
+#: Each capsule's (v_c, mu), or None where G_s is not asked for.
+Modulus = tuple[np.ndarray, np.ndarray] | None
+
+
+def capsule_arrays(L_z: np.ndarray | float, L_p: np.ndarray | float, v_c: np.ndarray | float | None,
+                   mu: np.ndarray | float | None) -> tuple[np.ndarray, np.ndarray, Modulus]:
+    """``fit_many``'s arguments as arrays of one entry per capsule: (L_z, L_p, (v_c, mu) or
+    None where either is not given)."""
+    L_z, L_p = np.broadcast_arrays(np.atleast_1d(np.asarray(L_z, dtype=float)),
+                                   np.atleast_1d(np.asarray(L_p, dtype=float)))
+    if v_c is None or mu is None:
+        return L_z, L_p, None
+    n = len(L_z)
+    return L_z, L_p, (np.broadcast_to(np.asarray(v_c, dtype=float), (n,)),
+                      np.broadcast_to(np.asarray(mu, dtype=float), (n,)))
+
 
 @dataclass
 class FiveFits:
@@ -309,37 +334,17 @@ class TubeInverter:
         TubeFits
             One entry per capsule; ``.row(i)`` is capsule i's ``TubeFit``.
         """
-        L_z, L_p = np.broadcast_arrays(np.atleast_1d(np.asarray(L_z, dtype=float)),
-                                       np.atleast_1d(np.asarray(L_p, dtype=float)))
+        L_z, L_p, modulus = capsule_arrays(L_z, L_p, v_c, mu)
         n = len(L_z)
-        has_modulus = v_c is not None and mu is not None
-        v_c_all = np.broadcast_to(np.asarray(v_c if has_modulus else np.nan, dtype=float), (n,))
-        mu_all = np.broadcast_to(np.asarray(mu if has_modulus else np.nan, dtype=float), (n,))
         if n > _BATCH:
             # Each capsule is fitted on its own: chunks keep the (chunk, 14, ...) work arrays
             # in cache (~20 % faster than one pass over 10^5 capsules).
-            parts = [self.fit_many(L_z[i:i + _BATCH], L_p[i:i + _BATCH], v_c_all[i:i + _BATCH] if has_modulus
-                                   else None, mu_all[i:i + _BATCH] if has_modulus else None)
-                     for i in range(0, n, _BATCH)]
-            a_over_l, Ca_s, vc_over_V, G_s = (np.concatenate([getattr(part, name) for part in parts])
-                                              for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s"))
-            return TubeFits(a_over_l, Ca_s, vc_over_V, G_s, flag=[f for part in parts for f in part.flag])
-        out = TubeFits(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), flag=[""] * n)
-        with np.errstate(invalid="ignore"):
-            valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
-        for i in np.flatnonzero(~valid):
-            out.flag[i] = (f"invalid lengths L_z = {float(L_z[i])}, L_p = {float(L_p[i])} "
-                           "(need L_z > 0 and 0 <= L_p < L_z)")
-        # Lengths so large that their distance to the database overflows have no neighbours.
-        with np.errstate(invalid="ignore"):
-            reach = self._within_reach(np.column_stack([L_z, L_z - L_p]))
-        for i in np.flatnonzero(valid & ~reach):
-            out.flag[i] = _beyond_reach(float(L_z[i]), float(L_p[i]))
-        valid &= reach
-        rows = np.flatnonzero(valid)
+            chunks = [slice(i, i + _BATCH) for i in range(0, n, _BATCH)]
+            return TubeFits.concatenate([self.fit_many(L_z[c], L_p[c], modulus[0][c] if modulus else None,
+                                                       modulus[1][c] if modulus else None) for c in chunks])
+        out, rows, q_star = self._screen(L_z, L_p)
         if rows.size == 0:
             return out
-        q_star = np.column_stack([L_z[rows], L_z[rows] - L_p[rows]])
         fallback = np.zeros(len(rows), dtype=bool)
 
         # Local forward map around each q* (as _local_forward_map).
@@ -377,6 +382,36 @@ class TubeInverter:
         todo &= ~fallback
         q, _ = _quadratic_value_and_jacobian_many(refine_coefficients, scaled - refine_centre)
         refined = todo & ~np.any(np.abs(q - q_star) > tolerance[:, None], axis=1)
+        self._store_roots(out, rows, first, scaled, todo, refined, no_root, modulus)
+        self._store_exact(out, rows[fallback], L_z, L_p, modulus)
+        return out
+
+    def _screen(self, L_z: np.ndarray, L_p: np.ndarray) -> tuple[TubeFits, np.ndarray, np.ndarray]:
+        """A result for the capsules (n,) with no value yet, the flags of the invalid lengths
+        and of those beyond the database's reach written; the rows of the others and their
+        lengths q* = (L_z, L_z - L_p) (m, 2)."""
+        n = len(L_z)
+        out = TubeFits(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), flag=[""] * n)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
+        for i in np.flatnonzero(~valid):
+            out.flag[i] = (f"invalid lengths L_z = {float(L_z[i])}, L_p = {float(L_p[i])} "
+                           "(need L_z > 0 and 0 <= L_p < L_z)")
+        # Lengths so large that their distance to the database overflows have no neighbours.
+        with np.errstate(invalid="ignore"):
+            reach = self._within_reach(np.column_stack([L_z, L_z - L_p]))
+        for i in np.flatnonzero(valid & ~reach):
+            out.flag[i] = _beyond_reach(float(L_z[i]), float(L_p[i]))
+        rows = np.flatnonzero(valid & reach)
+        return out, rows, np.column_stack([L_z[rows], L_z[rows] - L_p[rows]])
+
+    def _store_roots(self, out: TubeFits, rows: np.ndarray, first: np.ndarray, scaled: np.ndarray,
+                     todo: np.ndarray, refined: np.ndarray, no_root: np.ndarray, modulus: Modulus) -> None:
+        """``fit``'s choice between the first root ``first`` (m, 2) and the refined one (scaled
+        parameters ``scaled``), written into ``out`` at ``rows``: the refined root where the
+        refinement reproduced the lengths (``refined``); else, for the capsules ``todo``, the
+        first root's outside flag if it lies outside the database, or that the two
+        neighbourhoods disagree; the ``no_root`` capsules flagged so."""
         p = np.where(refined[:, None], scaled * self._p_scale, first)
         first_outside = self._hull.find_simplex(first / self._p_scale) < 0
         inconsistent = todo & ~refined & ~first_outside
@@ -384,26 +419,25 @@ class TubeInverter:
         outside = np.zeros(len(rows), dtype=bool)
         outside[ok] = self._hull.find_simplex(p[ok] / self._p_scale) < 0
         ok &= ~outside
-
-        modulus = (v_c_all, mu_all) if has_modulus else None
         self._store(out, rows, p, ok, no_root, inconsistent, outside, modulus)
+
+    def _store_exact(self, out: TubeFits, exact: np.ndarray, L_z: np.ndarray, L_p: np.ndarray,
+                     modulus: Modulus) -> None:
+        """``fit``'s result for the capsules ``exact`` of ``out``, written there."""
         # The capsules that need ``fit``'s result get its arithmetic stacked (a loop over ``fit``
         # was ~30 % of the batch's time, and re-running the cycling refinements from shifted
         # starts to tell which ends round-off can move ~10 %); ``fit`` takes what is left.
-        exact = rows[fallback]
         p_exact, outcome = self._fit_exact_many(L_z[exact], L_p[exact])
         self._store(out, exact, p_exact, outcome == _EXACT_OK, outcome == _EXACT_NO_ROOT,
                     outcome == _EXACT_INCONSISTENT, outcome == _EXACT_OUTSIDE, modulus)
         for i in exact[outcome == _EXACT_LEFT]:
-            one = self.fit(float(L_z[i]), float(L_p[i]), float(v_c_all[i]) if has_modulus else None,
-                           float(mu_all[i]) if has_modulus else None)
+            one = self.fit(float(L_z[i]), float(L_p[i]), float(modulus[0][i]) if modulus else None,
+                           float(modulus[1][i]) if modulus else None)
             out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
             out.flag[i] = one.flag
-        return out
 
     def _store(self, out: TubeFits, rows: np.ndarray, p: np.ndarray, ok: np.ndarray, no_root: np.ndarray,
-               inconsistent: np.ndarray, outside: np.ndarray,
-               modulus: tuple[np.ndarray, np.ndarray] | None) -> None:
+               inconsistent: np.ndarray, outside: np.ndarray, modulus: Modulus) -> None:
         """Write the fitted parameters ``p`` of the ``ok`` capsules and the others' flags into
         ``out`` at ``rows``; G_s where ``modulus`` gives (v_c, mu) of every capsule of ``out``."""
         for j in np.flatnonzero(no_root):
@@ -766,22 +800,7 @@ def _weighted_lstsq_neighbour_major(u: np.ndarray, v: np.ndarray, value_columns:
                 entry = entry - lower[i][t] * lower[j][t]
             lower[i][j] = entry / lower[j][j]
     n_rhs = len(value_columns)
-    y: list[list[np.ndarray]] = []
-    for i in range(k):
-        row = []
-        for q in range(n_rhs):
-            entry = scaled_rhs[i][q]
-            for t in range(i):
-                entry = entry - lower[i][t] * y[t][q]
-            row.append(entry / lower[i][i])
-        y.append(row)
-    solution: list[list[np.ndarray]] = [[np.zeros(m)] * n_rhs for _ in range(k)]
-    for i in reversed(range(k)):
-        for q in range(n_rhs):
-            entry = y[i][q]
-            for t in range(i + 1, k):
-                entry = entry - lower[t][i] * solution[t][q]
-            solution[i][q] = entry / lower[i][i]
+    solution = _cholesky_substitutions(lower, scaled_rhs, lambda entry, i: entry / lower[i][i])
     coefficients = np.empty((m, k, n_rhs))
     for i in range(k):
         for q in range(n_rhs):
@@ -797,6 +816,33 @@ def _weighted_lstsq_neighbour_major(u: np.ndarray, v: np.ndarray, value_columns:
         coefficients[bad] = np.matmul(vt.transpose(0, 2, 1),
                                       s_inverse[:, :, None] * np.matmul(u_svd.transpose(0, 2, 1), b))
     return coefficients
+
+
+def _cholesky_substitutions(lower: list[list[np.ndarray]], rhs: list[list[np.ndarray]],
+                            divide_by_pivot: Callable[[np.ndarray, int], np.ndarray]) -> list[list[np.ndarray]]:
+    """The solutions x[i][q] (m,) of L L^T x = b on a stack of small systems, by forward and
+    back substitution written out over the stack: the Cholesky factor's entries below the
+    diagonal ``lower[i][t]`` (m,), the right-hand sides ``rhs[i][q]`` (m,), and
+    ``divide_by_pivot(entry, i)``, the division by the factor's i-th diagonal entry as the
+    caller keeps it (the entry itself or its inverse)."""
+    k, n_rhs = len(rhs), len(rhs[0])
+    y: list[list[np.ndarray]] = []
+    for i in range(k):
+        row = []
+        for q in range(n_rhs):
+            entry = rhs[i][q]
+            for t in range(i):
+                entry = entry - lower[i][t] * y[t][q]
+            row.append(divide_by_pivot(entry, i))
+        y.append(row)
+    solution: list[list[np.ndarray]] = [list(row) for row in y]
+    for i in reversed(range(k)):
+        for q in range(n_rhs):
+            entry = y[i][q]
+            for t in range(i + 1, k):
+                entry = entry - lower[t][i] * solution[t][q]
+            solution[i][q] = divide_by_pivot(entry, i)
+    return solution
 
 
 def _quadratic_value_and_jacobian_many(c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

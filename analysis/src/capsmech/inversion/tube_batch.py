@@ -34,7 +34,7 @@ from functools import partial
 import numpy as np
 
 from capsmech.inversion import inverters
-from capsmech.inversion.inverters import TubeFits, TubeInverter
+from capsmech.inversion.inverters import Modulus, TubeFits, TubeInverter
 
 #: Capsules in one chunk of work: the (14, chunk) work arrays stay in the cache, and 10^5
 #: capsules make enough chunks to keep two threads busy to the end.
@@ -70,12 +70,8 @@ def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.
     Parameters and result as ``TubeInverter.fit_many``: one entry per capsule, the values
     ``fit``'s to round-off, the flags ``fit``'s.
     """
-    L_z, L_p = np.broadcast_arrays(np.atleast_1d(np.asarray(L_z, dtype=float)),
-                                   np.atleast_1d(np.asarray(L_p, dtype=float)))
+    L_z, L_p, modulus = inverters.capsule_arrays(L_z, L_p, v_c, mu)
     n = len(L_z)
-    has_modulus = v_c is not None and mu is not None
-    v_c_all = np.broadcast_to(np.asarray(v_c if has_modulus else np.nan, dtype=float), (n,))
-    mu_all = np.broadcast_to(np.asarray(mu if has_modulus else np.nan, dtype=float), (n,))
     # A thread for every MIN_THREAD_CAPSULES at most: for a few capsules, starting threads
     # costs more than it saves.
     threads = max(1, min(workers or default_workers(), n // MIN_THREAD_CAPSULES))
@@ -85,7 +81,7 @@ def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.
 
     def one_chunk(start: int) -> TubeFits:
         part = slice(start, start + size)
-        return _fit_chunk(inverter, L_z[part], L_p[part], (v_c_all[part], mu_all[part]) if has_modulus else None)
+        return _fit_chunk(inverter, L_z[part], L_p[part], (modulus[0][part], modulus[1][part]) if modulus else None)
 
     threads = min(threads, len(starts))
     if threads <= 1:
@@ -96,30 +92,14 @@ def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.
         inverter._velocity(np.zeros((1, 2)))
         with ThreadPoolExecutor(max_workers=threads) as pool:
             parts = list(pool.map(one_chunk, starts))
-    a_over_l, Ca_s, vc_over_V, G_s = (np.concatenate([getattr(part, name) for part in parts])
-                                      for name in ("a_over_l", "Ca_s", "vc_over_V", "G_s"))
-    return TubeFits(a_over_l, Ca_s, vc_over_V, G_s, flag=[f for part in parts for f in part.flag])
+    return TubeFits.concatenate(parts)
 
 
-def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray,
-               modulus: tuple[np.ndarray, np.ndarray] | None) -> TubeFits:
+def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, modulus: Modulus) -> TubeFits:
     """``fit_many``'s steps on one chunk, with ``_refine`` for its parameter-space refinement."""
-    n = len(L_z)
-    out = TubeFits(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), flag=[""] * n)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(L_z) & np.isfinite(L_p) & (L_z > 0) & (L_p >= 0) & (L_p < L_z)
-    for i in np.flatnonzero(~valid):
-        out.flag[i] = (f"invalid lengths L_z = {float(L_z[i])}, L_p = {float(L_p[i])} "
-                       "(need L_z > 0 and 0 <= L_p < L_z)")
-    with np.errstate(invalid="ignore"):
-        reach = inv._within_reach(np.column_stack([L_z, L_z - L_p]))
-    for i in np.flatnonzero(valid & ~reach):
-        out.flag[i] = inverters._beyond_reach(float(L_z[i]), float(L_p[i]))
-    valid &= reach
-    rows = np.flatnonzero(valid)
+    out, rows, q_star = inv._screen(L_z, L_p)
     if rows.size == 0:
         return out
-    q_star = np.column_stack([L_z[rows], L_z[rows] - L_p[rows]])
     fallback = np.zeros(len(rows), dtype=bool)
 
     # The first root: the local forward map over the neighbours in lengths (``fit``'s), its
@@ -156,25 +136,10 @@ def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray,
     fallback |= bad | moving
     todo &= ~fallback
     refined = todo & ~np.any(np.abs(value_at_end - target) > tolerance, axis=0)
-    p = np.where(refined[:, None], scaled * inv._p_scale, first)
-    first_outside = inv._hull.find_simplex(first / inv._p_scale) < 0
-    inconsistent = todo & ~refined & ~first_outside
-    ok = todo & ~inconsistent
-    outside = np.zeros(len(rows), dtype=bool)
-    outside[ok] = inv._hull.find_simplex(p[ok] / inv._p_scale) < 0
-    ok &= ~outside
     if modulus is not None:
         modulus = (np.ascontiguousarray(modulus[0]), np.ascontiguousarray(modulus[1]))
-    inv._store(out, rows, p, ok, no_root, inconsistent, outside, modulus)
-    exact = rows[fallback]
-    p_exact, outcome = inv._fit_exact_many(L_z[exact], L_p[exact])
-    inv._store(out, exact, p_exact, outcome == inverters._EXACT_OK, outcome == inverters._EXACT_NO_ROOT,
-               outcome == inverters._EXACT_INCONSISTENT, outcome == inverters._EXACT_OUTSIDE, modulus)
-    for i in exact[outcome == inverters._EXACT_LEFT]:
-        one = inv.fit(float(L_z[i]), float(L_p[i]), float(modulus[0][i]) if modulus else None,
-                      float(modulus[1][i]) if modulus else None)
-        out.a_over_l[i], out.Ca_s[i], out.vc_over_V[i], out.G_s[i] = one.a_over_l, one.Ca_s, one.vc_over_V, one.G_s
-        out.flag[i] = one.flag
+    inv._store_roots(out, rows, first, scaled, todo, refined, no_root, modulus)
+    inv._store_exact(out, rows[fallback], L_z, L_p, modulus)
     return out
 
 
@@ -360,23 +325,7 @@ def _normal_equations_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.n
             for t in range(j):
                 entry = entry - lower[i][t] * lower[j][t]
             lower[i][j] = entry * inverse_diagonal[j]
-    n_rhs = len(value_columns)
-    y: list[list[np.ndarray]] = []
-    for i in range(k):
-        row = []
-        for q in range(n_rhs):
-            entry = rhs[i][q]
-            for t in range(i):
-                entry = entry - lower[i][t] * y[t][q]
-            row.append(entry * inverse_diagonal[i])
-        y.append(row)
-    coefficients = np.empty((k, n_rhs, m))
-    for i in reversed(range(k)):
-        for q in range(n_rhs):
-            entry = y[i][q]
-            for t in range(i + 1, k):
-                entry = entry - lower[t][i] * coefficients[t, q]
-            coefficients[i, q] = entry * inverse_diagonal[i]
+    coefficients = np.array(inverters._cholesky_substitutions(lower, rhs, lambda entry, i: entry * inverse_diagonal[i]))
     dropped[deficient] = -1
     return coefficients, dropped, deficient
 

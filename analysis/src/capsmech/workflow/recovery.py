@@ -32,7 +32,7 @@ from pathlib import Path
 import yaml
 
 from capsmech.errors import CapsmechError
-from capsmech.workflow.runner import running_snakemake
+from capsmech.workflow.runner import clear_stale_lock, running_snakemake
 from capsmech.workflow.slurm import Runner, run_command
 
 #: A job name the SLURM executor plugin gives: the run's UUID, after an optional prefix.
@@ -193,12 +193,7 @@ def clear_lock_of_killed_run(workdir: str | Path) -> bool:
     bool
         True when a lock was removed.
     """
-    locks = sorted((Path(workdir) / ".snakemake" / "locks").glob("*.lock"))
-    if not locks or main_snakemake_pids(workdir):
-        return False
-    for lock in locks:
-        lock.unlink()
-    return True
+    return clear_stale_lock(workdir, main_snakemake_pids)
 
 
 def slurm_profile(profile: str | Path | None) -> bool:

@@ -42,7 +42,7 @@ import os
 import re
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import h5py
@@ -299,12 +299,13 @@ def running_snakemake(workdir: str | Path) -> list[int]:
     return pids
 
 
-def clear_stale_lock(workdir: str | Path) -> bool:
+def clear_stale_lock(workdir: str | Path, holders: Callable[[str | Path], list[int]] | None = None) -> bool:
     """Remove Snakemake's lock in ``workdir`` if no Snakemake process is working there.
 
     A workflow killed by SIGKILL leaves ``.snakemake/locks`` behind, and the next run
     refuses to start. The lock is only removed when no live Snakemake process has
     ``workdir`` as its working directory, so a workflow that really runs keeps it.
+    ``holders`` narrows which of them keep it (default: ``running_snakemake``, every one).
 
     Returns
     -------
@@ -312,7 +313,7 @@ def clear_stale_lock(workdir: str | Path) -> bool:
         True when a stale lock was removed.
     """
     locks = sorted((Path(workdir) / ".snakemake" / "locks").glob("*.lock"))
-    if not locks or running_snakemake(workdir):
+    if not locks or (holders or running_snakemake)(workdir):
         return False
     for lock in locks:
         lock.unlink()
