@@ -83,11 +83,11 @@ from capsmech.diagnosis.scoring import (
     evaluate_candidate,
     g_s_half_width,
     noise_levels,
+    prepared_contour,
     rivals_of,
     score_batch,
 )
 from capsmech.inversion.fitting import tube_inverter
-from capsmech.inversion.residuals import PreparedContour
 from capsmech.io.contours import contour_asymmetry
 from capsmech.io.database import TubeDatabase
 from capsmech.io.measurements import Capsule
@@ -370,7 +370,7 @@ def diagnose(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, 
     if sigma is None:
         sigma = noise_levels(with_contours, database, base_law)
     # (every capsule of with_contours has one)
-    prepared = [PreparedContour(c.contour) for c in with_contours if c.contour is not None]
+    prepared = [prepared_contour(c.contour) for c in with_contours if c.contour is not None]
     base = score_batch(with_contours, database, base_law, sigma, prepared)
     base_database = _base_database(database)
     results = []

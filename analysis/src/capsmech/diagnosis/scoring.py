@@ -3,6 +3,7 @@ the candidate's strength fitted with leave-one-out cross-validation and the BIC 
 ``capsmech.diagnosis.diagnose`` for the method)."""
 from __future__ import annotations
 
+import hashlib
 import math
 import weakref
 from collections.abc import Callable, Sequence
@@ -281,6 +282,78 @@ def lengths_inverter(database, law: str | BlendedLaw) -> TubeInverter | None:
     return law.lengths_inverter(database) if isinstance(law, BlendedLaw) else level_inverter(database, law)
 
 
+#: Prepared contours (folded halves and their k-d trees) by content, at most ``PREPARED_KEPT``:
+#: a measurement effect makes the same moved contours again at every model strength it is
+#: refitted with, and folding one (its symmetry axis) costs as much as a few contour fits.
+_PREPARED: dict[bytes, PreparedContour] = {}
+PREPARED_KEPT = 512
+
+
+def contour_key(contour: np.ndarray) -> bytes:
+    """A digest of a contour's points (equal digests: the same points, bit for bit)."""
+    points = np.ascontiguousarray(contour, dtype=float)
+    return hashlib.blake2b(points.tobytes(), digest_size=16).digest() + str(points.shape).encode()
+
+
+def prepared_contour(contour: np.ndarray) -> PreparedContour:
+    """The contour folded about its axis (``PreparedContour``), made once per contour content."""
+    key = contour_key(contour)
+    prepared = _PREPARED.get(key)
+    if prepared is None:
+        prepared = PreparedContour(contour)
+        if len(_PREPARED) >= PREPARED_KEPT:
+            del _PREPARED[next(iter(_PREPARED))]
+        _PREPARED[key] = prepared
+    return prepared
+
+
+@dataclass(frozen=True)
+class _CapsuleScore:
+    """One capsule's contour fit under one law, as ``BatchScore`` holds it (NaN: no fit)."""
+
+    chi2: float
+    g_s: float = math.nan
+    delta: float = math.nan
+    a_over_l: float = math.nan
+    Ca_s: float = math.nan
+    residual: np.ndarray | None = None
+    floor: np.ndarray | None = None
+
+
+#: Each database's capsule scores by law, contour, capsule values, start and noise level, at
+#: most ``SCORES_KEPT`` per database: a diagnosis asks for the same fit again (a measurement
+#: effect's best model strength is scored by its search, then by the round's grid), and a
+#: fit is a deterministic function of these, so that a remembered one is the same bit for bit.
+_SCORES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+SCORES_KEPT = 20000
+
+
+def _law_key(law: str | BlendedLaw) -> tuple:
+    return (law,) if isinstance(law, str) else (tuple(law.keys), tuple(law.weights))
+
+
+def _score_capsule(capsule: Capsule, contour: PreparedContour, inverter: Any, start: tuple[float, float],
+                   sigma: float) -> _CapsuleScore:
+    """Fit one capsule's contour from ``start`` (``contour_fit``): chi2, G_s, Delta, the fitted
+    point, the residual profile and the databases' accuracy there [px]. ``inverter``: the law's
+    (a ``TubeInverter``, or a ``BlendedInverter`` with its interface)."""
+    l = capsule["tube_radius"]
+    a_over_l, ca, chi2 = contour_fit(contour, inverter, l, start, sigma)
+    if chi2 >= OUTSIDE or on_database_edge(inverter, a_over_l, ca):
+        return _CapsuleScore(math.nan)
+    g_s = math.nan
+    velocity = inverter.velocity_ratio(a_over_l, ca)
+    if math.isfinite(capsule["v_c"]) and math.isfinite(capsule["mu"]) and velocity > 0:
+        g_s = capsule["mu"] * capsule["v_c"] / (ca * velocity)
+    meridian = inverter.profile(a_over_l, ca)
+    if meridian is None:
+        return _CapsuleScore(chi2, g_s, a_over_l=a_over_l, Ca_s=ca)
+    pixel = capsule["pixel_size"] if math.isfinite(capsule["pixel_size"]) else 1.0
+    residual = contour.residual(meridian * l, points=PROFILE_POINTS)[1] / pixel
+    floor = profile_floor(meridian * l, capsule["L_z"], PROFILE_POINTS, l) / pixel
+    return _CapsuleScore(chi2, g_s, profile_elongation(meridian, a_over_l), a_over_l, ca, residual, floor)
+
+
 def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, law: str | BlendedLaw, sigma: np.ndarray,
                 prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
     """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
@@ -299,25 +372,25 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
     fitted_a, fitted_ca = np.full(n, np.nan), np.full(n, np.nan)
     residual = np.full((n, PROFILE_POINTS), np.nan)
     floor = np.full((n, PROFILE_POINTS), np.nan)
+    known = _SCORES.setdefault(database, {})
+    law_key = _law_key(law)
     for i, (capsule, row) in enumerate(zip(capsules, rows)):
         if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
             continue
-        contour = prepared[i] if prepared is not None else PreparedContour(capsule.contour)
-        l = capsule["tube_radius"]
-        a_over_l, ca, chi2[i] = contour_fit(contour, inverter, l, (row["a_over_l"], row["Ca_s"]), sigma[i])
-        if chi2[i] >= OUTSIDE or on_database_edge(inverter, a_over_l, ca):
-            chi2[i] = np.nan
-            continue
-        velocity = inverter.velocity_ratio(a_over_l, ca)
-        if math.isfinite(capsule["v_c"]) and math.isfinite(capsule["mu"]) and velocity > 0:
-            g_s[i] = capsule["mu"] * capsule["v_c"] / (ca * velocity)
-        meridian = inverter.profile(a_over_l, ca)
-        if meridian is not None:
-            delta[i] = profile_elongation(meridian, a_over_l)
-            pixel = capsule["pixel_size"] if math.isfinite(capsule["pixel_size"]) else 1.0
-            residual[i] = contour.residual(meridian * l, points=PROFILE_POINTS)[1] / pixel
-            floor[i] = profile_floor(meridian * l, capsule["L_z"], PROFILE_POINTS, l) / pixel
-        fitted_a[i], fitted_ca[i] = a_over_l, ca
+        start = (row["a_over_l"], row["Ca_s"])
+        key = (law_key, contour_key(capsule.contour), start, float(sigma[i]),
+               *(float(capsule[name]) for name in ("tube_radius", "v_c", "mu", "pixel_size", "L_z")))
+        score = known.get(key)
+        if score is None:
+            contour = prepared[i] if prepared is not None else prepared_contour(capsule.contour)
+            score = _score_capsule(capsule, contour, inverter, start, sigma[i])
+            if len(known) >= SCORES_KEPT:
+                del known[next(iter(known))]
+            known[key] = score
+        chi2[i], g_s[i], delta[i] = score.chi2, score.g_s, score.delta
+        if score.residual is not None and score.floor is not None:
+            residual[i], floor[i] = score.residual, score.floor
+        fitted_a[i], fitted_ca[i] = score.a_over_l, score.Ca_s
     return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual, floor)
 
 
@@ -336,7 +409,7 @@ def noise_levels(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseS
         meridian = inverter.profile(row["a_over_l"], row["Ca_s"])
         if meridian is None:
             continue
-        sigma[i] = tracing_noise(PreparedContour(capsule.contour), meridian * capsule["tube_radius"],
+        sigma[i] = tracing_noise(prepared_contour(capsule.contour), meridian * capsule["tube_radius"],
                                  capsule["contour_noise"])
     return sigma
 
