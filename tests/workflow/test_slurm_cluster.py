@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from slurm_recovery_run import Watcher, local_kill_grid, rerun_after_a_killed_snakemake
 
 from capsmech.workflow.grid import expand_cases, load_grid
 from capsmech.workflow.slurm import (
@@ -351,3 +352,27 @@ def test_simulations_on_demand_run_on_the_cluster(slurm_cluster: dict, tmp_path:
     for column in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V"):
         assert np.array_equal(a.column(column, steady_only=False), b.column(column, steady_only=False)), column
     assert _our_jobs() == []
+
+
+# --- recovery after a killed Snakemake (steps in slurm_recovery_run.py) ------------------------
+
+@pytest.fixture(scope="module")
+def kill_grid(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return local_kill_grid(tmp_path_factory.mktemp("recovery"))
+
+
+@pytest.fixture
+def watcher(tmp_path: Path) -> Iterator[Watcher]:
+    w = Watcher(tmp_path / "slurm")
+    yield w
+    w.stop()
+
+
+@pytest.mark.cluster
+@pytest.mark.parametrize("recover", ["cancel", "wait"])
+def test_rerun_after_a_killed_snakemake_computes_no_case_twice(slurm_cluster: dict, kill_grid: dict, recover: str,
+                                                                tmp_path: Path, watcher: Watcher) -> None:
+    """SIGKILL of Snakemake while both case jobs compute; the documented command then cancels
+    the old jobs (the cases are submitted again) or waits for them (the rerun submits no case):
+    never two jobs or two kernels on one case, and the database of an uninterrupted run."""
+    rerun_after_a_killed_snakemake(kill_grid, recover, tmp_path, watcher)
