@@ -4,10 +4,10 @@ the cores by ``OMP_NUM_THREADS``, and a batch then starts no more threads than t
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from thread_pools import spy_on_pools
 
 from capsmech.inversion import tube_batch
 from capsmech.inversion.fitting import tube_inverter
@@ -28,14 +28,7 @@ def test_the_thread_bound_is_read_where_it_is_a_positive_integer(monkeypatch, bo
 def test_a_process_bound_to_one_thread_starts_no_pool(monkeypatch):
     """A batch large enough for several threads (chunks and the thread threshold made small)
     is fitted in this thread when the bound is 1, with the same result as on two threads."""
-    started: list[int] = []
-
-    class Pool(ThreadPoolExecutor):
-        def __init__(self, max_workers: int) -> None:
-            started.append(max_workers)
-            super().__init__(max_workers=max_workers)
-
-    monkeypatch.setattr(tube_batch, "ThreadPoolExecutor", Pool)
+    started = spy_on_pools(monkeypatch)
     monkeypatch.setattr(tube_batch, "CHUNK", 20)
     monkeypatch.setattr(tube_batch, "MIN_THREAD_CAPSULES", 20)
     inverter = tube_inverter(load_database(database_path("tube-paper")), "NH")

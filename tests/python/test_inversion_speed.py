@@ -12,11 +12,10 @@ lengths; no timing is asserted (``bench/bench_lengths_inversion.py`` measures it
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import pytest
 from scipy.interpolate import LinearNDInterpolator
+from thread_pools import spy_on_pools
 
 from capsmech.inversion import inverters, tube_batch
 from capsmech.inversion.fitting import tube_inverter
@@ -118,19 +117,6 @@ def test_stacked_lstsq_is_lstsq_with_or_without_the_generalised_ufunc(monkeypatc
     assert np.array_equal(inverters._lstsq_stack(a, b), expected)
     monkeypatch.setattr(np.linalg, "_umath_linalg", None, raising=False)
     assert np.array_equal(inverters._lstsq_stack(a, b), expected)
-
-
-def spy_on_pools(monkeypatch) -> list[int]:
-    """The thread counts of the pools ``tube_batch`` starts, appended as it starts them."""
-    started: list[int] = []
-
-    class Pool(ThreadPoolExecutor):
-        def __init__(self, max_workers: int) -> None:
-            started.append(max_workers)
-            super().__init__(max_workers=max_workers)
-
-    monkeypatch.setattr(tube_batch, "ThreadPoolExecutor", Pool)
-    return started
 
 
 @pytest.mark.parametrize("law", ["NH", "GH_nu0.5"])
