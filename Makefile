@@ -43,9 +43,9 @@ PY      := $(VENV)/bin/python
 MODULE_ORDER := capsim_kinds lapack_interfaces blas_threads text_format text_parse file_ops checksum command_args option_table vector_algebra hdf5_writer sphere_mesh triangle_quadrature \
            elliptic_integrals ring_stokeslet ring_stresslet membrane_law membrane_forces membrane_bending axisymmetric_membrane \
            axisymmetric_bending \
-            stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh duct_poiseuille duct_wall_mesh triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \
+            stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh duct_poiseuille duct_wall_mesh wall_mesh_quality triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \
            run_options case_output state_vector capsule_model tube_history capsule_dynamics \
-           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_continuation axisymmetric_tube tube_branch tube_capsule
+           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_continuation axisymmetric_tube tube_branch tube_capsule tube_steady_3d
 MODULES := $(foreach m,$(MODULE_ORDER),$(if $(wildcard kernel/src/$(m).f90),$(m)))
 MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
 # Test programs: every kernel/tests/*.f90 is a program that measures and prints.

@@ -29,8 +29,18 @@
 !> only its start corner (that node then lies on the collapsed side and both neighbours), so
 !> the same zipper joins the rings. h_end is the element size at the ends, h(L/2).
 !>
+!> Edge grading (optional, build_duct_wall's grade_edges): the wall shear of the duct's flow
+!> grows like d log d with the distance d from a long edge, which a uniform P1 traction follows
+!> to order 1 only (docs/theory/duct.md). A graded lateral ring places a side's nodes at
+!> x = side * edge_graded_fraction(t), t = j / n: the segment sizes grow linearly from
+!> edge_min_size times the uniform size at the corner to the uniform size over the first
+!> edge_zone of t, then stay uniform, and n is raised so that the uniform part keeps the size
+!> h(z). Staggered rings take the midpoints of the graded segments. The end sections are
+!> unchanged (their rectangles zip to the graded rims as to any ring).
+!>
 !> Measured (duct_probe mesh, tests/kernel/test_duct.py): side-wall triangles have angles
-!> >= 26 degrees and aspect ratios <= 1.7, section triangles >= 18 degrees and <= 2.5.
+!> >= 26 degrees and aspect ratios <= 1.7, section triangles >= 18 degrees and <= 2.5; with
+!> the edge grading, side-wall angles >= 8 degrees and aspect ratios <= 4.5 (long in z).
 module duct_wall_mesh
    use capsim_kinds, only: dp
    use vector_algebra, only: cross
@@ -47,12 +57,22 @@ module duct_wall_mesh
    real(dp), parameter :: same_point = 1.0e-12_dp
    !> A point this close to a face's plane (in half-widths) lies on it.
    real(dp), parameter :: on_face = 1.0e-9_dp
+   !> Edge grading: the segment size at a corner relative to the uniform part's, and the
+   !> fraction of a side's segment parameter t (from each end) over which it grows linearly.
+   !> Chosen on the Poiseuille wall shear (duct_probe poiseuille): smaller corner segments
+   !> make slivers (angles below 4 degrees) for little gain, a wider zone costs more nodes.
+   real(dp), parameter :: edge_min_size = 0.15_dp, edge_zone = 0.3_dp
+   !> A graded side has this many times the segments of a uniform one (the uniform part keeps
+   !> the element size): 1 / (1 - edge_zone (1 - edge_min_size)).
+   real(dp), parameter :: edge_segment_factor = 1.0_dp / (1.0_dp - edge_zone * (1.0_dp - edge_min_size))
 
    type, extends(tube_wall_t) :: duct_wall_t
       !> Half-width w (along x, the unit of length) and half-height h (along y).
       real(dp) :: half_width = 0, half_height = 0
       !> The duct's Poiseuille flow (mean velocity 1): the undisturbed flow.
       type(duct_flow_t) :: flow
+      !> Lateral rings graded towards the long edges (edge_graded_fraction).
+      logical :: edges_graded = .false.
    contains
       procedure :: side_normal => duct_side_normal
       procedure :: side_face_normal => duct_side_face_normal
@@ -147,16 +167,19 @@ contains
       character(len=80) :: buffer
       write (buffer, '(a,es24.16)') ' mesh=duct_wall_mesh aspect=', self%half_height / self%half_width
       text = trim(buffer)
+      if (self%edges_graded) text = text // ' edges=graded'
    end function duct_geometry_signature
 
    !> Mesh of the duct boundary of length `length` (in half-widths), aspect H/W (default 1,
-   !> the square duct), with edge lengths h_far away from the centre and h_centre over |z| < 1.
-   subroutine build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect)
+   !> the square duct), with edge lengths h_far away from the centre and h_centre over |z| < 1;
+   !> grade_edges (default no) grades the lateral rings towards the long edges.
+   subroutine build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect, grade_edges)
       real(dp), intent(in) :: length, h_far, h_centre
       type(duct_wall_t), intent(out) :: wall
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
       real(dp), intent(in), optional :: aspect
+      logical, intent(in), optional :: grade_edges
 
       real(dp), allocatable :: z_ring(:)
       type(ring_t), allocatable :: lateral(:)
@@ -189,6 +212,7 @@ contains
       wall%h_centre = h_centre
       wall%half_width = w
       wall%half_height = h
+      if (present(grade_edges)) wall%edges_graded = grade_edges
       call build_duct_flow(w, h, wall%flow, stat, errmsg)
       if (stat /= 0) return
 
@@ -199,7 +223,8 @@ contains
       allocate (lateral(0:n_rings - 1))
       do k = 0, n_rings - 1
          call add_ring(builder, w, h, tube_element_size(z_ring(k), h_far, h_centre), 2, mod(k, 2) == 1, z_ring(k), &
-                       merge(wall_tag_rim, wall_tag_cylinder, k == 0 .or. k == n_rings - 1), lateral(k))
+                       merge(wall_tag_rim, wall_tag_cylinder, k == 0 .or. k == n_rings - 1), lateral(k), &
+                       wall%edges_graded)
       end do
       do k = 0, n_rings - 2
          if (stat == 0) call zipper(builder, lateral(k), lateral(k + 1), stat)
@@ -268,13 +293,17 @@ contains
    !> segments, staggered by half a segment when asked. A side of zero length keeps its start
    !> corner only (the next side then starts without it), so that the collapsed side's nodes
    !> sit at its start parameter; a position met twice (the two faces of a segment) is one node.
-   subroutine add_ring(builder, ax, ay, edge, min_segments, staggered, z, node_tag, ring)
+   !> Graded (optional, default no): edge_segment_factor times the segments, placed by
+   !> edge_graded_fraction, the staggered nodes at the graded segments' midpoints.
+   subroutine add_ring(builder, ax, ay, edge, min_segments, staggered, z, node_tag, ring, graded)
       type(mesh_builder_t), intent(inout) :: builder
       real(dp), intent(in) :: ax, ay, edge, z
       integer, intent(in) :: min_segments, node_tag
       logical, intent(in) :: staggered
       type(ring_t), intent(out) :: ring
+      logical, intent(in), optional :: graded
       real(dp) :: corner(2, 0:4), side_length(0:3), frac
+      logical :: grade
       integer :: side, n_seg, j, first_new
       corner(:, 0) = [-ax, -ay]
       corner(:, 1) = [ax, -ay]
@@ -284,6 +313,8 @@ contains
       do side = 0, 3
          side_length(side) = norm2(corner(:, side + 1) - corner(:, side))
       end do
+      grade = .false.
+      if (present(graded)) grade = graded
       allocate (ring%s(0), ring%node(0), ring%sides(0))
       first_new = builder%n_nodes + 1
       do side = 0, 3
@@ -294,13 +325,20 @@ contains
          end if
          if (side_length(modulo(side - 1, 4)) > same_point) &
             call put_node(real(side, dp), corner(:, side), ibset(ibset(0, modulo(side - 1, 4)), side))
-         n_seg = max(min_segments, nint(side_length(side) / edge))
+         if (grade) then
+            n_seg = max(min_segments, nint(edge_segment_factor * side_length(side) / edge))
+         else
+            n_seg = max(min_segments, nint(side_length(side) / edge))
+         end if
          do j = 0, n_seg - 1
-            if (staggered) then
+            if (grade .and. staggered) then
+               frac = 0.5_dp * (edge_graded_fraction(real(j, dp) / n_seg) + edge_graded_fraction(real(j + 1, dp) / n_seg))
+            else if (staggered) then
                frac = (j + 0.5_dp) / n_seg
             else
                if (j == 0) cycle
                frac = real(j, dp) / n_seg
+               if (grade) frac = edge_graded_fraction(frac)
             end if
             call put_node(side + frac, corner(:, side) + frac * (corner(:, side + 1) - corner(:, side)), ibset(0, side))
          end do
@@ -321,6 +359,22 @@ contains
          ring%sides = [ring%sides, on_sides]
       end subroutine put_node
    end subroutine add_ring
+
+   !> Position along a graded side (fraction of its length) of the segment parameter t in
+   !> [0, 1], symmetric about t = 1/2: with u = min(t, 1 - t) the size dx/dt grows linearly
+   !> from edge_min_size c to c over u < edge_zone and is c beyond (c = edge_segment_factor,
+   !> so that x(1/2) = 1/2).
+   pure real(dp) function edge_graded_fraction(t) result(x)
+      real(dp), intent(in) :: t
+      real(dp) :: u
+      u = min(t, 1.0_dp - t)
+      if (u < edge_zone) then
+         x = edge_segment_factor * (edge_min_size * u + (1.0_dp - edge_min_size) * u**2 / (2 * edge_zone))
+      else
+         x = edge_segment_factor * (0.5_dp * edge_zone * (1.0_dp + edge_min_size) + u - edge_zone)
+      end if
+      if (t > 0.5_dp) x = 1.0_dp - x
+   end function edge_graded_fraction
 
    !> Triangles between ring a (outer or earlier) and ring b, walking both from a's first node
    !> (b from its last node at or before it in s). Each step adds (a_i, a_i+1, b_j) or

@@ -3,13 +3,16 @@
 !> there. Lengths in duct half-widths (w = 1, h = ASPECT), mean velocity 1, viscosity 1.
 !>
 !>   duct_probe flow ASPECT                        (series: centre, mean, walls, shear, traction)
-!>   duct_probe mesh L H_FAR H_CENTRE ASPECT       (wall mesh: topology, geometry, quality, grading,
-!>                                                  Poiseuille data on it, the tube wall's operator)
-!>   duct_probe poiseuille L H_FAR H_CENTRE ASPECT (the wall alone: the wall integral equation for
-!>                                                  the total Poiseuille flow; traction and velocity)
+!>   duct_probe mesh L H_FAR H_CENTRE ASPECT [EDGES] (wall mesh: topology, geometry, quality,
+!>                                        grading, Poiseuille data on it, the tube wall's operator)
+!>   duct_probe poiseuille L H_FAR H_CENTRE ASPECT [EDGES] (the wall alone: the wall integral
+!>                                        equation for the total Poiseuille flow; traction, velocity)
+!>
+!> EDGES: 1 grades the lateral rings towards the long edges (build_duct_wall's grade_edges),
+!> 0 or absent keeps them uniform.
 program duct_probe
    use capsim_kinds, only: dp
-   use command_args, only: real_arg, put, put_int
+   use command_args, only: int_arg, real_arg, put, put_int
    use vector_algebra, only: cross
    use triangle_quadrature, only: gauss_legendre_01, quadrature_rule_t, dunavant7_rule
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
@@ -17,6 +20,8 @@ program duct_probe
    use duct_poiseuille, only: duct_flow_t, build_duct_flow
    use duct_wall_mesh, only: duct_wall_t, build_duct_wall
    use wall_single_layer, only: wall_operator_t, poiseuille_rim_jump
+   use wall_mesh_quality, only: put_wall_topology, min_angle_deg, aspect_ratio, max_neighbour_size_ratio, &
+                                side_edge_lengths
    implicit none
 
    character(len=64) :: command
@@ -25,15 +30,22 @@ program duct_probe
    case ('flow')
       call probe_flow(make_flow(real_arg(2)))
    case ('mesh')
-      call probe_mesh(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
+      call probe_mesh(real_arg(2), real_arg(3), real_arg(4), real_arg(5), edges_graded_arg(6))
    case ('poiseuille')
-      call probe_poiseuille(real_arg(2), real_arg(3), real_arg(4), real_arg(5))
+      call probe_poiseuille(real_arg(2), real_arg(3), real_arg(4), real_arg(5), edges_graded_arg(6))
    case default
-      write (*, '(a)') 'usage: duct_probe flow ASPECT | duct_probe mesh|poiseuille L H_FAR H_CENTRE ASPECT'
+      write (*, '(a)') 'usage: duct_probe flow ASPECT | duct_probe mesh|poiseuille L H_FAR H_CENTRE ASPECT [EDGES]'
       error stop 2
    end select
 
 contains
+
+   !> The optional EDGES argument at position k: graded (1) or uniform (0, or absent).
+   logical function edges_graded_arg(k)
+      integer, intent(in) :: k
+      edges_graded_arg = .false.
+      if (command_argument_count() >= k) edges_graded_arg = int_arg(k) /= 0
+   end function edges_graded_arg
 
    type(duct_flow_t) function make_flow(aspect) result(flow)
       real(dp), intent(in) :: aspect
@@ -198,26 +210,25 @@ contains
    !> volume), quality (angles and aspect ratios on the side walls and on the end sections,
    !> neighbour sizes), grading (rings against the tube's), the Poiseuille data on the mesh
    !> (flux through the sections, net force), and the tube wall's operator set up on it.
-   subroutine probe_mesh(length, h_far, h_centre, aspect)
+   subroutine probe_mesh(length, h_far, h_centre, aspect, edges_graded)
       real(dp), intent(in) :: length, h_far, h_centre, aspect
+      logical, intent(in) :: edges_graded
       type(duct_wall_t) :: wall
       type(tube_wall_t) :: tube
       type(duct_flow_t) :: flow
       type(quadrature_rule_t) :: rule
       type(wall_operator_t) :: single_layer
-      integer :: stat, t, k, a, b, p, matches, unmatched, duplicated, i, s, q, inward
+      integer :: stat, t, k, i, q, inward
       character(len=:), allocatable :: errmsg
-      real(dp) :: e(3), area, volume, min_angle, max_aspect, worst_ratio, face_error, tri_area, edges(3)
-      real(dp) :: angle, tri_aspect, section_min_angle, section_max_aspect
-      real(dp), allocatable :: tri_size(:), z_duct(:), z_tube(:)
-      real(dp) :: inlet_flux, outlet_flux, net_force(3), yq(3), nrm(3), centre_sum, centre_n
+      real(dp) :: e(3), area, volume, min_angle, max_aspect, face_error, tri_area, xv(3, 3)
+      real(dp) :: section_min_angle, section_max_aspect
+      real(dp), allocatable :: z_duct(:), z_tube(:), centre(:)
+      real(dp) :: inlet_flux, outlet_flux, net_force(3), yq(3), nrm(3)
       character(len=32) :: key
       integer :: n_ring_nodes
-      call build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect)
+      call build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect, edges_graded)
       if (stat /= 0) error stop errmsg
       associate (mesh => wall%mesh, x => wall%x, w => wall%half_width, h => wall%half_height)
-         unmatched = 0
-         duplicated = 0
          inward = 0
          area = 0
          volume = 0
@@ -225,54 +236,21 @@ contains
          max_aspect = 1
          section_min_angle = 180
          section_max_aspect = 1
-         allocate (tri_size(mesh%n_tri))
          do t = 1, mesh%n_tri
-            e = cross(x(:, mesh%tri(2, t)) - x(:, mesh%tri(1, t)), x(:, mesh%tri(3, t)) - x(:, mesh%tri(1, t)))
+            xv = x(:, mesh%tri(:, t))
+            e = cross(xv(:, 2) - xv(:, 1), xv(:, 3) - xv(:, 1))
             tri_area = 0.5_dp * norm2(e)
             area = area + tri_area
             ! The duct is convex and centred on the origin: an outward normal points away from it.
-            if (dot_product(e, sum(x(:, mesh%tri(:, t)), dim=2)) <= 0.0_dp) inward = inward + 1
-            volume = volume + dot_product(x(:, mesh%tri(1, t)), e) / 6.0_dp
-            tri_size(t) = sqrt(2.0_dp * norm2(e))
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               edges(k) = norm2(x(:, a) - x(:, b))
-               angle = angle_at(x(:, a), x(:, b), x(:, mesh%tri(mod(k + 1, 3) + 1, t)))
-               if (abs(e(3)) > 0.0_dp) then
-                  section_min_angle = min(section_min_angle, angle)
-               else
-                  min_angle = min(min_angle, angle)
-               end if
-               matches = 0
-               do p = mesh%node_tri_start(b), mesh%node_tri_start(b + 1) - 1
-                  if (has_directed_edge(mesh%tri(:, mesh%node_tri(p)), b, a)) matches = matches + 1
-               end do
-               if (matches /= 1) unmatched = unmatched + 1
-               matches = 0
-               do p = mesh%node_tri_start(a), mesh%node_tri_start(a + 1) - 1
-                  if (has_directed_edge(mesh%tri(:, mesh%node_tri(p)), a, b)) matches = matches + 1
-               end do
-               if (matches /= 1) duplicated = duplicated + 1
-            end do
-            ! Longest edge over the equilateral triangle's for the same inradius (1 = equilateral).
-            tri_aspect = maxval(edges) * sum(edges) / (4 * sqrt(3.0_dp) * tri_area)
+            if (dot_product(e, sum(xv, dim=2)) <= 0.0_dp) inward = inward + 1
+            volume = volume + dot_product(xv(:, 1), e) / 6.0_dp
             if (abs(e(3)) > 0.0_dp) then
-               section_max_aspect = max(section_max_aspect, tri_aspect)
+               section_min_angle = min(section_min_angle, min_angle_deg(xv))
+               section_max_aspect = max(section_max_aspect, aspect_ratio(xv))
             else
-               max_aspect = max(max_aspect, tri_aspect)
+               min_angle = min(min_angle, min_angle_deg(xv))
+               max_aspect = max(max_aspect, aspect_ratio(xv))
             end if
-         end do
-         worst_ratio = 1
-         do t = 1, mesh%n_tri
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               do p = mesh%node_tri_start(b), mesh%node_tri_start(b + 1) - 1
-                  s = mesh%node_tri(p)
-                  if (has_directed_edge(mesh%tri(:, s), b, a)) worst_ratio = max(worst_ratio, tri_size(t) / tri_size(s))
-               end do
-            end do
          end do
          ! Every node on the duct's surface: on a side wall, or in an end plane.
          face_error = 0
@@ -292,19 +270,8 @@ contains
                face_error = huge(1.0_dp)
             end select
          end do
-         call put_int('n_nodes', mesh%n_nodes)
-         call put_int('n_tri', mesh%n_tri)
-         call put_int('n_rings', wall%n_rings)
-         call put_int('euler_characteristic', mesh%n_nodes - 3 * mesh%n_tri / 2 + mesh%n_tri)
-         call put_int('unmatched_edges', unmatched)
-         call put_int('duplicated_edges', duplicated)
+         call put_wall_topology(wall%tube_wall_t, 'n_side')
          call put_int('inward_normals', inward)
-         call put_int('adjacency_entries', mesh%node_tri_start(mesh%n_nodes + 1) - 1)
-         call put_int('n_side', count(wall%tag == wall_tag_cylinder))
-         call put_int('n_inlet', count(wall%tag == wall_tag_inlet))
-         call put_int('n_outlet', count(wall%tag == wall_tag_outlet))
-         call put_int('n_rim', count(wall%tag == wall_tag_rim))
-         call put_int('n_rim_inlet', count(wall%tag == wall_tag_rim .and. x(3, :) < 0))
          call put('half_width', w)
          call put('half_height', h)
          call put('area', area)
@@ -314,21 +281,10 @@ contains
          call put('side_max_aspect_ratio', max_aspect)
          call put('section_min_angle_deg', section_min_angle)
          call put('section_max_aspect_ratio', section_max_aspect)
-         call put('max_neighbour_size_ratio', worst_ratio)
+         call put('max_neighbour_size_ratio', max_neighbour_size_ratio(mesh, x))
          ! Mean side-wall edge length over |z| < 1 (the refined centre).
-         centre_sum = 0
-         centre_n = 0
-         do t = 1, mesh%n_tri
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               if (any(wall%tag([a, b]) == wall_tag_inlet .or. wall%tag([a, b]) == wall_tag_outlet)) cycle
-               if (0.5_dp * abs(x(3, a) + x(3, b)) >= 1.0_dp) cycle
-               centre_sum = centre_sum + norm2(x(:, a) - x(:, b))
-               centre_n = centre_n + 1
-            end do
-         end do
-         call put('h_centre_mean', centre_sum / max(centre_n, 1.0_dp))
+         call side_edge_lengths(wall%tube_wall_t, 0.0_dp, 1.0_dp, centre)
+         call put('h_centre_mean', sum(centre) / max(size(centre), 1))
          ! Rings: z and node count of each, and their largest distance from the tube's rings.
          z_duct = ring_positions(x, wall%tag)
          do k = 1, size(z_duct)
@@ -391,8 +347,9 @@ contains
    !> the exact one on the side walls away from the ends (|z| <= L/2 - 1) and off the long
    !> edges, and the velocity it gives inside (single layer of the traction plus the sections'
    !> double layer) against the series. Errors relative to u_max and to the largest wall shear.
-   subroutine probe_poiseuille(length, h_far, h_centre, aspect)
+   subroutine probe_poiseuille(length, h_far, h_centre, aspect, edges_graded)
       real(dp), intent(in) :: length, h_far, h_centre, aspect
+      logical, intent(in) :: edges_graded
       type(duct_wall_t) :: wall
       type(wall_operator_t) :: op
       real(dp), allocatable :: rhs(:, :), f(:, :), jump(:, :)
@@ -404,7 +361,7 @@ contains
       integer :: i, k, stat, n_central
       character(len=:), allocatable :: errmsg
 
-      call build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect)
+      call build_duct_wall(length, h_far, h_centre, wall, stat, errmsg, aspect, edges_graded)
       if (stat /= 0) error stop errmsg
       call op%init(wall, '', stat, errmsg)
       if (stat /= 0) error stop errmsg
@@ -488,20 +445,5 @@ contains
          z = [z, zmin]
       end do
    end function ring_positions
-
-   pure logical function has_directed_edge(v, a, b)
-      integer, intent(in) :: v(3), a, b
-      integer :: k
-      has_directed_edge = .false.
-      do k = 1, 3
-         if (v(k) == a .and. v(mod(k, 3) + 1) == b) has_directed_edge = .true.
-      end do
-   end function has_directed_edge
-
-   pure real(dp) function angle_at(p, q, r)
-      real(dp), intent(in) :: p(3), q(3), r(3)
-      angle_at = acos(max(-1.0_dp, min(1.0_dp, dot_product(q - p, r - p) / (norm2(q - p) * norm2(r - p))))) &
-                 * 180 / acos(-1.0_dp)
-   end function angle_at
 
 end program duct_probe

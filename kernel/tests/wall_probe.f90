@@ -15,6 +15,7 @@ program wall_probe
    use tube_wall_mesh, only: tube_wall_t, build_tube_wall, wall_tag_cylinder, wall_tag_inlet, wall_tag_outlet, &
                              wall_tag_rim
    use wall_single_layer, only: wall_operator_t, poiseuille_velocity, poiseuille_rim_jump, corner_map
+   use wall_mesh_quality, only: put_wall_topology, min_angle_deg, max_neighbour_size_ratio, side_edge_lengths
    implicit none
 
    character(len=64) :: command
@@ -51,12 +52,10 @@ contains
    !> Topology (closed, consistently oriented, manifold), orientation, geometry, sizes.
    subroutine probe_mesh(wall)
       type(tube_wall_t), intent(in) :: wall
-      integer :: t, k, a, b, unmatched, duplicated, p, matches, s, i, n_edges_centre, n_edges_far
-      real(dp) :: volume, area, e(3), h, zmid, c_sum, c_min, c_max, f_sum, f_min, f_max, min_angle, worst_ratio
-      real(dp) :: tri_size(wall%mesh%n_tri), radius_error, disk_error
+      integer :: t, i
+      real(dp) :: volume, area, e(3), min_angle, radius_error, disk_error
+      real(dp), allocatable :: centre(:), far(:)
       associate (mesh => wall%mesh, x => wall%x)
-         unmatched = 0
-         duplicated = 0
          volume = 0
          area = 0
          min_angle = 180
@@ -64,67 +63,11 @@ contains
             e = cross(x(:, mesh%tri(2, t)) - x(:, mesh%tri(1, t)), x(:, mesh%tri(3, t)) - x(:, mesh%tri(1, t)))
             area = area + 0.5_dp * norm2(e)
             volume = volume + dot_product(x(:, mesh%tri(1, t)), e) / 6.0_dp
-            tri_size(t) = sqrt(2.0_dp * norm2(e))
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               min_angle = min(min_angle, angle_at(x(:, a), x(:, b), x(:, mesh%tri(mod(k + 1, 3) + 1, t))))
-               ! Watertight and consistently oriented: exactly one triangle holds (b, a),
-               ! exactly one holds (a, b).
-               matches = 0
-               do p = mesh%node_tri_start(b), mesh%node_tri_start(b + 1) - 1
-                  if (has_directed_edge(mesh%tri(:, mesh%node_tri(p)), b, a)) matches = matches + 1
-               end do
-               if (matches /= 1) unmatched = unmatched + 1
-               matches = 0
-               do p = mesh%node_tri_start(a), mesh%node_tri_start(a + 1) - 1
-                  if (has_directed_edge(mesh%tri(:, mesh%node_tri(p)), a, b)) matches = matches + 1
-               end do
-               if (matches /= 1) duplicated = duplicated + 1
-            end do
-         end do
-         ! Grading: largest size ratio of two triangles sharing an edge.
-         worst_ratio = 1
-         do t = 1, mesh%n_tri
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               do p = mesh%node_tri_start(b), mesh%node_tri_start(b + 1) - 1
-                  s = mesh%node_tri(p)
-                  if (has_directed_edge(mesh%tri(:, s), b, a)) worst_ratio = max(worst_ratio, tri_size(t) / tri_size(s))
-               end do
-            end do
+            min_angle = min(min_angle, min_angle_deg(x(:, mesh%tri(:, t))))
          end do
          ! Edge lengths on the cylinder in the centre (|z| < 1) and far (|z| > 2.2).
-         n_edges_centre = 0
-         n_edges_far = 0
-         c_sum = 0
-         f_sum = 0
-         c_min = huge(1.0_dp)
-         f_min = huge(1.0_dp)
-         c_max = 0
-         f_max = 0
-         do t = 1, mesh%n_tri
-            do k = 1, 3
-               a = mesh%tri(k, t)
-               b = mesh%tri(mod(k, 3) + 1, t)
-               if (wall%tag(a) == wall_tag_inlet .or. wall%tag(a) == wall_tag_outlet .or. &
-                   wall%tag(b) == wall_tag_inlet .or. wall%tag(b) == wall_tag_outlet) cycle
-               h = norm2(x(:, a) - x(:, b))
-               zmid = 0.5_dp * abs(x(3, a) + x(3, b))
-               if (zmid < 1.0_dp) then
-                  n_edges_centre = n_edges_centre + 1
-                  c_sum = c_sum + h
-                  c_min = min(c_min, h)
-                  c_max = max(c_max, h)
-               else if (zmid > 2.2_dp) then
-                  n_edges_far = n_edges_far + 1
-                  f_sum = f_sum + h
-                  f_min = min(f_min, h)
-                  f_max = max(f_max, h)
-               end if
-            end do
-         end do
+         call side_edge_lengths(wall, 0.0_dp, 1.0_dp, centre)
+         call side_edge_lengths(wall, 2.2_dp, huge(1.0_dp), far)
          radius_error = 0
          disk_error = 0
          do i = 1, mesh%n_nodes
@@ -138,18 +81,7 @@ contains
             if (wall%tag(i) == wall_tag_inlet .and. x(3, i) > 0) disk_error = huge(1.0_dp)
             if (wall%tag(i) == wall_tag_outlet .and. x(3, i) < 0) disk_error = huge(1.0_dp)
          end do
-         call put_int('n_nodes', mesh%n_nodes)
-         call put_int('n_tri', mesh%n_tri)
-         call put_int('n_rings', wall%n_rings)
-         call put_int('euler_characteristic', mesh%n_nodes - 3 * mesh%n_tri / 2 + mesh%n_tri)
-         call put_int('unmatched_edges', unmatched)
-         call put_int('duplicated_edges', duplicated)
-         call put_int('adjacency_entries', mesh%node_tri_start(mesh%n_nodes + 1) - 1)
-         call put_int('n_cylinder', count(wall%tag == wall_tag_cylinder))
-         call put_int('n_inlet', count(wall%tag == wall_tag_inlet))
-         call put_int('n_outlet', count(wall%tag == wall_tag_outlet))
-         call put_int('n_rim', count(wall%tag == wall_tag_rim))
-         call put_int('n_rim_inlet', count(wall%tag == wall_tag_rim .and. x(3, :) < 0))
+         call put_wall_topology(wall, 'n_cylinder')
          call put('volume', volume)
          call put('volume_exact', pi * wall%length)
          call put('area', area)
@@ -157,31 +89,17 @@ contains
          call put('radius_error', radius_error)
          call put('disk_plane_error', disk_error)
          call put('min_angle_deg', min_angle)
-         call put('max_neighbour_size_ratio', worst_ratio)
-         call put('h_centre_mean', c_sum / max(n_edges_centre, 1))
-         call put('h_centre_min', c_min)
-         call put('h_centre_max', c_max)
-         if (n_edges_far > 0) then
-            call put('h_far_mean', f_sum / n_edges_far)
-            call put('h_far_min', f_min)
-            call put('h_far_max', f_max)
+         call put('max_neighbour_size_ratio', max_neighbour_size_ratio(mesh, x))
+         call put('h_centre_mean', sum(centre) / max(size(centre), 1))
+         call put('h_centre_min', minval(centre))
+         call put('h_centre_max', maxval(centre))
+         if (size(far) > 0) then
+            call put('h_far_mean', sum(far) / size(far))
+            call put('h_far_min', minval(far))
+            call put('h_far_max', maxval(far))
          end if
       end associate
    end subroutine probe_mesh
-
-   pure logical function has_directed_edge(v, a, b)
-      integer, intent(in) :: v(3), a, b
-      integer :: k
-      has_directed_edge = .false.
-      do k = 1, 3
-         if (v(k) == a .and. v(mod(k, 3) + 1) == b) has_directed_edge = .true.
-      end do
-   end function has_directed_edge
-
-   pure real(dp) function angle_at(p, q, r)
-      real(dp), intent(in) :: p(3), q(3), r(3)
-      angle_at = acos(max(-1.0_dp, min(1.0_dp, dot_product(q - p, r - p) / (norm2(q - p) * norm2(r - p))))) * 180 / pi
-   end function angle_at
 
    !> A smooth, non-symmetric traction field for the consistency checks (any values at the
    !> rims: the disk side follows through the corner map in both routines compared).
