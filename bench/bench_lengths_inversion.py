@@ -1,12 +1,14 @@
-"""Time the lengths-only tube inversion of 10^5 capsules: the committed ``TubeInverter.fit_many``
-(``git show <rev>:.../inverters.py``, loaded as a module of its own) against the working tree's
-``capsmech.inversion.tube_batch.fit_batch`` on one thread and on every core, in one run, so
-that the ratios hold on a shared machine.
+"""Time the lengths-only tube inversion of 10^5 capsules: the committed
+``tube_batch.fit_batch`` (``git show <rev>:.../tube_batch.py``, loaded as a module of its own,
+over the working tree's ``inverters``) against the working tree's
+``capsmech.inversion.tube_batch.fit_batch``, each on one thread and on every core, in one
+run, so that the ratios hold on a shared machine.
 
 The capsules are those of ``bench_inverse.py`` (uniform in the NH steady region of the paper
 database, 2 % noise on the lengths). Prints, for each path, the wall and CPU seconds (the
-best of ``--repeats`` runs each, the paths taking turns), the ratios before/after, whether the
-flags are the same and the largest relative difference of a/l, Ca_s, v_c/V; nothing asserted.
+best of ``--repeats`` runs each, the paths taking turns), the ratios before/after on as many
+threads, whether the flags are the same and the largest relative difference of a/l, Ca_s,
+v_c/V against the committed one-thread result; nothing asserted.
 On a loaded machine the wall time of the threaded path says little: its CPU time, and its
 wall time against its own one-thread run, do.
 
@@ -34,16 +36,16 @@ from capsmech.inversion.inverters import TubeFits  # noqa: E402
 from capsmech.inversion.tube_batch import default_workers, fit_batch  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-MODULE = "analysis/src/capsmech/inversion/inverters.py"
+MODULE = "analysis/src/capsmech/inversion/tube_batch.py"
 
 
 def committed_module(rev: str) -> ModuleType:
-    """inverters.py as committed at rev, imported under a name of its own."""
+    """tube_batch.py as committed at rev, imported under a name of its own."""
     source = subprocess.run(["git", "show", f"{rev}:{MODULE}"], cwd=REPO, check=True, capture_output=True,
                             text=True).stdout
     with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as handle:
         handle.write(source)
-    spec = importlib.util.spec_from_file_location("inverters_before", handle.name)
+    spec = importlib.util.spec_from_file_location("tube_batch_before", handle.name)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # its dataclasses look their module up there
@@ -71,14 +73,15 @@ def main() -> None:
     parser.add_argument("--rev", default="HEAD", help="the committed version to compare with")
     parser.add_argument("--repeats", type=int, default=2, help="runs of each path (the best is kept)")
     args = parser.parse_args()
-    new_inv = inverter()
-    old_inv = committed_module(args.rev).TubeInverter(new_inv.table)
-    l_z, l_p = capsules(new_inv, args.capsules)
+    inv = inverter()
+    fit_batch_before = committed_module(args.rev).fit_batch
+    l_z, l_p = capsules(inv, args.capsules)
     n, workers = len(l_z), default_workers()
     paths: dict[str, Callable[[], TubeFits]] = {
-        f"before ({args.rev}: fit_many)": lambda: old_inv.fit_many(l_z, l_p),
-        "after (fit_batch, 1 thread)": lambda: fit_batch(new_inv, l_z, l_p, workers=1),
-        f"after (fit_batch, {workers} threads)": lambda: fit_batch(new_inv, l_z, l_p, workers=workers),
+        f"before ({args.rev}), 1 thread": lambda: fit_batch_before(inv, l_z, l_p, workers=1),
+        "after, 1 thread": lambda: fit_batch(inv, l_z, l_p, workers=1),
+        f"before ({args.rev}), {workers} threads": lambda: fit_batch_before(inv, l_z, l_p, workers=workers),
+        f"after, {workers} threads": lambda: fit_batch(inv, l_z, l_p, workers=workers),
     }
     print(f"machine: {os.cpu_count()} cores, {workers} usable; load average {os.getloadavg()[0]:.1f} "
           "(shared: compare ratios)")
@@ -89,16 +92,19 @@ def main() -> None:
             results[name], wall, cpu = timed(run)
             previous = best.get(name, (np.inf, np.inf))
             best[name] = (min(wall, previous[0]), min(cpu, previous[1]))
-    before = next(iter(paths))
-    for name in paths:
+    names = list(paths)
+    for name in names:
         wall, cpu = best[name]
         line = f"{name}: {n} capsules in {wall:.2f} s wall, {cpu:.2f} s CPU"
-        if name != before:
+        if name.startswith("after"):
+            # Against the committed version on as many threads.
+            before = names[names.index(name) - 1]
             line += f"; before/after {best[before][0] / wall:.2f} wall, {best[before][1] / cpu:.2f} CPU"
         print(line)
+    print(f"after: 1 thread / {workers} threads, wall {best[names[1]][0] / best[names[3]][0]:.2f}")
     print(f"load average after: {os.getloadavg()[0]:.1f}")
-    for name in list(paths)[1:]:
-        print(f"{name} against before: {differences(results[name], results[before])}; "
+    for name in names[1:]:
+        print(f"{name} against {names[0]}: {differences(results[name], results[names[0]])}; "
               f"{int(results[name].ok.sum())} valid")
 
 

@@ -5,8 +5,10 @@ cycling between neighbour sets) to ``_fit_exact_many``, ``fit``'s own arithmetic
 the capsules: it must be ``fit``'s result bit for bit, flags included. The stacked weighted
 quadratic fits (normal equations over neighbour-major arrays, SVD where the basis is
 rank-deficient) must equal one ``np.linalg.lstsq`` per capsule to round-off. ``tube_batch.fit_batch``
-(threads over chunks, its own refinement and minimum-norm fits) must give ``fit``'s flags and
-values to round-off, the same on one thread as on two. The capsules are
+(threads over chunks, its own refinement and minimum-norm fits, its own arithmetic also for the
+refinements that cycle unless round-off could have changed their path, the neighbours from its
+table for large batches) must give ``fit``'s flags and values to round-off, the same on one
+thread as on two. The capsules are
 drawn here, from the database's rows by the test's own triangulation, with 2 % noise on the
 lengths; no timing is asserted (``bench/bench_lengths_inversion.py`` measures it).
 """
@@ -209,3 +211,62 @@ def test_local_fits_are_lstsq_in_fits_own_basis(tube_db):
             assert np.abs(coefficients[0, :, i] - value).max() <= 1e-9 * np.abs(value).max(), i
             assert np.abs(got_jacobian - jacobian).max() <= 1e-9 * np.abs(jacobian).max(), i
     assert deficient >= two_line_cases + 1
+
+
+def test_cycling_refinements_end_where_fits_do(tube_db, monkeypatch):
+    """A refinement still moving after its 30 steps (cycling between neighbour sets) ends where
+    its path does. ``fit_batch`` follows that path with its own arithmetic and hands to
+    ``fit``'s arithmetic only the capsules whose path passed within ``_ROUND_OFF_SLACK`` of a
+    change of neighbours (there round-off could have chosen other neighbours): every cycling
+    capsule still gets ``fit``'s flag and values."""
+    inverter = tube_inverter(tube_db, "NH")
+    l_z, l_p = drawn_capsules(inverter.table, 3000, seed=18)
+    q_star = np.column_stack([l_z, l_z - l_p])
+    roots = tube_batch._roots(inverter, q_star)
+    start = roots.first / inverter._p_scale
+    refinement = tube_batch._refine(inverter, q_star.T.copy(), start, ~roots.no_root & ~np.isnan(start[:, 0]))
+    cycling = np.flatnonzero(refinement.moving)
+    handed_to_fit = []
+    exact = inverter._fit_exact_many
+
+    def spy(L_z, L_p):
+        handed_to_fit.append(len(L_z))
+        return exact(L_z, L_p)
+
+    monkeypatch.setattr(inverter, "_fit_exact_many", spy)
+    monkeypatch.setattr(tube_batch, "NEIGHBOUR_TABLE_MIN_CAPSULES", 1)  # as for a large batch
+    many = tube_batch.fit_batch(inverter, l_z[cycling], l_p[cycling], workers=1)
+    for j, i in enumerate(cycling):
+        assert_same_fit(inverter.fit(float(l_z[i]), float(l_p[i])), many.row(j), int(i))
+    # The draw meets enough cycling capsules, valid and flagged, and most follow their own path.
+    assert len(cycling) >= 30
+    assert 0 < many.ok.sum() < len(cycling)
+    assert sum(handed_to_fit) <= len(cycling) // 10
+    # Where the path comes that close to a change of neighbours, the capsule is fit's to fit.
+    handed_to_fit.clear()
+    monkeypatch.setattr(tube_batch, "_ROUND_OFF_SLACK", np.inf)
+    again = tube_batch.fit_batch(inverter, l_z[cycling], l_p[cycling], workers=1)
+    assert sum(handed_to_fit) == len(cycling)
+    assert again.flag == many.flag
+
+
+def test_neighbour_table_gives_the_kd_trees_neighbours(tube_db, monkeypatch):
+    """``tube_batch.NeighbourTable`` answers a point with its 14 nearest database points (the
+    KD-tree's, as a set) and a margin within which they stay the 14 nearest (at most the true
+    half gap between the 14th and 15th distances); ``fit_batch`` with the table gives ``fit``'s
+    flags and values."""
+    inverter = tube_inverter(tube_db, "NH")
+    table = tube_batch.NeighbourTable(inverter, tube_batch.NEIGHBOUR_CELL)
+    rng = np.random.default_rng(19)
+    p = inverter._p_scaled
+    points = rng.uniform(p.min(axis=0) - 0.3, p.max(axis=0) + 0.3, size=(5000, 2))
+    found, index, margin = table.lookup(points)
+    distance, expected = inverter._p_tree.query(points[found], k=inverters.N_NEIGHBOURS + 1)
+    assert found.mean() > 0.5
+    assert np.array_equal(np.sort(index.T, axis=1), np.sort(expected[:, :-1], axis=1))
+    assert np.all((margin > 0) & (margin <= 0.5 * (distance[:, -1] - distance[:, -2])))
+    monkeypatch.setattr(tube_batch, "NEIGHBOUR_TABLE_MIN_CAPSULES", 1)
+    l_z, l_p = drawn_capsules(inverter.table, 300, seed=20)
+    many = tube_batch.fit_batch(inverter, l_z, l_p, workers=1)
+    for i in range(len(l_z)):
+        assert_same_fit(inverter.fit(float(l_z[i]), float(l_p[i])), many.row(i), i)

@@ -413,8 +413,11 @@ class TubeInverter:
         first root's outside flag if it lies outside the database, or that the two
         neighbourhoods disagree; the ``no_root`` capsules flagged so."""
         p = np.where(refined[:, None], scaled * self._p_scale, first)
-        first_outside = self._hull.find_simplex(first / self._p_scale) < 0
-        inconsistent = todo & ~refined & ~first_outside
+        # Where the first root lies matters only where the refinement did not reproduce the lengths.
+        unrefined = todo & ~refined
+        first_outside = np.zeros(len(rows), dtype=bool)
+        first_outside[unrefined] = self._hull.find_simplex(first[unrefined] / self._p_scale) < 0
+        inconsistent = unrefined & ~first_outside
         ok = todo & ~inconsistent
         outside = np.zeros(len(rows), dtype=bool)
         outside[ok] = self._hull.find_simplex(p[ok] / self._p_scale) < 0

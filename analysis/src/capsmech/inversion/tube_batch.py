@@ -2,15 +2,26 @@
 
 ``TubeInverter.fit_many`` (``capsmech.inversion.inverters``) stays the reference: ``fit_batch``
 gives its result (``fit``'s, to round-off: the same neighbours, weights, roots, iterations and
-flags; the capsules whose refinement still cycles after its 30 steps get ``fit``'s own
-arithmetic, ``TubeInverter._fit_exact_many``, as there) with less arithmetic, and spreads the
-capsules over threads. None of the changes is one of method:
+flags) with less arithmetic, and spreads the capsules over threads. None of the changes is
+one of method:
 
+- A refinement still cycling between neighbour sets after its 30 steps ends where its path
+  does, and follows it here with this module's arithmetic as it does for the others: the
+  path is ``fit``'s as long as round-off cannot have chosen other neighbours anywhere on it,
+  which the margins of the neighbour sets (below) tell, and as long as the path does not
+  grow round-off, which the same path from a start moved by ``_ROUND_OFF_PROBE`` tells
+  (``_probe_cycling``, the cycling capsules of all chunks at once). Only a capsule failing
+  either gets ``fit``'s own arithmetic (``TubeInverter._fit_exact_many``, which ``fit_many``
+  gives every cycling capsule: ~2 % of noisy capsules, a quarter of the CPU time before;
+  here ~1 in 5000).
 - The parameter-space refinement asks the KD-tree for the neighbours only where they can
   have changed: the query returns one neighbour more than the fit uses, and while the point
   stays within half the gap between the 14th and 15th distances of where it was asked, the
   14 nearest are the same points (triangle inequality); their distances are then computed
-  directly. About two queries in three are saved.
+  directly. About two queries in three are saved. For a large batch, most of the others
+  are a look-up (``NeighbourTable``: the neighbours of the centres of a fine grid's cells,
+  built once per inverter and kept with it), the KD-tree asked only where a point is not
+  well inside its cell centre's margin.
 - A local fit with full rank is written about the current point (a quadratic's least-squares
   fit does not depend on where its basis is centred): the Newton step is read off its
   coefficients there. A rank-deficient one (the neighbours on two grid lines of one
@@ -27,23 +38,41 @@ capsules over threads. None of the changes is one of method:
 from __future__ import annotations
 
 import os
+import threading
+import weakref
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 
 from capsmech.inversion import inverters
 from capsmech.inversion.inverters import Modulus, TubeFits, TubeInverter
 
-#: Capsules in one chunk of work: the (14, chunk) work arrays stay in the cache, and 10^5
-#: capsules make enough chunks to keep two threads busy to the end.
-CHUNK = 8192
+#: Capsules in one chunk of work: enough that numpy's cost per call is spread over many (the
+#: refinement's last steps run on the few capsules still moving), few enough that 10^5
+#: capsules make chunks for two threads to end together.
+CHUNK = 16384
+#: Side of the cells of ``NeighbourTable`` (scaled parameters), and the fewest capsules for
+#: which ``fit_batch`` builds one (its ~10^5 cells cost as many queries as ~10^5 capsules'
+#: refinements make a third of, and it is kept with the inverter).
+NEIGHBOUR_CELL = 0.01
+NEIGHBOUR_TABLE_MIN_CAPSULES = 20000
 #: Fewest capsules worth a thread of their own.
 MIN_THREAD_CAPSULES = 2048
 #: Steps of the parameter-space refinement and its convergence threshold on the step (``fit``'s).
 _REFINE_STEPS = 30
 _REFINE_TOLERANCE = 1e-10
+#: Least distance (scaled parameters) from a refinement's points to where their neighbour sets
+#: change above which round-off cannot have chosen other neighbours on the way: this path's
+#: arithmetic and ``fit``'s differ by ~1e-13 there.
+_ROUND_OFF_SLACK = 1e-8
+#: The start's shift (scaled parameters) that probes a cycling path's growth of round-off, and
+#: the growth above which the path is ``fit``'s arithmetic's to follow: this arithmetic and
+#: ``fit``'s differ by <~1e-13 at the start, so the ends stay within ~1e-10.
+_ROUND_OFF_PROBE = 1e-12
+_ROUND_OFF_GROWTH = 1e3
 
 
 #: The environment variable that bounds a process's threads (OpenMP's, which BLAS, batch
@@ -79,31 +108,88 @@ def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.
     size = max(1, -(-n // (threads * -(-n // (threads * CHUNK))))) if n else 1
     starts = range(0, max(n, 1), size)
 
-    def one_chunk(start: int) -> TubeFits:
+    table = neighbour_table(inverter) if n >= NEIGHBOUR_TABLE_MIN_CAPSULES else None
+
+    def chunk(start: int) -> tuple[np.ndarray, np.ndarray, Modulus]:
         part = slice(start, start + size)
-        return _fit_chunk(inverter, L_z[part], L_p[part], (modulus[0][part], modulus[1][part]) if modulus else None)
+        return L_z[part], L_p[part], (np.ascontiguousarray(modulus[0][part]),
+                                      np.ascontiguousarray(modulus[1][part])) if modulus else None
+
+    def roots_of(start: int) -> _ChunkRoots:
+        L_z_part, L_p_part, _ = chunk(start)
+        out, rows, q_star = inverter._screen(L_z_part, L_p_part)
+        return _ChunkRoots(out, rows, q_star, _roots(inverter, q_star, table) if rows.size else None)
+
+    def stored(start: int, found: _ChunkRoots) -> TubeFits:
+        L_z_part, L_p_part, modulus_part = chunk(start)
+        roots = found.roots
+        if roots is not None:
+            inverter._store_roots(found.out, found.rows, roots.first, roots.scaled, roots.todo, roots.refined,
+                                  roots.no_root, modulus_part)
+            inverter._store_exact(found.out, found.rows[roots.fallback], L_z_part, L_p_part, modulus_part)
+        return found.out
 
     threads = min(threads, len(starts))
     if threads <= 1:
-        parts = [one_chunk(start) for start in starts]
+        found = [roots_of(start) for start in starts]
+        _probe_cycling(inverter, found, table)
+        parts = [stored(start, roots) for start, roots in zip(starts, found)]
     else:
         # Scipy builds some of the triangulation's arrays on first use: once, here, not in
         # two threads at once.
         inverter._velocity(np.zeros((1, 2)))
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            parts = list(pool.map(one_chunk, starts))
+            found = list(pool.map(roots_of, starts))
+            _probe_cycling(inverter, found, table)
+            parts = list(pool.map(stored, starts, found))
     return TubeFits.concatenate(parts)
 
 
-def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, modulus: Modulus) -> TubeFits:
-    """``fit_many``'s steps on one chunk, with ``_refine`` for its parameter-space refinement."""
-    out, rows, q_star = inv._screen(L_z, L_p)
-    if rows.size == 0:
-        return out
-    fallback = np.zeros(len(rows), dtype=bool)
+class _ChunkRoots(NamedTuple):
+    """One chunk's capsules between ``_roots`` and the storing of their results."""
 
-    # The first root: the local forward map over the neighbours in lengths (``fit``'s), its
-    # basis centred on the nearest of them (in fit's coordinates), Newton from there.
+    #: The chunk's result, the flags of invalid lengths written.
+    out: TubeFits
+    #: The chunk's rows with valid lengths, their lengths q* (m, 2) and roots (None: no row).
+    rows: np.ndarray
+    q_star: np.ndarray
+    roots: _Roots | None
+
+
+class _Roots(NamedTuple):
+    """What ``fit``'s steps find for m capsules."""
+
+    #: The first root (a/l, ln Ca_s) (m, 2), from the local fit in lengths.
+    first: np.ndarray
+    #: The refined root in scaled parameters (m, 2).
+    scaled: np.ndarray
+    #: Capsules whose local fit in lengths has no root.
+    no_root: np.ndarray
+    #: Capsules refined from the first root (neither ``no_root`` nor ``fallback``).
+    todo: np.ndarray
+    #: Capsules of ``todo`` whose refined root reproduces their lengths.
+    refined: np.ndarray
+    #: Capsules left to ``fit``'s own arithmetic: a step not finite, or a refinement still
+    #: moving after its steps that passed within ``_ROUND_OFF_SLACK`` of a change of neighbours
+    #: (or, after ``_probe_cycling``, grows round-off).
+    fallback: np.ndarray
+    #: The capsules of ``todo`` whose refinement still moved after its steps (indices).
+    cycling: np.ndarray
+
+
+def _roots(inv: TubeInverter, q_star: np.ndarray, table: NeighbourTable | None = None) -> _Roots:
+    """``fit``'s roots for the lengths q* (m, 2): the first root by the local forward map over
+    the neighbours in lengths, then the refinement in parameter space (``_refine``).
+
+    A refinement still moving after its steps (cycling between neighbour sets) ends where its
+    path does. That path is this arithmetic's as it is ``fit``'s unless round-off could have
+    chosen other neighbours somewhere on it: where the path passed within ``_ROUND_OFF_SLACK``
+    of a change of neighbours the capsule gets ``fit``'s own arithmetic; the others are listed
+    in ``_Roots.cycling`` for ``_probe_cycling``."""
+    m = len(q_star)
+    fallback = np.zeros(m, dtype=bool)
+    # The local forward map over the neighbours in lengths (``fit``'s), its basis centred on
+    # the nearest of them (in fit's coordinates), Newton from there.
     distance, index = inv._tree.query(q_star / inv._q_scale, k=inv.n_neighbours)
     index, distance = index.T, distance.T  # neighbour-major (n, m)
     u = (inv._p[index, 0] - inv._p[index[0], 0]) / inv._p_scale[0]
@@ -111,10 +197,10 @@ def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, modulus: Mod
     weight = (1 - (distance / (1.01 * distance[-1] + 1e-300)) ** 2) ** 2
     values = [inv._q_z[index], inv._q_zp[index]]
     # The basis is centred on fit's centre (neighbour 0): the fit is fit's wherever it has rank.
-    coefficients, _ = _local_fit(u, v, values, weight, np.zeros(len(rows), dtype=np.intp), lambda columns: (
+    coefficients, _ = _local_fit(u, v, values, weight, np.zeros(m, dtype=np.intp), lambda columns: (
         u[:, columns], v[:, columns]))
     target = q_star.T.copy()
-    x = np.zeros((2, len(rows)))
+    x = np.zeros((2, m))
     active = ~fallback
     for _ in range(50):
         live = np.flatnonzero(active)
@@ -130,25 +216,56 @@ def _fit_chunk(inv: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, modulus: Mod
     first = inv._p[index[0]] + x.T * inv._p_scale
 
     todo = ~no_root & ~fallback
-    scaled, value_at_end, moving, bad = _refine(inv, target, first / inv._p_scale, todo)
-    # As fit_many: a refinement still moving after its steps (cycling between neighbour sets)
-    # ends where round-off takes it, so it gets ``fit``'s own arithmetic below.
-    fallback |= bad | moving
+    refinement = _refine(inv, target, first / inv._p_scale, todo, table)
+    fallback |= refinement.failed | (refinement.moving & (refinement.slack < _ROUND_OFF_SLACK))
     todo &= ~fallback
-    refined = todo & ~np.any(np.abs(value_at_end - target) > tolerance, axis=0)
-    if modulus is not None:
-        modulus = (np.ascontiguousarray(modulus[0]), np.ascontiguousarray(modulus[1]))
-    inv._store_roots(out, rows, first, scaled, todo, refined, no_root, modulus)
-    inv._store_exact(out, rows[fallback], L_z, L_p, modulus)
-    return out
+    refined = todo & ~np.any(np.abs(refinement.value - target) > tolerance, axis=0)
+    return _Roots(first, refinement.scaled, no_root, todo, refined, fallback, np.flatnonzero(todo & refinement.moving))
 
 
-def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _probe_cycling(inv: TubeInverter, chunks: list[_ChunkRoots], table: NeighbourTable | None) -> None:
+    """Hand to ``fit``'s arithmetic (``_Roots.fallback``) the cycling capsules of all the chunks
+    whose path grows round-off: their refinement again, from a start moved by
+    ``_ROUND_OFF_PROBE``, ends more than ``_ROUND_OFF_GROWTH`` times that away. All the chunks'
+    cycling capsules at once: each step of a few of them costs numpy's calls as much as many."""
+    found = [(chunk.q_star, chunk.roots) for chunk in chunks if chunk.roots is not None and chunk.roots.cycling.size]
+    if not found:
+        return
+    target = np.concatenate([q_star[roots.cycling] for q_star, roots in found]).T.copy()
+    start = np.concatenate([roots.first[roots.cycling] for _, roots in found]) / inv._p_scale
+    end = np.concatenate([roots.scaled[roots.cycling] for _, roots in found])
+    probe = _refine(inv, target, start + _ROUND_OFF_PROBE, np.ones(len(start), dtype=bool), table)
+    grown = ~(np.abs(probe.scaled - end).max(axis=1) < _ROUND_OFF_GROWTH * _ROUND_OFF_PROBE)
+    offset = 0
+    for _, roots in found:
+        sensitive = roots.cycling[grown[offset:offset + roots.cycling.size]]
+        offset += roots.cycling.size
+        roots.fallback[sensitive] = True
+        roots.todo[sensitive] = False
+        roots.refined[sensitive] = False
+
+
+class _Refinement(NamedTuple):
+    """Where ``_refine`` ends, for m capsules."""
+
+    #: Final scaled parameters (m, 2).
+    scaled: np.ndarray
+    #: The last local fit's value there (2, m).
+    value: np.ndarray
+    #: Rows still moving after the steps.
+    moving: np.ndarray
+    #: The least distance (scaled parameters), over the steps, from the point to where its
+    #: neighbour set changes.
+    slack: np.ndarray
+    #: Rows with a non-finite step.
+    failed: np.ndarray
+
+
+def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.ndarray,
+            table: NeighbourTable | None = None) -> _Refinement:
     """``_refine_in_parameter_space``'s iteration on the rows ``todo`` of a stack, from the
-    scaled parameters ``scaled`` (m, 2), towards the lengths ``target`` (2, m): (final scaled
-    parameters (m, 2), the last local fit's value there (2, m), rows still moving after the
-    steps, rows with a non-finite step).
+    scaled parameters ``scaled`` (m, 2), towards the lengths ``target`` (2, m); the neighbours
+    from ``table`` where it has them (``_nearest``).
 
     Each step fits q(p) over the 14 database points nearest to the current point s, weighted
     by their distance to s (``fit``'s fit). Where that fit has full rank, the fitted quadratic
@@ -168,19 +285,21 @@ def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.
     neighbours = np.zeros((k, m), dtype=np.intp)
     asked_at = np.full((m, 2), np.nan)
     margin = np.full(m, -1.0)
+    slack = np.full(m, np.inf)
     for _ in range(_REFINE_STEPS):
         live = np.flatnonzero(active)
         if live.size == 0:
             break
         s_live = scaled[live]
         moved = np.hypot(s_live[:, 0] - asked_at[live, 0], s_live[:, 1] - asked_at[live, 1])
-        stale = live[~(moved < margin[live])]  # NaN (never asked) compares False: asked
+        asked = ~(moved < margin[live])  # NaN (never asked) compares False: asked
+        stale = live[asked]
         if stale.size:
-            distance, index = inv._p_tree.query(scaled[stale], k=k + 1)
-            neighbours[:, stale] = index[:, :k].T
+            neighbours[:, stale], margin[stale] = _nearest(inv, scaled[stale], table)
             asked_at[stale] = scaled[stale]
-            # The allowance covers the round-off of the distances themselves.
-            margin[stale] = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+            moved[asked] = 0.0
+        # The neighbours stay the 14 nearest within margin - moved of the point.
+        slack[live] = np.minimum(slack[live], margin[live] - moved)
         index = neighbours[:, live]
         u = inv._p_u[index] - s_live[:, 0]
         v = inv._p_v[index] - s_live[:, 1]
@@ -197,7 +316,78 @@ def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.
         failed[live[bad]] = True
         active[live[(norm < _REFINE_TOLERANCE) | bad]] = False
     value_at_end, _ = _quadratic_value_and_jacobian(last_coefficients, last_x)
-    return scaled, value_at_end, active, failed
+    return _Refinement(scaled, value_at_end, active, slack, failed)
+
+
+def _nearest(inv: TubeInverter, points: np.ndarray, table: NeighbourTable | None) -> tuple[np.ndarray, np.ndarray]:
+    """The 14 database points nearest to each of ``points`` (m, 2) in scaled parameters,
+    neighbour-major (14, m), and the margin (m,) within which they stay the 14 nearest (half
+    the gap between the 14th and 15th distances, less an allowance for their round-off): from
+    ``table`` where it has them, else from the KD-tree."""
+    k = inv.n_neighbours
+    index = np.empty((k, len(points)), dtype=np.intp)
+    margin = np.empty(len(points))
+    asked: np.ndarray = np.arange(len(points))
+    if table is not None:
+        found, index_found, margin_found = table.lookup(points)
+        index[:, found], margin[found] = index_found, margin_found
+        asked = np.flatnonzero(~found)
+    if asked.size:
+        distance, nearest = inv._p_tree.query(points[asked], k=k + 1)
+        index[:, asked] = nearest[:, :k].T
+        # The allowance covers the round-off of the distances themselves.
+        margin[asked] = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+    return index, margin
+
+
+class NeighbourTable:
+    """The 14 nearest database points (scaled parameters) to the centres of the cells of a fine
+    regular grid over the database, for one inverter, and the half gap between the 14th and
+    15th distances there: within that half gap of the centre the 14 nearest are the same points
+    (triangle inequality). A point s of a cell closer to its centre than that, by a tenth of a
+    cell at least, has them as its 14 nearest, with margin (half gap) - |s - centre|: a look-up
+    replaces the KD-tree's query (the same points; a smaller margin, so sooner asked again)."""
+
+    def __init__(self, inv: TubeInverter, cell: float) -> None:
+        k = inv.n_neighbours
+        self.cell = cell
+        # The refinement's points stay near the database: a margin of one grid spacing or so.
+        self.origin = inv._p_scaled.min(axis=0) - 0.5
+        self.counts = np.ceil((inv._p_scaled.max(axis=0) + 0.5 - self.origin) / cell).astype(np.intp)
+        axes = [self.origin[i] + cell * (np.arange(self.counts[i]) + 0.5) for i in range(2)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+        distance, index = inv._p_tree.query(centres, k=k + 1)
+        # Neighbour-major (14, cells), in the smallest integer type: the look-ups gather from
+        # all over the table, and a smaller one stays in the cache.
+        self.index = np.ascontiguousarray(index[:, :k].T).astype(np.min_scalar_type(len(inv._p) - 1))
+        self.half_gap = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+        self.centres = centres
+
+    def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(whether the table has each point's neighbours (m,); their indices, neighbour-major
+        (14, found), and margins (found,) for those points)."""
+        with np.errstate(invalid="ignore"):
+            ij = np.floor((points - self.origin) / self.cell)
+            inside = np.all((ij >= 0) & (ij < self.counts), axis=1)
+        cells = np.where(inside, ij[:, 0] * self.counts[1] + ij[:, 1], 0).astype(np.intp)
+        offset = points - self.centres[cells]
+        margin = self.half_gap[cells] - np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
+        # A margin of a tenth of a cell at least: a point asked again at once gains nothing.
+        found = inside & (margin > 0.1 * self.cell)
+        return found, self.index[:, cells[found]], margin[found]
+
+
+_NEIGHBOUR_TABLES: weakref.WeakKeyDictionary[TubeInverter, NeighbourTable] = weakref.WeakKeyDictionary()
+_NEIGHBOUR_TABLES_LOCK = threading.Lock()
+
+
+def neighbour_table(inv: TubeInverter) -> NeighbourTable:
+    """The inverter's ``NeighbourTable`` at ``NEIGHBOUR_CELL``, built on first use and kept."""
+    with _NEIGHBOUR_TABLES_LOCK:
+        table = _NEIGHBOUR_TABLES.get(inv)
+        if table is None or table.cell != NEIGHBOUR_CELL:
+            table = _NEIGHBOUR_TABLES[inv] = NeighbourTable(inv, NEIGHBOUR_CELL)
+        return table
 
 
 def _fit_coordinates(inv: TubeInverter, index: np.ndarray, nearest: np.ndarray, columns: np.ndarray
@@ -276,8 +466,9 @@ def _normal_equations_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.n
     coefficients are not meaningful))."""
     m = u.shape[1]
     u2, v2 = u * u, v * v
-    u_powers = [np.ones_like(u), u, u2, u2 * u, u2 * u2]
-    v_powers = [np.ones_like(v), v, v2, v2 * v, v2 * v2]
+    # Powers 1 to 4 (the zeroth is never formed: a sum of the weights needs no ones).
+    u_powers = {1: u, 2: u2, 3: u2 * u, 4: u2 * u2}
+    v_powers = {1: v, 2: v2, 3: v2 * v, 4: v2 * v2}
     # Each sum over the neighbours of a product in one pass (einsum): no temporary array.
     moment = {}
     for i in range(5):
@@ -288,7 +479,7 @@ def _normal_equations_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.n
     exponents = inverters._EXPONENTS
     k = len(exponents)
     gram = [[moment[i1 + i2, j1 + j2] for (i2, j2) in exponents] for (i1, j1) in exponents]
-    monomials = {(i, j): u_powers[i] if j == 0 else (v_powers[j] if i == 0 else u * v) for i, j in exponents}
+    monomials = {(i, j): u_powers[i] if j == 0 else (v_powers[j] if i == 0 else u * v) for i, j in exponents[1:]}
     weighted_values = [w * column for column in value_columns]
     rhs = [[wq.sum(axis=0) if (i, j) == (0, 0) else np.einsum("nm,nm->m", wq, monomials[i, j])
             for wq in weighted_values] for i, j in exponents]
