@@ -1,6 +1,7 @@
 # capsmech — build the Fortran kernel, set up the Python environment, test, demo.
 # Two commands do everything on a fresh Debian machine: `make demo` and `make test`.
-# Databases: `make database GRID=smoke|paper [PROFILE=local|slurm]`, then `make figures GRID=...`.
+# Databases: `make database GRID=smoke|paper [PROFILE=local|slurm]`, then `make figures GRID=...`;
+# `make folds GRID=...` adds the folds (critical Ca_s) to a tube database made case by case.
 
 SHELL := /bin/bash
 .DEFAULT_GOAL := build
@@ -53,7 +54,7 @@ PROBES := $(basename $(notdir $(wildcard kernel/tests/*.f90)))
 # Kept after linking, so that switching flavour back relinks without recompiling the probes.
 .SECONDARY: $(addprefix $(BUILD)/,$(addsuffix .o,$(PROBES)))
 
-.PHONY: build setup system-deps venv test demo bench validate clean clean-kernel database figures FORCE
+.PHONY: build setup system-deps venv test demo bench validate clean clean-kernel database folds figures FORCE
 
 build: system-deps $(BIN)/capsim $(addprefix $(BIN)/,$(PROBES))
 
@@ -153,6 +154,12 @@ database: setup
 	@$(PY) -m capsmech.cli dev check-grid config/$(GRID).yaml
 	$(PY) -m capsmech.cli dev unlock-stale . --profile workflow/profiles/$(PROFILE) $(if $(RECOVER),--on-old-jobs $(RECOVER))
 	$(SNAKEMAKE)
+
+# Where each steady branch of a grid's tube database ends (the folds: critical Ca_s per law and
+# a/l), by the kernel's continuation, added to the database without refilling its rows
+# (scripts/add_folds.py; LAWS="NH SK_C1" for some laws, JOBS=2 branches at once).
+folds: setup
+	$(PY) scripts/add_folds.py config/$(GRID).yaml $(if $(LAWS),--laws $(LAWS)) --jobs $(or $(JOBS),1)
 
 # Redraw the figures from the grid's databases as they are (no case is run).
 figures: venv

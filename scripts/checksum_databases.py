@@ -18,6 +18,7 @@ import argparse
 import hashlib
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import h5py
@@ -51,9 +52,9 @@ def _is_text(dataset: h5py.Dataset) -> bool:
     return h5py.check_string_dtype(dataset.dtype) is not None
 
 
-def digest(path: Path) -> str:
+def digest(path: Path, skip: Callable[[str], bool] = lambda name: False) -> str:
     """SHA-256 of every group, attribute (name, HDF5 type, values) and dataset (type, shape, values;
-    text datasets: shape and text)."""
+    text datasets: shape and text), but the objects whose path ``skip`` names."""
     sha = hashlib.sha256()
 
     def attributes(obj: h5py.Group | h5py.Dataset) -> None:
@@ -63,6 +64,8 @@ def digest(path: Path) -> str:
             sha.update(_value_bytes(_raw(obj.attrs, name)))
 
     def visit(name: str, obj: h5py.Group | h5py.Dataset) -> None:
+        if skip(name):
+            return
         sha.update(f"#{name}:{type(obj).__name__}".encode())
         attributes(obj)
         if isinstance(obj, h5py.Dataset) and _is_text(obj):

@@ -69,6 +69,35 @@ def tube_steady_range() -> str:
     return _markdown(["law \\ a/l", *(f"{s:.2f}" for s in sizes)], rows)
 
 
+def tube_folds() -> str:
+    """Where each law's steady branch ends (critical Ca_s) per a/l, in every shipped tube
+    database that records it (scripts/add_folds.py), beside the database's own time-stepped
+    bracket: its last steady and first continuously elongating Ca_s."""
+    from capsmech.io.catalog import shipped_databases
+    from capsmech.io.database import load_database
+
+    rows = []
+    for entry in shipped_databases():
+        if entry.kind != "database":
+            continue
+        db = load_database(entry.name)
+        if db.flow != "tube":
+            continue
+        for law, table in db.laws.items():
+            if table.critical is None:
+                continue
+            a = np.asarray(table.columns["a_over_l"])
+            for size, critical, kind in zip(table.critical["a_over_l"], table.critical["Ca_s"], table.critical["kind"]):
+                here = np.isclose(a, size)
+                ca, status = table.columns["Ca_s"][here], table.status[here]
+                steady, elongating = ca[status == "steady"], ca[status == "continuous_elongation"]
+                bracket = (f"{steady.max():g}" if steady.size else "—") + " – " + \
+                          (f"{elongating.min():g}" if elongating.size else "—")
+                value = "—" if math.isnan(critical) else f"{critical:.4f}"
+                rows.append([f"`{entry.name}`", law, f"{size:.2f}", value, str(kind).split(":")[0], bracket])
+    return _markdown(["database", "law", "a/l", "critical Ca_s", "kind", "rows: last steady – first elongating"], rows)
+
+
 def compare_methods() -> str:
     """``capsmech compare-methods`` on the shipped shear databases (the paper's three laws)."""
     from capsmech.inversion.microrheometry import compare_methods as compare
@@ -224,6 +253,7 @@ def shear_rows() -> str:
 
 
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
+                                        "tube-folds": tube_folds,
                                         "shear-rows": shear_rows,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,

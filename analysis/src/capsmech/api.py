@@ -25,6 +25,7 @@ from capsmech.errors import CapsmechError, InputWarning, OutsideDatabaseWarning
 from capsmech.inversion.fitting import (
     SHEAR_RESULT_UNITS,
     TUBE_RESULT_UNITS,
+    add_fold_columns,
     fit_shear_rows,
     fit_tube_rows,
 )
@@ -171,7 +172,9 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
     -------
     DataFrame
         One row per (capsule, law): a/l, Ca_s, v_c/V and G_s [N/m] with their spreads, Delta,
-        H/a, residuals, ``flag`` (code, empty when fitted) and ``reason``; units in
+        H/a, residuals, the law's critical Ca_s at the fitted a/l and the fitted Ca_s over it
+        (where the database records its folds: ``Database.critical``; a fit above it is flagged
+        ``above_fold``), ``flag`` (code, empty when fitted) and ``reason``; units in
         ``attrs["units"]``. Rows without a value raise one ``OutsideDatabaseWarning``.
     """
     db = as_database(database, "tube", "fit_tube")
@@ -181,6 +184,7 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
         rows = fit_tube_rows(measured, db, keys, progress=progress)
     except DatabaseError as err:
         raise _naming_database(err, db) from None
+    add_fold_columns(rows, db)
     frame = _frame(rows, TUBE_RESULT_UNITS)
     _warn_unfitted(frame, db)
     _warn_implausible_modulus(frame)
@@ -270,6 +274,16 @@ def population(results: ResultsLike | Sequence[str | Path]) -> PopulationVerdict
         ``capsmech.inversion.population_report.verdict_dict`` as JSON-ready data.
     """
     return population_verdict(_result_rows(results))
+
+
+def fits_above_fold(results: ResultsLike | Sequence[str | Path]) -> dict[str, list[str]]:
+    """Per law, the capsules fit-tube fitted above the law's fold (flag ``above_fold``: no steady
+    shape of the law there, so the law cannot hold them steady); laws without any are left out."""
+    above: dict[str, list[str]] = {}
+    for row in _result_rows(results):
+        if str(row.get("flag") or "") == "above_fold":
+            above.setdefault(str(row["law"]), []).append(str(row["id"]))
+    return above
 
 
 def population_table(verdict: PopulationVerdict) -> pd.DataFrame:

@@ -36,7 +36,7 @@ from capsmech.io.database import Database, DatabaseError
 from capsmech.io.measurements import read_measurements
 
 #: Columns printed (all are written to --out and --json).
-SHOWN = {"tube": ["id", "law", "a_over_l", "Ca_s", "G_s", "G_s_spread", "flag"],
+SHOWN = {"tube": ["id", "law", "a_over_l", "Ca_s", "critical_Ca_s", "G_s", "G_s_spread", "flag"],
          "shear": ["id", "law", "D12", "Ca_s", "a", "G_s", "G_s_spread", "flag"]}
 
 

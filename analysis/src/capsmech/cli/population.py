@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from capsmech.api import plot_population, population, population_table, read_results
+from capsmech.api import fits_above_fold, plot_population, population, population_table, read_results
 from capsmech.cli.common import (
     FIGURE_SUFFIXES,
     TABLE_SUFFIXES,
@@ -69,6 +69,9 @@ def cmd_population(args: argparse.Namespace) -> int:
           + (f", {len(verdict.left_out)} left out for every law" if verdict.left_out else ""))
     for cid, why in verdict.left_out:
         print(f"  left out {cid}: {why}")
+    for law, ids in fits_above_fold(results).items():
+        print(f"  {law}: {len(ids)} fitted above the law's critical Ca_s (no steady shape there, a failure of the "
+              f"law): {', '.join(ids)}")
     print(format_table(_printed(records(table)), list(PRINTED), PRINTED, digits=3))
     print(f"fitted: capsules the law reproduces of those used; H_median: median contour misfit H/a, {FAIL_SCORE:g} "
           f"for a capsule the law cannot fit; p_contours: paired signed-rank p that {verdict.reference} fits the "

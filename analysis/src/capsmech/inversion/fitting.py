@@ -72,8 +72,8 @@ TUBE_RESULT_UNITS = {"id": "", "law": "", "L_z_over_l": "1", "L_p_over_l": "1",
                      "Ca_s_shape": "1", "H_over_a_shape": "1", "G_s_shape": "N/m", "Delta_shape": "1",
                      "chi2_shape": "1", "G_s_shape_error": "N/m", "tracing_noise": "m",
                      "G_s_database_error": "N/m", "asymmetry": "1", "size_residual": "1",
-                     "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1", "flag": "",
-                     "reason": ""}
+                     "size_residual_error": "1", "vc_residual": "1", "vc_residual_error": "1",
+                     "critical_Ca_s": "1", "Ca_s_over_critical": "1", "flag": "", "reason": ""}
 SHEAR_RESULT_UNITS = {"id": "", "law": "", "D12": "1", "D12_err": "1", "Ca_s": "1", "L3_over_a": "1", "a": "m",
                       "G_s": "N/m", "G_s_spread": "N/m", "G_s_database_error": "N/m", "flag": "", "reason": ""}
 
@@ -86,6 +86,7 @@ FLAG_CODES = {
     "profile_misfit": "the fitted simulation does not have the measured shape (H/a above the limit)",
     "no_velocity": "no v_c or mu: (a/l, Ca_s) fitted, G_s not computed",
     "imprecise": "D12 below the method's limit (paper section 4.3: 0.35)",
+    "above_fold": "the fitted Ca_s lies above the law's critical Ca_s at the fitted a/l: no steady shape there",
 }
 
 
@@ -259,6 +260,30 @@ def fit_tube_rows(capsules: Sequence[Capsule], database: TubeDatabase, laws: Ite
                 row["flag"], row["reason"] = "no_velocity", "no v_c or mu: G_s not computed"
             rows.append(row)
     return rows
+
+
+#: How far above the recorded fold a fit must lie to be flagged: the fold itself moves by 3-5 %
+#: between 64, 96 and 128 meridian elements (docs/validation/databases.md), so a fit closer to it
+#: than that cannot be told to lie past it.
+FOLD_RELATIVE_ACCURACY = 0.05
+
+
+def add_fold_columns(rows: list[dict[str, Any]], database: TubeDatabase) -> None:
+    """State, in each fit-tube row, the law's critical Ca_s at the fitted a/l (``critical_Ca_s``,
+    from the database's ``critical`` group; NaN where it records none there) and the fitted
+    Ca_s over it (``Ca_s_over_critical``: below 1, the fit lies on the steady branch). A fitted
+    row above it by more than the fold's own accuracy (FOLD_RELATIVE_ACCURACY) is flagged
+    ``above_fold``: past the fold the law has no steady shape (the
+    capsule elongates without end), so no steady capsule has those parameters."""
+    for row in rows:
+        critical, kind = database.law(str(row["law"])).critical_at(float(row["a_over_l"]))
+        ratio = float(row["Ca_s"]) / critical if math.isfinite(critical) else math.nan
+        row["critical_Ca_s"], row["Ca_s_over_critical"] = critical, ratio
+        if ratio > 1 + FOLD_RELATIVE_ACCURACY and row["flag"] in ("", "no_velocity"):
+            row["flag"], row["reason"] = "above_fold", (
+                f"fitted Ca_s {float(row['Ca_s']):.4g} is above {row['law']}'s critical Ca_s {critical:.4g} at a/l "
+                f"{float(row['a_over_l']):.3f} ({kind}): the law has no steady shape there, the capsule could not "
+                "be steady")
 
 
 def shape_log_g_s_error(inverter: TubeInverter, shape: ShapeFit) -> float:

@@ -24,6 +24,10 @@ arclength. Every dataset has a ``units`` attribute ('1' for dimensionless, '' fo
 Rows that did not reach a steady state keep their parameters, status and message, and
 carry NaN in every result column and profile: they are recorded, never dropped.
 
+A tube law group may hold ``critical`` (``CRITICAL_GROUP``): per a/l of the grid, the Ca_s where
+its steady branch ends (``a_over_l``, ``Ca_s``, ``kind``, ``message``), found by the kernel's
+continuation over the grid's Ca_s; read by :meth:`Database.critical`.
+
 Every dataset is written with HDF5's Fletcher-32 checksum filter (chunked): a flipped bit in
 a stored value makes the read fail, and :func:`load_database` reports the file as damaged
 instead of returning a wrong number. Files written before the filter are read as they are.
@@ -32,6 +36,7 @@ instead of returning a wrong number. Files written before the filter are read as
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -83,8 +88,9 @@ ACCURACY_COLUMNS: dict[str, dict[str, str]] = {
 #: Observed order of the shear D12's mesh convergence is about 2.4 (levels 2-4, validation page
 #: "shear flow"); the mesh-error estimate assumes the lower 2, which makes it larger.
 MESH_ERROR_ORDER = 2.0
-#: Optional subgroup of a tube law group computed by continuation: where its steady branch ends,
-#: per a/l (datasets a_over_l, Ca_s, kind).
+#: Optional subgroup of a tube law group: where its steady branch ends, per a/l (datasets
+#: a_over_l, Ca_s, kind and optionally message), found by continuation (a branch grid's
+#: assembly, or scripts/add_folds.py for a database computed case by case).
 CRITICAL_GROUP = "critical"
 
 
@@ -151,9 +157,10 @@ class LawTable:
         The group's attributes (law, nu_s, C, counts).
     critical : dict[str, numpy.ndarray] or None
         Tube databases computed by continuation: ``a_over_l``, ``Ca_s`` (the critical capillary
-        number where the steady branch ends; NaN where it does not end inside the grid) and
-        ``kind`` (``fold``, ``mesh_limit``, ``none: ...`` or ``failed: ...``), one entry per
-        a/l; None in a database computed case by case.
+        number where the steady branch ends; NaN where it does not end inside the grid),
+        ``kind`` (``fold``, ``mesh_limit``, ``none: ...`` or ``failed: ...``) and, where
+        recorded, ``message`` (the kernel's words), one entry per a/l; None in a database whose
+        folds were not searched (``scripts/add_folds.py`` adds them to one computed case by case).
     """
 
     key: str
@@ -180,6 +187,28 @@ class LawTable:
         """Return a numeric column, by default only its steady rows."""
         values = self.columns[name]
         return values[self.steady] if steady_only else values
+
+    def critical_at(self, a_over_l: float) -> tuple[float, str]:
+        """The critical Ca_s at ``a_over_l`` and what it is: linear in ln Ca_s between the two
+        a/l of the ``critical`` group around it (exact on one of them); NaN where it is not known
+        (no ``critical`` group, ``a_over_l`` outside its a/l, or a neighbour without an end
+        inside the grid). The kind is the neighbours' (``fold``, ``mesh_limit``; both when they
+        differ), ``''`` where the value is NaN."""
+        if self.critical is None or not np.isfinite(a_over_l):
+            return math.nan, ""
+        order = np.argsort(self.critical["a_over_l"])
+        sizes, values = self.critical["a_over_l"][order], self.critical["Ca_s"][order]
+        kinds = self.critical["kind"][order]
+        if not sizes.size or a_over_l < sizes[0] or a_over_l > sizes[-1]:
+            return math.nan, ""
+        upper = min(int(np.searchsorted(sizes, a_over_l)), sizes.size - 1)
+        lower = upper if sizes[upper] == a_over_l else upper - 1
+        pair = values[[lower, upper]]
+        if not np.all(np.isfinite(pair) & (pair > 0)):
+            return math.nan, ""
+        weight = 0.0 if upper == lower else (a_over_l - sizes[lower]) / (sizes[upper] - sizes[lower])
+        kind = "/".join(dict.fromkeys(str(k).split(":")[0] for k in kinds[[lower, upper]]))
+        return float(np.exp((1 - weight) * np.log(pair[0]) + weight * np.log(pair[1]))), kind
 
     def steady_rows(self) -> dict[str, np.ndarray]:
         """Return every numeric column and profile restricted to the steady rows.
@@ -258,6 +287,23 @@ class Database:
         if key not in self.laws:
             raise KeyError(f"{self.path}: no law {key!r}; available: {', '.join(self.laws)}")
         return self.laws[key]
+
+    def critical(self, law: str) -> pd.DataFrame:
+        """Where the steady branch of one law ends, per a/l of the grid: columns ``a_over_l``,
+        ``critical_Ca_s`` (NaN where the branch does not end inside the grid's Ca_s, or its
+        search failed), ``kind`` (``fold``: the branch turns back, no steady shape above it,
+        continuous elongation; ``mesh_limit``: it leaves what the mesh resolves; ``none: ...``,
+        ``failed: ...``) and ``message`` (the kernel's words, where recorded). Empty where the
+        database records no ends (``scripts/add_folds.py`` adds them); the KeyError of
+        :meth:`law` for a law it does not have."""
+        import pandas as pd
+
+        table = self.law(law)
+        if table.critical is None:
+            return pd.DataFrame(columns=["a_over_l", "critical_Ca_s", "kind", "message"])
+        ends = table.critical
+        return pd.DataFrame({"a_over_l": ends["a_over_l"], "critical_Ca_s": ends["Ca_s"], "kind": ends["kind"],
+                             "message": ends.get("message", ends["kind"])})
 
     def critical_Ca_s(self) -> pd.DataFrame:
         """Where each law's steady branch ends: columns ``law``, ``a_over_l``, ``critical_Ca_s``
@@ -350,6 +396,8 @@ def _load_critical(group: h5py.Group, where: str) -> dict[str, np.ndarray] | Non
     critical = {"a_over_l": np.asarray(_read(ends["a_over_l"], where), dtype=float),
                 "Ca_s": np.asarray(_read(ends["Ca_s"], where), dtype=float),
                 "kind": np.array(_read(ends["kind"], where, text=True), dtype=str)}
+    if "message" in ends:
+        critical["message"] = np.array(_read(ends["message"], where, text=True), dtype=str)
     if len({len(values) for values in critical.values()}) != 1:
         raise DatabaseError(f"{where}: '{ends.name}' datasets differ in length")
     return critical

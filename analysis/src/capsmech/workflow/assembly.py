@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -32,6 +32,7 @@ from capsmech.io.database import (
 from capsmech.version import __version__
 from capsmech.workflow.grid import (
     SHEAR_DEFAULT_LEVEL,
+    Branch,
     Case,
     expand_branches,
     expand_cases,
@@ -210,11 +211,17 @@ def _write_dataset(group: h5py.Group, name: str, data: Any, units: str, text: bo
     ds.attrs["units"] = units
 
 
-def _critical_rows(grid: Mapping[str, Any], branches_dir: Path, code_version: str) -> dict[str, dict[str, list]]:
-    """Per law key, the critical Ca_s of each a/l from the branch files (NaN where the branch did
-    not end inside the grid or failed; the kind says which)."""
+def critical_rows(branches: Sequence[Branch], branches_dir: Path, code_version: str) -> dict[str, dict[str, list]]:
+    """Per law key, the critical Ca_s of each branch's a/l from its branch file (NaN where the
+    branch did not end inside the grid or failed; the kind says which, the message how).
+
+    Raises
+    ------
+    DatabaseError
+        If a branch file is missing, is not a branch file, or was written by another kernel
+        than ``code_version`` (the rows' kernel)."""
     rows: dict[str, dict[str, list]] = {}
-    for branch in expand_branches(grid):
+    for branch in branches:
         path = branches_dir / branch.relative_path
         if not path.is_file():
             raise DatabaseError(f"{path}: branch file missing (run the workflow to compute it)")
@@ -223,17 +230,38 @@ def _critical_rows(grid: Mapping[str, Any], branches_dir: Path, code_version: st
                 critical = float(f.attrs["critical_Ca_s"])
                 kind = f.attrs["critical_kind"]
                 version = f.attrs["code_version"]
+                message = f.attrs.get("critical_message", kind)
         except (OSError, KeyError) as exc:
             raise DatabaseError(f"{path}: not a branch file of capsim --branch-ca ({exc})") from None
-        kind, version = decode_str(kind), decode_str(version)
+        kind, version, message = decode_str(kind), decode_str(version), decode_str(message)
         if version != code_version:
             raise DatabaseError(f"{path}: written by kernel {version}, the cases by {code_version}: "
                                 "rerun the workflow so that every case is recomputed by one kernel")
-        law = rows.setdefault(branch.law.key, {"a_over_l": [], "Ca_s": [], "kind": []})
+        law = rows.setdefault(branch.law.key, {"a_over_l": [], "Ca_s": [], "kind": [], "message": []})
         law["a_over_l"].append(branch.a_over_l)
         law["Ca_s"].append(critical)
         law["kind"].append(kind)
+        law["message"].append(message)
     return rows
+
+
+#: How the critical Ca_s of a database are found (the ``method`` of its ``critical`` groups).
+CRITICAL_METHOD = ("pseudo-arclength continuation of the steady equations in Ca_s "
+                   "(capsim --branch-ca over the grid's Ca_s); NaN: no end inside the grid's Ca_s")
+
+
+def write_critical_group(group: h5py.Group, rows: Mapping[str, Sequence[Any]],
+                         attrs: Mapping[str, Any] | None = None) -> None:
+    """Write a law group's ``critical`` group (``a_over_l``, ``Ca_s``, ``kind`` and, where
+    given, the kernel's ``message`` per a/l), with the method and ``attrs`` as attributes."""
+    ends = group.create_group(CRITICAL_GROUP)
+    ends.attrs["method"] = CRITICAL_METHOD
+    ends.attrs.update(dict(attrs or {}))
+    _write_dataset(ends, "a_over_l", rows["a_over_l"], "1")
+    _write_dataset(ends, "Ca_s", rows["Ca_s"], "1")
+    _write_dataset(ends, "kind", rows["kind"], "", text=True)
+    if "message" in rows:
+        _write_dataset(ends, "message", rows["message"], "", text=True)
 
 
 def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path, out: str | Path,
@@ -283,7 +311,7 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     if len(versions) != 1:
         raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "
                             "rerun the workflow so that every case is recomputed by one kernel")
-    critical = (_critical_rows(grid, Path(branches_dir), versions[0])
+    critical = (critical_rows(expand_branches(grid), Path(branches_dir), versions[0])
                 if branches_dir is not None and flow == "tube" else {})
     units = expected_units(flow)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -314,11 +342,6 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
             for name, unit in units.items():
                 _write_dataset(group, name, [row[name] for row in law_rows], unit)
             if key in critical:
-                ends = group.create_group(CRITICAL_GROUP)
-                ends.attrs["method"] = ("pseudo-arclength continuation of the steady equations in Ca_s "
-                                        "(capsim --branch-ca); NaN: no end inside the grid's Ca_s")
-                _write_dataset(ends, "a_over_l", critical[key]["a_over_l"], "1")
-                _write_dataset(ends, "Ca_s", critical[key]["Ca_s"], "1")
-                _write_dataset(ends, "kind", critical[key]["kind"], "", text=True)
+                write_critical_group(group, critical[key])
     os.replace(tmp, out)
     return out
