@@ -102,10 +102,19 @@ def _leaves(record, path: str = ""):
         yield path, record
 
 
+#: The numbers an interval describes (an estimate, the interval's ends, its parts): only these
+#: are measured against its width (a chi2 or a p-value beside a strength's interval is not).
+INTERVAL_PARTS = ("strength", "value", "interval", "interval_systematic", "systematic", "sd")
+
+
 def _width_of(record: dict, path: str) -> float:
     """The width of the interval the number at ``path`` belongs to: the ``interval`` beside it
-    (or the one it is an end of), NaN when there is none."""
+    (or the one it is an end of), NaN when there is none or the number is not one of
+    ``INTERVAL_PARTS``."""
     parts = path.replace("]", "").replace("[", ".").split(".")
+    named = [part for part in parts if not part.isdigit()]
+    if not named or named[-1] not in INTERVAL_PARTS:
+        return math.nan
     for cut in range(len(parts), 0, -1):
         node = record
         try:

@@ -57,6 +57,11 @@ class Candidate:
     #: two lowest levels; elsewhere the same blend), whose estimate's difference from this one's
     #: measures the interpolation error there (``capsmech.diagnosis.scoring.evaluate_candidate``).
     near_base_alternative: Candidate | None = None
+    #: ``apply`` where the law need not be fitted again, for what is only read off at a value
+    #: (the G_s at the ends of the strength's interval, ``scoring._g_s_systematic``); None: ``apply``.
+    #: A measurement effect fitted with a model effect (``sequential.measurement_with_model``)
+    #: refits the model's strength at every new value; here it interpolates the strengths found.
+    apply_between: Callable[[Sequence[Capsule], float], tuple[list[Capsule], str | BlendedLaw]] | None = None
 
     @property
     def continuous(self) -> bool:

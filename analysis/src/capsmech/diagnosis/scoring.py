@@ -355,14 +355,21 @@ def _score_capsule(capsule: Capsule, contour: PreparedContour, inverter: Any, st
 
 
 def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSet, law: str | BlendedLaw, sigma: np.ndarray,
-                prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None) -> BatchScore:
+                prepared: Sequence[PreparedContour] | None = None, starts: BatchScore | None = None,
+                only: Sequence[int] | None = None, stop_on_failure: bool = False) -> BatchScore:
     """Fit every capsule's contour with one law (a key or a BlendedLaw); chi2, G_s and Delta per
     capsule. A capsule whose lengths the law cannot reproduce starts from its fit in ``starts``
-    (the base fit), else from the database row nearest in lengths."""
+    (the base fit), else from the database row nearest in lengths.
+
+    ``only``: the indices of the capsules to fit, in this order (the others are left NaN);
+    ``stop_on_failure``: stop at the first of them not fitted (the rest left NaN), for a caller
+    that needs all or nothing. Each capsule's fit is that of the whole batch's, bit for bit:
+    it depends on nothing but the capsule, the law, its start and its noise level."""
     inverter = _law_inverter(database, law)
-    rows = _central_fits(capsules, inverter)
+    order = list(range(len(capsules))) if only is None else [int(i) for i in only]
+    rows = dict(zip(order, _central_fits([capsules[i] for i in order], inverter)))
     if starts is not None:
-        for i, row in enumerate(rows):
+        for i, row in rows.items():
             # (a start the law does not cover would leave the contour fit outside: no fit)
             if (row.get("fallback") and math.isfinite(starts.a_over_l[i])
                     and inverter.profile(float(starts.a_over_l[i]), float(starts.Ca_s[i])) is not None):
@@ -374,8 +381,11 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
     floor = np.full((n, PROFILE_POINTS), np.nan)
     known = _SCORES.setdefault(database, {})
     law_key = _law_key(law)
-    for i, (capsule, row) in enumerate(zip(capsules, rows)):
+    for i, row in rows.items():
+        capsule = capsules[i]
         if capsule.contour is None or not math.isfinite(row["a_over_l"]) or not math.isfinite(sigma[i]):
+            if stop_on_failure:
+                break
             continue
         start = (row["a_over_l"], row["Ca_s"])
         key = (law_key, contour_key(capsule.contour), start, float(sigma[i]),
@@ -391,6 +401,8 @@ def score_batch(capsules: Sequence[Capsule], database: TubeDatabase | DatabaseSe
         if score.residual is not None and score.floor is not None:
             residual[i], floor[i] = score.residual, score.floor
         fitted_a[i], fitted_ca[i] = score.a_over_l, score.Ca_s
+        if stop_on_failure and not math.isfinite(score.chi2):
+            break
     return BatchScore(chi2, g_s, delta, fitted_a, fitted_ca, residual, floor)
 
 
@@ -705,8 +717,9 @@ def _g_s_systematic(result: CandidateResult, candidate: Candidate, capsules: Seq
     lengths_change = contour_change = 0.0
     ends = np.clip(result.interval, values.min(), values.max())
     if not result.discrete and np.all(np.isfinite(ends)):
+        apply = candidate.apply_between or candidate.apply
         lengths_change = _half_change([length_g_s(c, lengths_inverter(database, law))[0]
-                                       for c, law in (candidate.apply(capsules, float(end)) for end in ends)])
+                                       for c, law in (apply(capsules, float(end)) for end in ends)])
         means = np.array([np.mean(g[np.isfinite(g)]) if np.any(np.isfinite(g)) else np.nan
                           for g in (score.g_s[usable] for score in scores)])
         known = np.isfinite(means)
