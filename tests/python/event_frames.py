@@ -63,8 +63,13 @@ def empty_channel(optics: Optics, rng: np.random.Generator) -> np.ndarray:
 
 
 def capsule_transmission(shape: tuple[int, int], centre: tuple[float, float], half_axes: tuple[float, float],
-                         optics: Optics) -> np.ndarray:
-    """The transmission of one capsule: a dark elliptic ring around a slightly brighter interior."""
+                         optics: Optics, faint_arc: tuple[float, float] | None = None) -> np.ndarray:
+    """The transmission of one capsule: a dark elliptic ring around a slightly brighter interior.
+
+    ``faint_arc``: (width, direction) [deg] of an arc of the ring that fades to a tenth of its
+    absorption (a cell's rim open on one side; 10 deg of fade on each side of it), the direction
+    measured from +x towards +y (image rows) about the centre, in the ellipse's own angle.
+    """
     rows, cols = shape
     y, x = np.mgrid[0:rows, 0:cols].astype(float)
     a, b = half_axes
@@ -74,6 +79,10 @@ def capsule_transmission(shape: tuple[int, int], centre: tuple[float, float], ha
     scale = np.hypot(a * u, b * v) / np.maximum(radius, 1e-9)
     distance = (radius - 1) * scale
     ring = optics.ring_absorption * np.exp(-0.5 * (distance / optics.ring_width_px) ** 2)
+    if faint_arc is not None:
+        width, direction = faint_arc
+        off = np.abs((np.degrees(np.arctan2(v, u)) - direction + 180) % 360 - 180)
+        ring = ring * (0.1 + 0.9 * np.clip((off - width / 2) / 10.0, 0, 1))
     interior = optics.interior_gain * ndimage.gaussian_filter((radius < 1).astype(float), 1.0)
     return 1 - ring + interior
 

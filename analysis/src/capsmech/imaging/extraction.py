@@ -31,7 +31,9 @@ Per frame (:func:`analyse_contrast`)
        straight channel's end: ``touches the end of the straight channel``); more than one:
        ``N capsules`` (each is still traced and drawn).
     3. Tracing (``objects.trace_object``): a dark ring around a transparent interior gives
-       its mid-line; a filled silhouette its outer edge (the report says which).
+       its mid-line; a filled silhouette its outer edge (the report says which). An object
+       that holds two light interiors or more (touching cells) is flagged ``touching objects``,
+       not measured.
     4. Focus: a ring whose line is wider than ``max_line_width_px``, or than ``focus_ratio``
        times the stack's median width, is ``out of focus``; so is a frame whose object shows
        no interior in a stack of rings.
@@ -386,17 +388,27 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
         return result
     traces: list[TracedObject] = []
     reasons = []
+    # Each object is looked at in its bounding box only (the rest of the frame is not its).
+    boxes = ndimage.find_objects(labels, max_label=max(keep))
+    column_sum, pixels, first, last = 0, 0, cols, -1
     for k in keep:
-        traced = trace_object(contrast, labels == k, mask, threshold, smooth)
+        box = boxes[k - 1]
+        region = np.zeros(labels.shape, dtype=bool)
+        region[box] = labels[box] == k
+        traced = trace_object(contrast, region, mask, threshold, smooth, box)
         if isinstance(traced, str):
             reasons.append(traced)
         else:
             traces.append(traced)
+        columns = np.nonzero(region[box] & mask[box])[1]
+        if columns.size:
+            column_sum += int(columns.sum()) + box[1].start * columns.size
+            pixels += columns.size
+            first, last = min(first, box[1].start + int(columns.min())), max(last, box[1].start + int(columns.max()))
     result.traces = traces
     for t in traces:
         measure_trace(t, walls.axis_row, cols, settings, walls.columns)
-    objects = np.isin(labels, keep) & mask
-    result.object_x = float(np.nonzero(objects)[1].mean())
+    result.object_x = column_sum / pixels
     rings = [t for t in traces if t.kind == "ring"]
     if rings:
         result.line_width_px = float(np.median([t.line_width_px for t in rings]))
@@ -409,8 +421,7 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
     # The border first (or the straight channel's end): a capsule cut by it may fall apart into
     # several arcs. measure_trace flagged each object it cuts.
     cut = [t for t in traces if t.flag.startswith("touches")]
-    object_columns = np.nonzero(objects.any(axis=0))[0]
-    whole_cut = cut_flag((int(object_columns.min()), int(object_columns.max())), cols, walls.columns)
+    whole_cut = cut_flag((first, last), cols, walls.columns)
     if len(cut) == len(traces) and whole_cut:
         result.flag = whole_cut
         return result
@@ -423,6 +434,10 @@ def analyse_contrast(contrast: np.ndarray, walls: Walls, index: int = 0, label: 
         return result
     (trace,) = traces
     result.kind, result.contour_at = trace.kind, trace.contour_at
+    if trace.flag.startswith("touching"):
+        # Touching cells: no lengths of one capsule from them.
+        result.flag = trace.flag
+        return result
     result.contour = trace.contour
     result.x_front, result.x_rear = trace.x_front, trace.x_rear
     result.extent_px, result.outer_extent_px = trace.extent_px, trace.outer_extent_px

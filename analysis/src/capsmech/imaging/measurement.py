@@ -114,8 +114,8 @@ def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: 
     """Measure one traced object on its own (its lengths, symmetry and flag, set on ``trace``).
 
     Its flag: cut by the image's left or right edge or by the end of the straight channel
-    (``view``, see :func:`cut_flag`), a line wider than ``settings.max_line_width_px``, no
-    crossing of the tube axis, or asymmetric.
+    (``view``, see :func:`cut_flag`), the tracing's own (touching objects), a line wider than
+    ``settings.max_line_width_px``, no crossing of the tube axis, or asymmetric.
     """
     trace.L_z_px = trace.x_front - trace.x_rear
     trace.x_rear_axis = rear_axis_crossing(trace.contour, axis_row)
@@ -124,6 +124,8 @@ def measure_trace(trace: TracedObject, axis_row: float, columns: int, settings: 
     cut = cut_flag(trace.columns, columns, view)
     if cut:
         trace.flag = cut
+    elif trace.flag:
+        pass    # the tracing's own (touching objects: not one capsule)
     elif trace.kind == "ring" and trace.line_width_px > settings.max_line_width_px:
         trace.flag = f"out of focus (line {trace.line_width_px:.1f} px wide > {settings.max_line_width_px:g})"
     elif not math.isfinite(trace.x_rear_axis):
