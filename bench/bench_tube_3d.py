@@ -23,6 +23,14 @@ the smallest of `--repeats` runs (the load only ever adds time).
 
 The default wall (0.2 / 0.1 l over 6 l, 2772 nodes) is the one of the level-3 validation;
 `--wall 0.14 0.07 10` is the paper's (7138 nodes: a 3.7 GB LU, minutes to factorise).
+`--steady` instead times the steady solver (`capsim --integrator newton`, Newton-Krylov) on
+the level-3 case to its steady shape, per thread count, and compares it with time stepping
+by velocity evaluations: the time-stepped run (RK2, 2 evaluations per step, 1 per record)
+reached its steady state at t = 3.25 l/V (docs/validation/kernel-tube.md, "Cost"), so it
+needs 2 t / dt + t / 0.05 evaluations; at the CPU seconds per evaluation of the Newton run
+(its CPU time over its evaluations, the preconditioner's set-up included) that gives the
+time-stepped run's CPU time on this machine now, without running it.
+
 Prints figures only: machines are shared and noisy, so nothing here is a test.
 """
 from __future__ import annotations
@@ -39,6 +47,10 @@ REPO = Path(__file__).resolve().parents[1]
 PROBE = REPO / "bin" / "tube3d_probe"
 SIZE_RATIO, CA = 0.8, 0.05
 
+
+CAPSIM = REPO / "bin" / "capsim"
+# The time-stepped level-3 case (wall 0.2 / 0.1 l over 6 l) reached its steady state at this time (l/V).
+STEPPED_T_STEADY, RECORD_EVERY = 3.25, 0.05
 
 SELF_MODES = {"vertex": 0, "near": 1, "full": 2}
 TIMED = ("velocity_s", "capsule_self_s", "capsule_at_wall_s", "capsule_self_near_s", "wall_solve_s", "wall_at_capsule_s", "rk2_step_s",
@@ -80,6 +92,54 @@ def fastest(runs: list[dict[str, float]]) -> dict[str, float]:
     return best
 
 
+def steady_newton(threads: int, wall: list[str], cache: Path, out: Path) -> dict[str, float]:
+    """One `capsim --integrator newton` run of the level-3 case: its wall and CPU seconds,
+    the solver's counts, the steady measures and the automatic time step."""
+    import h5py
+
+    args = [str(CAPSIM), "--flow", "tube", "--model", "3d", "--integrator", "newton", "--law", "NH",
+            "--a-over-l", str(SIZE_RATIO), "--ca", str(CA), "--level", "3", "--wall-h-far", wall[0],
+            "--wall-h-centre", wall[1], "--tube-length", wall[2], "--wall-cache", str(cache),
+            "--threads", str(threads), "--out", str(out)]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    stdout = subprocess.run(args, capture_output=True, text=True, check=True).stdout
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    dt = float(stdout.split("dt =")[1].split(",")[0])
+    with h5py.File(out) as f:
+        r = {k: float(f.attrs[k]) for k in ("wall_time_s", "velocity_evaluations", "newton_iterations",
+                                             "gmres_products", "newton_residual", "growth_rate", "stable")}
+        r.update({k: float(f["steady"][k][()]) for k in ("L_z", "L_p", "v_c")})
+    r["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    r["dt"] = dt
+    return r
+
+
+def bench_steady(wall: list[str], thread_counts: list[int]) -> int:
+    """Newton-Krylov on the level-3 case against time stepping, by velocity evaluations."""
+    if not CAPSIM.exists() or not PROBE.exists():
+        print(f"{CAPSIM} or {PROBE} is missing: run `make build` first", file=sys.stderr)
+        return 2
+    print(f"3D steady solver, level 3, NH a/l = {SIZE_RATIO}, Ca_s = {CA}, wall h {wall[0]} / {wall[1]} l over "
+          f"{wall[2]} l; {os.cpu_count() or 1} cores, load {os.getloadavg()[0]:.1f}")
+    print(f"{'threads':>7} {'wall [s]':>9} {'CPU [s]':>8} {'evals':>6} {'Newton':>7} {'GMRES':>6} {'residual':>9} "
+          f"{'growth':>8} {'L_z':>7} {'L_p':>7} {'v_c':>7} {'stepping evals':>15} {'stepping CPU [s]':>17} {'load':>5}")
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp)
+        # The wall LU first (the probe writes it), so that the timed runs load it from the cache.
+        run_probe(PROBE, 3, 1, wall, cache, 0)
+        for threads in thread_counts:
+            r = steady_newton(threads, wall, cache, Path(tmp) / f"steady{threads}.h5")
+            stepped = 2 * STEPPED_T_STEADY / r["dt"] + STEPPED_T_STEADY / RECORD_EVERY
+            per_eval = r["cpu_s"] / r["velocity_evaluations"]
+            print(f"{threads:>7} {r['wall_time_s']:>9.1f} {r['cpu_s']:>8.1f} {int(r['velocity_evaluations']):>6} "
+                  f"{int(r['newton_iterations']):>7} {int(r['gmres_products']):>6} {r['newton_residual']:>9.1e} "
+                  f"{r['growth_rate']:>8.1e} {r['L_z']:>7.4f} {r['L_p']:>7.4f} {r['v_c']:>7.4f} {stepped:>15.0f} "
+                  f"{stepped * per_eval:>17.0f} {os.getloadavg()[0]:>5.1f}")
+    print("wall, CPU: the case's (wall LU loaded from the cache); stepping: the time-stepped run's evaluations "
+          "to t = 3.25 and their CPU time at this run's CPU seconds per evaluation")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--wall", nargs=3, default=["0.2", "0.1", "6"], metavar=("H_FAR", "H_CENTRE", "LENGTH"))
@@ -89,7 +149,10 @@ def main() -> int:
     parser.add_argument("--self", nargs="+", choices=sorted(SELF_MODES), default=None,
                         help="self quadratures to time in this run (default: the model's default only)")
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2], help="OpenMP thread counts")
+    parser.add_argument("--steady", action="store_true", help="time the steady solver (Newton-Krylov) instead")
     args = parser.parse_args()
+    if args.steady:
+        return bench_steady(args.wall, args.threads)
     if not PROBE.exists():
         print(f"{PROBE} is missing: run `make build` first", file=sys.stderr)
         return 2

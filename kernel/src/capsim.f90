@@ -14,6 +14,7 @@ program capsim
    use capsule_dynamics, only: capsule_t
    use axisymmetric_tube, only: axisymmetric_tube_t
    use tube_capsule, only: tube_capsule_t
+   use tube_steady_3d, only: tube_steady_capsule_t
    use tube_branch, only: run_tube_branch
    implicit none
 
@@ -54,7 +55,9 @@ program capsim
    end if
    call system_clock(clock_start, clock_rate)
 
-   if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d') then
+   if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d' .and. trim(opts%integrator) == 'newton') then
+      allocate (tube_steady_capsule_t :: model)
+   else if (trim(opts%flow) == 'tube' .and. trim(opts%model) == '3d') then
       allocate (tube_capsule_t :: model)
    else if (trim(opts%flow) == 'tube') then
       allocate (axisymmetric_tube_t :: model)
@@ -66,7 +69,7 @@ program capsim
       call model%init(opts, stat, errmsg)
    type is (axisymmetric_tube_t)
       call model%init(opts, stat, errmsg)
-   type is (tube_capsule_t)
+   class is (tube_capsule_t)
       call model%init(opts, stat, errmsg)
    end select
    if (stat /= 0) call die('capsim: error: '//errmsg, 2)

@@ -101,7 +101,7 @@ module option_table
                     contexts='tube-3d'), &
       option_spec_t(name='--integrator', arg='auto|newton|implicit|rk2', group='time stepping and solver', &
                     help='auto: shear implicit ROS2 for small Ca_s else RK2; tube axi Newton for small Ca_s else '// &
-                         'ROS2; tube 3d RK2'), &
+                         'ROS2; tube 3d RK2 (or newton)'), &
       option_spec_t(name='--dt', arg='TIME', group='time stepping and solver', unit=time_unit, &
                     default_note='= automatic: dt_factor Ca_s h_min', &
                     help='time step; 0 = automatic'), &

@@ -895,8 +895,15 @@ contains
             errmsg = '--model: unknown model "'//trim(opts%model)//'" (expected axi or 3d)'
          else if (all(trim(opts%integrator) /= [character(len=8) :: 'auto', 'newton', 'implicit', 'rk2'])) then
             errmsg = '--integrator: unknown solver "'//trim(opts%integrator)//'" (expected auto, newton, implicit or rk2)'
-         else if (trim(opts%model) == '3d' .and. all(trim(opts%integrator) /= [character(len=4) :: 'auto', 'rk2'])) then
-            errmsg = '--integrator: the 3d tube model steps with rk2 only, got "'//trim(opts%integrator)//'"'
+         else if (trim(opts%model) == '3d' .and. all(trim(opts%integrator) /= [character(len=6) :: 'auto', 'rk2', 'newton'])) then
+            errmsg = '--integrator: the 3d tube model steps with rk2 or solves for the steady shape (newton), got "'// &
+                     trim(opts%integrator)//'"'
+         else if (trim(opts%model) == '3d' .and. trim(opts%integrator) == 'newton' .and. &
+                  (opts%offset /= 0.0_dp .or. opts%lambda /= 1.0_dp)) then
+            ! An off-centre capsule migrates (no steady shape); lambda /= 1 makes each velocity an
+            ! iterative solve, too noisy for the Jacobian's differences.
+            errmsg = '--integrator: newton (3d) solves for the steady shape of a centred capsule at lambda = 1 '// &
+                     '(no --offset, no --lambda)'
          else if (all(trim(opts%channel) /= [character(len=6) :: 'tube', 'square', 'rect'])) then
             errmsg = '--channel: unknown channel "'//trim(opts%channel)//'" (expected tube, square or rect)'
          else if (trim(opts%channel) /= 'tube' .and. trim(opts%model) /= '3d') then

@@ -66,7 +66,7 @@ module tube_capsule
    use interface_equation, only: interface_equation_t, operator_term_t
    implicit none
    private
-   public :: tube_capsule_t, default_cache_dir, volume_gradients, remove_volume_flux
+   public :: tube_capsule_t, default_cache_dir, volume_gradients, remove_volume_flux, recentre, volume_centroid
 
    !> Pre-deformation of large capsules, as in axisymmetric_tube: from a/l = 0.9 the run
    !> starts from the spheroid of equatorial radius 0.8 and the same volume; stresses are

@@ -1,0 +1,652 @@
+!> Steady shapes of the 3D tube (and duct) model without time stepping (`--model 3d
+!> --integrator newton`): the root of the membrane velocity in the capsule's frame, u(x) = 0,
+!> by Jacobian-free Newton-Krylov, from the axisymmetric model's steady shape at the same
+!> a/l, Ca_s and law mapped onto the 3D mesh's material points.
+!>
+!> Why: the explicit steps of tube_capsule are bound to dt ~ Ca_s h (the membrane's stiffest
+!> modes), so a level-3 case needs thousands of velocity evaluations to reach its steady
+!> shape, while the steady shape itself is the root of one function. Newton's linear systems
+!> are solved by GMRES with the Jacobian applied as a directional difference of `velocity`
+!> (one evaluation per product), right-preconditioned by the membrane's stiffness seen
+!> through the free-space single layer (build_preconditioner), which takes the stiff modes
+!> off GMRES's hands.
+!>
+!> Null directions: u carries no volume flux (the volume correction), the capsule frame
+!> removes the axial translation, and the tube is invariant under rotation about its axis.
+!> Newton's step is therefore taken in the complement of five directions at x (the volume
+!> gradient, the three uniform translations, the rotation about the axis), with the residual
+!> projected likewise (the axisymmetric model's bordered system, in projected form); after
+!> each step the volume is put back to the start's (the time-stepped run conserves it). The
+!> centroid is not put back after a step: a step that keeps the node mean still moves the
+!> volume centroid at first order, and re-centring then spoiled every line search at level 2
+!> (stalled at 2e-4 V); the written shape is re-centred.
+!>
+!> Stability: the last GMRES cycle's Arnoldi relation gives Ritz values of the projected
+!> Jacobian (ritz_growth_rate); a shape whose largest converged one has a real part above
+!> stable_rate_limit_3d is written with stable = 0 and its message says NOT STABLE.
+module tube_steady_3d
+   use capsim_kinds, only: dp, pi
+   use omp_lib, only: omp_get_wtime
+   use lapack_interfaces, only: dgeev, dgetrf, dgetrs, dgesv
+   use hdf5_writer, only: h5_file_t
+   use file_ops, only: delete_file
+   use run_options, only: run_options_t
+   use case_output, only: case_summary_t
+   use capsule_model, only: num
+   use text_format, only: int_text
+   use surface_diagnostics, only: area_and_volume
+   use membrane_forces, only: membrane_nodal_forces
+   use stokes_single_layer, only: triangle_areas, node_areas
+   use axisymmetric_tube, only: axisymmetric_tube_t
+   use tube_capsule, only: tube_capsule_t, volume_gradients, recentre, volume_centroid
+   implicit none
+   private
+   public :: tube_steady_capsule_t
+
+   !> Largest projected membrane velocity (V) at which Newton stops: a twentieth of the
+   !> time-stepped run's steady criterion (lengths and v_c settled to 1e-3 per l/V). The
+   !> velocity is smooth in the nodes only to ~1e-5 V: the near-field quadratures switch rules
+   !> at distance thresholds, so a step of 1e-5 l can jump the residual by that much (level 2,
+   !> a/l 0.8, Ca_s 0.05: the line search stalls at 1.2e-5 V). Where it stalls below
+   !> noise_tol, the shape is accepted as the root to that noise (the message says so).
+   real(dp), parameter :: newton_tol_3d = 5.0e-5_dp, noise_tol = 1.0e-4_dp
+   !> Directional differences move the nodes by at most this (l). Small, because the rule
+   !> switches of the quadratures (above) spoil every difference that crosses one: at level 2
+   !> (a/l 0.8, Ca_s 0.05) 1e-8, 1e-7 and 1e-6 reached the noise (~1.2e-5 V) within 108-112
+   !> velocity evaluations, while 1e-5 stalled at 6e-3 V and 1e-4 at 2e-3 V.
+   real(dp), parameter :: fd_size = 1.0e-7_dp
+   !> Krylov vectors per GMRES cycle and GMRES products per Newton step at most.
+   integer, parameter :: krylov_dim = 120, max_products = 600
+   integer, parameter :: max_newton = 20
+   !> Largest node displacement of one Newton step, in capsule radii.
+   real(dp), parameter :: max_step = 0.05_dp
+   !> A steady shape is flagged as not stable when the largest Ritz growth rate exceeds this
+   !> (V/l). The estimate carries the velocity's noise: shapes that time stepping reaches
+   !> (stable, then) gave up to +0.026 (level 2) and +0.006 V/l (level 3) at a/l 0.8, Ca_s 0.05,
+   !> so the axisymmetric model's 1e-2 would flag some; the instabilities the axisymmetric
+   !> model met (the buckling rear pole, ~ +9 V/l) are far above.
+   real(dp), parameter :: stable_rate_limit_3d = 0.1_dp
+   !> Number of constraint directions (volume, three translations, rotation about the axis).
+   integer, parameter :: n_constraints = 5
+
+   type, extends(tube_capsule_t) :: tube_steady_capsule_t
+      !> The start's polyhedron volume, which the time-stepped run conserves.
+      real(dp) :: volume0 = 0
+      integer :: newton_iterations = 0, gmres_products = 0, velocity_evaluations = 0
+      !> Largest real part of the Ritz values of the projected Jacobian (V/l).
+      real(dp) :: growth_rate = huge(1.0_dp)
+      !> Largest membrane velocity without the projection (V).
+      real(dp) :: residual_full = huge(1.0_dp)
+      real(dp) :: seconds_guess = 0
+      character(len=:), allocatable :: guess_source
+      real(dp), allocatable :: basis(:, :, :)
+      !> LU of the preconditioner (build_preconditioner) and the number of its builds.
+      real(dp), allocatable :: precond_lu(:, :)
+      integer, allocatable :: precond_pivot(:)
+      integer :: precond_builds = 0
+      real(dp) :: seconds_preconditioner = 0
+      !> Newton stopped below noise_tol where the line search found no descent.
+      logical :: stalled = .false.
+   contains
+      procedure :: run => steady_run
+      procedure :: write_geometry => steady_write_geometry
+   end type tube_steady_capsule_t
+
+contains
+
+   !> Newton-Krylov from the axisymmetric guess; one history row, the steady shape at t = 0.
+   subroutine steady_run(self, opts, checkpoint_path, summary, steady_index)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      character(len=*), intent(in) :: checkpoint_path
+      type(case_summary_t), intent(inout) :: summary
+      integer, intent(out) :: steady_index
+      real(dp) :: area, t0
+      logical :: converged
+      character(len=:), allocatable :: how
+
+      steady_index = 0
+      summary%dt = 0
+      call area_and_volume(self%mesh, self%start_positions, area, self%volume0)
+      allocate (self%basis(3, self%mesh%n_nodes, n_constraints))
+      t0 = omp_get_wtime()
+      call axisymmetric_guess(self, opts, checkpoint_path)
+      self%seconds_guess = omp_get_wtime() - t0
+      call newton_krylov(self, newton_tol_3d, opts%quiet, converged, how)
+      ! Mid-tube, on the axis, as the time-stepped run keeps it (the velocity barely notices).
+      call recentre(self%mesh, self%positions, axial_only=.false.)
+      self%t = 0
+      self%step = self%newton_iterations
+      self%n_rec = 0
+      call self%record()
+      if (converged) then
+         summary%status = 'steady'
+         summary%message = ''
+         if (stability(self) == 0) summary%message = 'NOT STABLE (a growth rate above '//num(stable_rate_limit_3d)// &
+                                                     ' V/l): '
+         summary%message = summary%message//'Newton-Krylov from the '//self%guess_source//' shape, '// &
+                           int_text(self%newton_iterations)//' Newton steps, '//int_text(self%gmres_products)// &
+                           ' GMRES products, '//int_text(self%velocity_evaluations)// &
+                           ' velocity evaluations: residual (largest projected membrane velocity) '// &
+                           num(self%residual)//' V (unprojected '//num(self%residual_full)//')'
+         if (self%stalled) summary%message = summary%message//', where the quadrature noise stopped the line search'
+         if (stability(self) < 0) then
+            summary%message = summary%message//'; growth rate unknown (no Ritz value converged)'
+         else
+            summary%message = summary%message//'; largest growth rate '//num(self%growth_rate)//' V/l'
+         end if
+         steady_index = self%n_rec
+      else
+         summary%status = 'failed'
+         summary%message = 'Newton-Krylov from the '//self%guess_source//' shape did not converge: '//how// &
+                           ' (residual '//num(self%residual)//' V after '//int_text(self%newton_iterations)// &
+                           ' Newton steps)'
+      end if
+      summary%volume_change = 0
+   end subroutine steady_run
+
+   !> The case file's geometry, and the solver's figures as root attributes.
+   subroutine steady_write_geometry(self, f, stat, errmsg)
+      class(tube_steady_capsule_t), intent(in) :: self
+      type(h5_file_t), intent(inout) :: f
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      call self%tube_capsule_t%write_geometry(f, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'steady_solver', 'newton-krylov', stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'newton_residual', self%residual, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'newton_residual_unprojected', self%residual_full, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'newton_iterations', self%newton_iterations, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'gmres_products', self%gmres_products, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'velocity_evaluations', self%velocity_evaluations, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'growth_rate', self%growth_rate, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'stable', stability(self), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'initial_guess', self%guess_source, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'initial_guess_s', self%seconds_guess, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'preconditioner_s', self%seconds_preconditioner, stat, errmsg)
+   end subroutine steady_write_geometry
+
+   !> 1: stable, 0: not stable (growth rate above stable_rate_limit_3d), -1: unknown (no Ritz
+   !> value converged).
+   pure integer function stability(self)
+      class(tube_steady_capsule_t), intent(in) :: self
+      if (self%growth_rate == huge(1.0_dp)) then
+         stability = -1
+      else
+         stability = merge(1, 0, self%growth_rate <= stable_rate_limit_3d)
+      end if
+   end function stability
+
+   !> The axisymmetric model's steady meridian at the same a/l, Ca_s, law (its default solver
+   !> and meridian), mapped onto the 3D nodes by their material polar angle (linear in the
+   !> angle between meridian nodes) and azimuth; the start shape if that model is not steady.
+   !> In a duct the circular tube of radius the half-width stands in.
+   subroutine axisymmetric_guess(self, opts, checkpoint_path)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      type(run_options_t), intent(in) :: opts
+      character(len=*), intent(in) :: checkpoint_path
+      type(axisymmetric_tube_t) :: axi
+      type(run_options_t) :: axi_opts
+      type(case_summary_t) :: axi_summary
+      character(len=:), allocatable :: errmsg, axi_checkpoint
+      real(dp) :: theta, phi, s, w, r, z, rho
+      integer :: stat, steady_index, i, k, n_m
+
+      self%positions = self%start_positions
+      self%guess_source = 'start (sphere)'
+      axi_opts = opts
+      axi_opts%model = 'axi'
+      axi_opts%integrator = 'auto'
+      axi_opts%channel = 'tube'
+      axi_opts%aspect = 1.0_dp
+      axi_opts%quiet = .true.
+      axi_opts%dt = 0.0_dp
+      axi_opts%checkpoint_every = huge(1.0_dp)
+      axi_checkpoint = checkpoint_path//'.axisymmetric'
+      call axi%init(axi_opts, stat, errmsg)
+      if (stat /= 0) return
+      call axi%run(axi_opts, axi_checkpoint, axi_summary, steady_index)
+      call delete_file(axi_checkpoint)
+      if (steady_index == 0) return
+      n_m = size(axi%positions, 2)
+      do i = 1, self%mesh%n_nodes
+         rho = norm2(self%x_ref(:, i))
+         theta = acos(max(-1.0_dp, min(1.0_dp, self%x_ref(3, i) / rho)))
+         phi = atan2(self%x_ref(2, i), self%x_ref(1, i))
+         ! Meridian node k sits at the material angle pi (k - 1) / (n_m - 1), front first.
+         s = theta / pi * (n_m - 1)
+         k = min(int(s) + 1, n_m - 1)
+         w = s - (k - 1)
+         r = (1.0_dp - w) * axi%positions(1, k) + w * axi%positions(1, k + 1)
+         z = (1.0_dp - w) * axi%positions(2, k) + w * axi%positions(2, k + 1)
+         self%positions(:, i) = [r * cos(phi), r * sin(phi), z]
+      end do
+      self%guess_source = 'axisymmetric'
+   end subroutine axisymmetric_guess
+
+   !> Newton's iterations on P u(x) = 0 (P the projection off the constraint directions at x).
+   subroutine newton_krylov(self, tol, quiet, converged, how)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: tol
+      logical, intent(in) :: quiet
+      logical, intent(out) :: converged
+      character(len=:), allocatable, intent(out) :: how
+      real(dp), allocatable :: x(:, :), r(:, :), pr(:, :), delta(:, :), x_try(:, :), r_try(:, :), pr_try(:, :)
+      real(dp) :: res2, res2_try, res2_prev, alpha, eta
+      integer :: n, products
+      logical :: solved
+
+      converged = .false.
+      how = 'no Newton step taken'
+      n = self%mesh%n_nodes
+      allocate (x(3, n), r(3, n), pr(3, n), delta(3, n), x_try(3, n), r_try(3, n), pr_try(3, n))
+      x = self%positions
+      call restore_volume_and_centre(self, x, .true.)
+      call evaluate(self, x, r)
+      call constraint_basis(self, x)
+      pr = r
+      call project(self, pr)
+      res2 = norm2(pr)
+      res2_prev = res2
+      self%newton_iterations = 0
+      call build_preconditioner(self, x)
+      do
+         self%residual = maxval(abs(pr))
+         self%residual_full = maxval(abs(r))
+         self%positions = x
+         if (.not. quiet) write (*, '(a,i0,a,es10.3,a,es10.3,a,i0,a)') 'capsim: Newton step ', self%newton_iterations, &
+            ': residual ', self%residual, ' V (unprojected ', self%residual_full, ' V), ', self%velocity_evaluations, &
+            ' velocity evaluations'
+         if (self%residual < tol) then
+            converged = .true.
+            ! The growth rate is the last step's; where there is none (the guess was the root,
+            ! or no Ritz value of that step converged), one cycle on the residual gives it.
+            if (self%growth_rate == huge(1.0_dp)) then
+               call gmres(self, x, r, -pr, 1.0e-3_dp * res2, delta, products, solved)
+               self%gmres_products = self%gmres_products + products
+            end if
+            return
+         end if
+         if (self%newton_iterations >= max_newton) then
+            how = 'no convergence in '//int_text(max_newton)//' Newton steps'
+            return
+         end if
+         ! Eisenstat-Walker forcing: loose far from the root, tighter as Newton converges.
+         eta = 0.1_dp
+         if (self%newton_iterations > 0) eta = min(0.1_dp, max(1.0e-3_dp, 0.9_dp * (res2 / res2_prev)**2))
+         call gmres(self, x, r, -pr, max(eta * res2, 0.1_dp * tol), delta, products, solved)
+         self%gmres_products = self%gmres_products + products
+         ! A step larger than max_step a is along a direction the Jacobian barely sees (GMRES's
+         ! loose first solve at a/l 0.4, Ca_s 0.05 moved nodes by 0.86 l): cut to that length.
+         if (maxval(abs(delta)) > max_step * self%a) delta = (max_step * self%a / maxval(abs(delta))) * delta
+         alpha = 1.0_dp
+         do
+            x_try = x + alpha * delta
+            call restore_volume_and_centre(self, x_try, .false.)
+            call evaluate(self, x_try, r_try)
+            call constraint_basis(self, x_try)
+            pr_try = r_try
+            call project(self, pr_try)
+            res2_try = norm2(pr_try)
+            if (res2_try < (1.0_dp - 1.0e-4_dp * alpha) * res2) exit
+            alpha = 0.5_dp * alpha
+            if (alpha < 1.0_dp / 32) then
+               call constraint_basis(self, x)
+               if (self%residual < noise_tol) then
+                  converged = .true.
+                  self%stalled = .true.
+               else
+                  how = 'the line search found no descent (GMRES '//trim(merge('converged    ', 'did not reach', solved))// &
+                        ' its tolerance)'
+               end if
+               return
+            end if
+         end do
+         x = x_try
+         r = r_try
+         pr = pr_try
+         res2_prev = res2
+         res2 = res2_try
+         self%newton_iterations = self%newton_iterations + 1
+      end do
+   end subroutine newton_krylov
+
+   !> Right-preconditioned GMRES(krylov_dim) on J_P delta = b from delta = 0, with
+   !> J_P v = P (u(x + e v) - u(x)) / e and delta = P M^-1 y (M the stiffness preconditioner),
+   !> until |b - J_P delta| <= tol_abs or max_products products. Sets the growth rate from the
+   !> last cycle (ritz_growth_rate).
+   subroutine gmres(self, x, r, b, tol_abs, delta, products, solved)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :), r(:, :), b(:, :), tol_abs
+      real(dp), intent(out) :: delta(:, :)
+      integer, intent(out) :: products
+      logical, intent(out) :: solved
+      real(dp), allocatable :: v(:, :, :), z(:, :, :), w(:, :), resid(:, :)
+      real(dp) :: h(krylov_dim + 1, krylov_dim), arnoldi(krylov_dim + 1, krylov_dim), cs(krylov_dim), sn(krylov_dim)
+      real(dp) :: g(krylov_dim + 1), y(krylov_dim), beta, c, temp
+      integer :: n, i, j, k, pass
+
+      n = size(x, 2)
+      allocate (v(3, n, krylov_dim + 1), z(3, n, krylov_dim), w(3, n), resid(3, n))
+      delta = 0.0_dp
+      resid = b
+      products = 0
+      solved = .false.
+      do
+         beta = norm2(resid)
+         if (beta <= tol_abs) then
+            solved = .true.
+            return
+         end if
+         v(:, :, 1) = resid / beta
+         g = 0.0_dp
+         g(1) = beta
+         h = 0.0_dp
+         k = 0
+         do j = 1, krylov_dim
+            z(:, :, j) = v(:, :, j)
+            call apply_preconditioner(self, z(:, :, j))
+            call jacobian_product(self, x, r, z(:, :, j), w)
+            products = products + 1
+            ! Modified Gram-Schmidt, twice: the Ritz values need an orthogonal basis.
+            do pass = 1, 2
+               do i = 1, j
+                  c = sum(w * v(:, :, i))
+                  h(i, j) = h(i, j) + c
+                  w = w - c * v(:, :, i)
+               end do
+            end do
+            h(j + 1, j) = norm2(w)
+            arnoldi(1:j + 1, j) = h(1:j + 1, j)
+            if (h(j + 1, j) > 0.0_dp) v(:, :, j + 1) = w / h(j + 1, j)
+            do i = 1, j - 1
+               temp = cs(i) * h(i, j) + sn(i) * h(i + 1, j)
+               h(i + 1, j) = -sn(i) * h(i, j) + cs(i) * h(i + 1, j)
+               h(i, j) = temp
+            end do
+            temp = hypot(h(j, j), h(j + 1, j))
+            cs(j) = h(j, j) / temp
+            sn(j) = h(j + 1, j) / temp
+            h(j, j) = temp
+            h(j + 1, j) = 0.0_dp
+            g(j + 1) = -sn(j) * g(j)
+            g(j) = cs(j) * g(j)
+            k = j
+            if (abs(g(j + 1)) <= tol_abs .or. products >= max_products .or. arnoldi(j + 1, j) == 0.0_dp) exit
+         end do
+         do i = k, 1, -1
+            y(i) = (g(i) - dot_product(h(i, i + 1:k), y(i + 1:k))) / h(i, i)
+         end do
+         do i = 1, k
+            delta = delta + y(i) * z(:, :, i)
+         end do
+         call ritz_growth_rate(v(:, :, 1:k + 1), z(:, :, 1:k), arnoldi(1:k + 1, 1:k), self%growth_rate)
+         if (abs(g(k + 1)) <= tol_abs) then
+            solved = .true.
+            return
+         end if
+         if (products >= max_products) return
+         ! Restart from the true residual.
+         call jacobian_product(self, x, r, delta, w)
+         products = products + 1
+         resid = b - w
+      end do
+   end subroutine gmres
+
+   !> Largest real part of the converged Ritz values of J_P on the span of the preconditioned
+   !> vectors Z. M^-1 amplifies the modes that the membrane's stiffness leaves slow, so Z holds
+   !> the eigenvectors nearest 0, whose sign decides the stability, better than the Krylov
+   !> vectors of J_P itself (dominated by the stiff modes). Rayleigh-Ritz on an orthonormal
+   !> basis Q of span(Z): Z_s = Q R (the columns that Gram-Schmidt keeps), J_P Z_s = V Hbar_s
+   !> (the Arnoldi relation), so Q^T J_P Q = (Q^T V) Hbar_s R^-1, all small. A Ritz pair (theta,
+   !> Q c) counts only if its residual |J_P Q c - theta Q c| = sqrt(|Hbar_s R^-1 c|^2 - |theta c|^2)
+   !> is below ritz_tol max(1, |theta|): the ones that are not (a short GMRES cycle leaves
+   !> many) scattered up to +100 V/l on a stable duct shape.
+   subroutine ritz_growth_rate(v, z, hbar, rate)
+      real(dp), intent(in) :: v(:, :, :), z(:, :, :), hbar(:, :)
+      real(dp), intent(inout) :: rate
+      real(dp), parameter :: ritz_tol = 0.05_dp, drop = 1.0e-8_dp
+      real(dp), allocatable :: q(:, :, :), r(:, :), m1(:, :), g(:, :), a(:, :), wr(:), wi(:), vr(:, :), work(:), mc(:)
+      real(dp) :: vl(1, 1), c, norm_z, best, res2
+      integer :: m, k, i, j, kept, info
+      integer, allocatable :: cols(:)
+      m = size(z, 3)
+      if (m < 2 .or. any(hbar /= hbar)) return
+      allocate (q(size(z, 1), size(z, 2), m), r(m, m), cols(m))
+      r = 0.0_dp
+      kept = 0
+      do j = 1, m
+         norm_z = norm2(z(:, :, j))
+         q(:, :, kept + 1) = z(:, :, j)
+         do i = 1, kept
+            c = sum(q(:, :, i) * q(:, :, kept + 1))
+            r(i, kept + 1) = c
+            q(:, :, kept + 1) = q(:, :, kept + 1) - c * q(:, :, i)
+         end do
+         c = norm2(q(:, :, kept + 1))
+         if (c <= drop * norm_z) cycle
+         kept = kept + 1
+         r(kept, kept) = c
+         q(:, :, kept) = q(:, :, kept) / c
+         cols(kept) = j
+      end do
+      k = kept
+      if (k < 2) return
+      ! m1 = Hbar_s R^-1 (rows: the Krylov vectors), g = Q^T V, a = g m1.
+      allocate (m1(size(hbar, 1), k), g(k, size(hbar, 1)), a(k, k), wr(k), wi(k), vr(k, k), work(8 * k), mc(size(hbar, 1)))
+      m1 = hbar(:, cols(1:k))
+      do j = 1, k
+         m1(:, j) = (m1(:, j) - matmul(m1(:, 1:j - 1), r(1:j - 1, j))) / r(j, j)
+      end do
+      do j = 1, size(hbar, 1)
+         do i = 1, k
+            g(i, j) = sum(q(:, :, i) * v(:, :, j))
+         end do
+      end do
+      a = matmul(g, m1)
+      call dgeev('N', 'V', k, a, k, wr, wi, vl, 1, vr, k, work, size(work), info)
+      if (info /= 0) return
+      best = -huge(1.0_dp)
+      j = 1
+      do while (j <= k)
+         if (wi(j) == 0.0_dp) then
+            mc = matmul(m1, vr(:, j))
+            res2 = sum(mc**2) - wr(j)**2 * sum(vr(:, j)**2)
+            c = sum(vr(:, j)**2)
+            i = 1
+         else
+            ! The pair wr +- i wi, eigenvector vr(:, j) +- i vr(:, j + 1).
+            mc = matmul(m1, vr(:, j))
+            res2 = sum(mc**2)
+            mc = matmul(m1, vr(:, j + 1))
+            res2 = res2 + sum(mc**2)
+            c = sum(vr(:, j)**2) + sum(vr(:, j + 1)**2)
+            res2 = res2 - (wr(j)**2 + wi(j)**2) * c
+            i = 2
+         end if
+         if (sqrt(max(res2, 0.0_dp) / c) <= ritz_tol * max(1.0_dp, hypot(wr(j), wi(j)))) best = max(best, wr(j))
+         j = j + i
+      end do
+      if (best > -huge(1.0_dp)) rate = best
+   end subroutine ritz_growth_rate
+
+   !> The preconditioner M ~ S K / Ca at x, LU-factorised: K = dF/dx the membrane's nodal
+   !> force Jacobian (directional differences, one node coordinate at a time: the forces are
+   !> local and cheap), S the free-space single layer from nodal forces to nodal velocities
+   !> (vertex rule; a node's own patch as a flat disk of its area: R/(8A) (3 (I - nn) + 2 nn)),
+   !> K shifted by -shift_fraction of its largest diagonal entry so that M is regular along
+   !> the rigid motions. M is what makes the Jacobian stiff (the membrane's short waves,
+   !> rates ~ 1/(Ca h)); the walls, the inflow and the volume and frame corrections are left
+   !> to GMRES.
+   subroutine build_preconditioner(self, x)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), parameter :: step = 1.0e-7_dp, shift_fraction = 1.0e-3_dp
+      real(dp), allocatable :: s(:, :), k_col(:), xp(:, :), f0(:, :), f1(:, :), tri_area(:), area(:), normal(:, :)
+      real(dp) :: d(3), r2, radius, shift, volume, moment, t0
+      integer :: n, m, i, j, a, b, col, info, q
+      integer, allocatable :: rows(:)
+
+      t0 = omp_get_wtime()
+      n = self%mesh%n_nodes
+      m = 3 * n
+      if (.not. allocated(self%precond_lu)) allocate (self%precond_lu(m, m), self%precond_pivot(m))
+      allocate (s(m, m), k_col(m), xp(3, n), f0(3, n), f1(3, n), tri_area(self%mesh%n_tri), area(n), normal(3, n))
+      allocate (rows(m))
+      call triangle_areas(self%mesh, x, tri_area)
+      call node_areas(self%mesh, tri_area, area)
+      call volume_gradients(self%mesh, x, normal, self%moment_grad, volume, moment)
+      !$omp parallel do default(none) shared(s, x, area, normal, n) private(i, j, a, b, d, r2, radius) schedule(static)
+      do j = 1, n
+         do i = 1, n
+            if (i == j) then
+               radius = sqrt(area(j) / pi)
+               d = normal(:, j) / norm2(normal(:, j))
+               do b = 1, 3
+                  do a = 1, 3
+                     s(3 * (i - 1) + a, 3 * (j - 1) + b) = radius / (8.0_dp * area(j)) * &
+                                                           (merge(3.0_dp, 0.0_dp, a == b) - d(a) * d(b))
+                  end do
+               end do
+            else
+               d = x(:, i) - x(:, j)
+               r2 = sum(d * d)
+               do b = 1, 3
+                  do a = 1, 3
+                     s(3 * (i - 1) + a, 3 * (j - 1) + b) = (merge(1.0_dp, 0.0_dp, a == b) / sqrt(r2) + &
+                                                           d(a) * d(b) / (r2 * sqrt(r2))) / (8.0_dp * pi)
+                  end do
+               end do
+            end if
+         end do
+      end do
+      !$omp end parallel do
+      call force_at(self, x, f0)
+      shift = 0.0_dp
+      self%precond_lu = 0.0_dp
+      do col = 1, m
+         xp = x
+         j = (col - 1) / 3 + 1
+         a = col - 3 * (j - 1)
+         xp(a, j) = xp(a, j) + step
+         call force_at(self, xp, f1)
+         k_col = reshape((f1 - f0) / step, [m])
+         shift = max(shift, abs(k_col(col)))
+         ! Column col of S K: S times the few nonzero entries of K's column.
+         q = 0
+         do i = 1, m
+            if (k_col(i) /= 0.0_dp) then
+               q = q + 1
+               rows(q) = i
+            end if
+         end do
+         self%precond_lu(:, col) = matmul(s(:, rows(1:q)), k_col(rows(1:q)))
+      end do
+      ! M = S (K - shift I) / Ca.
+      self%precond_lu = (self%precond_lu - shift_fraction * shift * s) / self%ca
+      call dgetrf(m, m, self%precond_lu, m, self%precond_pivot, info)
+      if (info /= 0) deallocate (self%precond_lu, self%precond_pivot)
+      self%precond_builds = self%precond_builds + 1
+      self%seconds_preconditioner = self%seconds_preconditioner + (omp_get_wtime() - t0)
+   end subroutine build_preconditioner
+
+   !> Nodal membrane forces (elastic and bending) at x.
+   subroutine force_at(self, x, force)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: force(:, :)
+      real(dp) :: energy
+      call membrane_nodal_forces(self%ref, self%mesh, self%law, x, force, energy)
+      if (self%bending%kb > 0.0_dp) call self%bending%add_forces(self%mesh, x, force, energy)
+   end subroutine force_at
+
+   !> z <- P M^-1 z (M^-1 = identity where the factorisation failed).
+   subroutine apply_preconditioner(self, z)
+      class(tube_steady_capsule_t), intent(in) :: self
+      real(dp), intent(inout) :: z(:, :)
+      real(dp) :: col(size(z), 1)
+      integer :: info, m
+      if (allocated(self%precond_lu)) then
+         m = size(z)
+         col(:, 1) = reshape(z, [m])
+         call dgetrs('N', m, 1, self%precond_lu, m, self%precond_pivot, col, m, info)
+         z = reshape(col(:, 1), shape(z))
+      end if
+      call project(self, z)
+   end subroutine apply_preconditioner
+
+   !> w = P (u(x + e v) - r) / e with r = u(x), the step e moving no node by more than fd_size.
+   subroutine jacobian_product(self, x, r, v, w)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :), r(:, :), v(:, :)
+      real(dp), intent(out) :: w(:, :)
+      real(dp) :: e, size_v
+      size_v = maxval(abs(v))
+      if (size_v == 0.0_dp) then
+         w = 0.0_dp
+         return
+      end if
+      e = fd_size / size_v
+      call evaluate(self, x + e * v, w)
+      w = (w - r) / e
+      call project(self, w)
+   end subroutine jacobian_product
+
+   subroutine evaluate(self, x, u)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: u(:, :)
+      call self%velocity(x, u)
+      self%velocity_evaluations = self%velocity_evaluations + 1
+   end subroutine evaluate
+
+   !> The constraint directions at x, orthonormal (modified Gram-Schmidt): the volume gradient,
+   !> the uniform translations along x, y, z, and the rotation about the axis.
+   subroutine constraint_basis(self, x)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp) :: volume, moment
+      integer :: k, j
+      call volume_gradients(self%mesh, x, self%basis(:, :, 1), self%moment_grad, volume, moment)
+      do k = 1, 3
+         self%basis(:, :, k + 1) = 0.0_dp
+         self%basis(k, :, k + 1) = 1.0_dp
+      end do
+      self%basis(1, :, 5) = -x(2, :)
+      self%basis(2, :, 5) = x(1, :)
+      self%basis(3, :, 5) = 0.0_dp
+      do k = 1, n_constraints
+         do j = 1, k - 1
+            self%basis(:, :, k) = self%basis(:, :, k) - sum(self%basis(:, :, k) * self%basis(:, :, j)) * self%basis(:, :, j)
+         end do
+         self%basis(:, :, k) = self%basis(:, :, k) / norm2(self%basis(:, :, k))
+      end do
+   end subroutine constraint_basis
+
+   !> u <- P u, the part of u orthogonal to the constraint directions.
+   subroutine project(self, u)
+      class(tube_steady_capsule_t), intent(in) :: self
+      real(dp), intent(inout) :: u(:, :)
+      integer :: k
+      do k = 1, n_constraints
+         u = u - sum(u * self%basis(:, :, k)) * self%basis(:, :, k)
+      end do
+   end subroutine project
+
+   !> Scale x about its centroid to the start's volume, then, when `centre`, put the centroid
+   !> at the origin (not after a Newton step: see the module header).
+   subroutine restore_volume_and_centre(self, x, centre)
+      class(tube_steady_capsule_t), intent(in) :: self
+      real(dp), intent(inout) :: x(:, :)
+      logical, intent(in) :: centre
+      real(dp) :: area, volume, c(3), s
+      integer :: i
+      call area_and_volume(self%mesh, x, area, volume)
+      c = volume_centroid(self%mesh, x)
+      s = (self%volume0 / volume)**(1.0_dp / 3.0_dp)
+      do i = 1, size(x, 2)
+         x(:, i) = c + s * (x(:, i) - c)
+      end do
+      if (centre) call recentre(self%mesh, x, axial_only=.false.)
+   end subroutine restore_volume_and_centre
+
+end module tube_steady_3d
