@@ -119,13 +119,22 @@ def _relinked(source: Path, path: Path, how: str) -> Path:
         for key in src:
             if how == "external link":
                 f[key] = h5py.ExternalLink(str(other), "/" + key)
-            elif isinstance(src[key], h5py.Group):              # a database's law: a group of datasets
-                f.create_group(key)
-                for name, item in src[key].items():
-                    _virtual(f[key], name, item, other, f"/{key}/{name}")
             else:
-                _virtual(f, key, src[key], other, "/" + key)
+                _virtual_tree(f, key, src[key], other, "/" + key)
     return path
+
+
+def _virtual_tree(group: h5py.Group, name: str, item: h5py.Group | h5py.Dataset, other: Path, target: str) -> None:
+    """`item` as virtual datasets of `other`, group by group (a database's law holds datasets and
+    groups of datasets, e.g. its folds)."""
+    if isinstance(item, h5py.Group):
+        group.create_group(name)
+        for key, value in item.attrs.items():
+            group[name].attrs[key] = value
+        for child, value in item.items():
+            _virtual_tree(group[name], child, value, other, f"{target}/{child}")
+    else:
+        _virtual(group, name, item, other, target)
 
 
 def _virtual(group: h5py.Group, name: str, item: h5py.Dataset, other: Path, target: str) -> None:
