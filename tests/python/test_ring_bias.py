@@ -19,25 +19,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from capillary_films import MEMBRANE, SHAPE, capsule_transmission, pool_capsules, section_px
-from scipy import ndimage
 from scipy.spatial import cKDTree
+from traced_ring import traced_ring
 
-from capsmech.imaging.objects import DETECTION_SMOOTHING_PX, TracedObject, find_objects, trace_object
 from capsmech.imaging.rendering import FrameStyle, drawn_lengths, outline_from_meridian, render_frame
 
 L_PX = 60.0                  # tube radius [px] (the films' 30 um at 0.5 um a pixel)
 LEVEL, NOISE = 200.0, 3.0    # grey level of the liquid, camera noise [grey levels]
 PLACEMENTS = 6
-
-
-def _traced(contrast: np.ndarray) -> TracedObject:
-    """The one object of a contrast image, traced as the extraction traces it."""
-    smooth = ndimage.gaussian_filter(contrast, DETECTION_SMOOTHING_PX)
-    labels, mask, keep, threshold = find_objects(smooth, np.ones(contrast.shape, bool), 6.0, 30)
-    assert len(keep) == 1
-    traced = trace_object(contrast, labels == keep[0], mask, threshold, smooth)
-    assert isinstance(traced, TracedObject) and traced.kind == "ring"
-    return traced
 
 
 def _film_ring_errors(interior_gain: float) -> list[float]:
@@ -52,7 +41,7 @@ def _film_ring_errors(interior_gain: float) -> list[float]:
         centre = np.array([240.0, 80.0]) + rng.uniform(-0.5, 0.5, 2)
         light = LEVEL * capsule_transmission(outline, cKDTree(outline), centre, optics)
         frame = np.rint(light + rng.normal(0.0, NOISE, SHAPE))
-        traced = _traced(1 - frame / LEVEL)
+        traced = traced_ring(1 - frame / LEVEL)
         errors.append(traced.extent_px - capsule.L_z * L_PX)
     return errors
 
@@ -87,5 +76,5 @@ def test_the_traced_length_on_the_package_renderer_carries_no_bias():
         inside = np.zeros(contrast.shape, bool)
         inside[45:155] = True
         contrast[~inside] = 0.0
-        errors.append(_traced(contrast).extent_px - drawn_lengths(outline)[0] * style.tube_radius_px)
+        errors.append(traced_ring(contrast).extent_px - drawn_lengths(outline)[0] * style.tube_radius_px)
     assert abs(np.mean(errors)) < 0.1, errors

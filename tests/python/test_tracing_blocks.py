@@ -26,18 +26,15 @@ from capillary_films import MEMBRANE, SHAPE, capsule_transmission, pool_capsules
 from scipy import ndimage
 from scipy.spatial import cKDTree
 from skimage.measure import find_contours
+from traced_ring import traced_ring
 
 from capsmech.imaging import objects
 from capsmech.imaging.measurement import rear_axis_crossing
 from capsmech.imaging.objects import (
-    DETECTION_SMOOTHING_PX,
-    TracedObject,
     bilinear_samples,
     closed_contours,
-    find_objects,
     nearest_on_polyline,
     resample,
-    trace_object,
 )
 
 L_PX = 60.0
@@ -128,15 +125,6 @@ def test_the_profiles_are_map_coordinates_bilinear():
         assert np.abs(bilinear_samples(image, rows, cols) - expected).max() < 1e-6, shape
 
 
-def _traced(contrast: np.ndarray) -> TracedObject:
-    smooth = ndimage.gaussian_filter(contrast, DETECTION_SMOOTHING_PX)
-    labels, mask, keep, threshold = find_objects(smooth, np.ones(contrast.shape, bool), 6.0, 30)
-    assert len(keep) == 1
-    traced = trace_object(contrast, labels == keep[0], mask, threshold, smooth)
-    assert isinstance(traced, TracedObject) and traced.kind == "ring"
-    return traced
-
-
 def _dense_nearest(polyline: np.ndarray, points: np.ndarray) -> np.ndarray:
     """The reference pairing: the line sampled every 0.05 px, each point's nearest sample."""
     dense = resample(polyline, 0.05)
@@ -149,12 +137,12 @@ def test_the_traced_lengths_are_those_of_the_reference_blocks(interior_gain, mon
     the line width traced with the fast blocks and with the references, within 0.01 px."""
     rng = np.random.default_rng(21)
     contrasts = [_ring_contrast((5 * k) % 24, interior_gain, rng) for k in range(6)]
-    fast = [_traced(c) for c in contrasts]
+    fast = [traced_ring(c) for c in contrasts]
     monkeypatch.setattr(objects, "closed_contours", _reference_contours)
     monkeypatch.setattr(objects, "nearest_on_polyline", _dense_nearest)
     monkeypatch.setattr(objects, "bilinear_samples", lambda image, rows, cols: ndimage.map_coordinates(
         image, np.array([rows, cols]), order=1, mode="nearest"))
-    reference = [_traced(c) for c in contrasts]
+    reference = [traced_ring(c) for c in contrasts]
     for a, b in zip(fast, reference):
         assert a.extent_px == pytest.approx(b.extent_px, abs=0.01)
         L_p_fast, L_p_reference = (rear_axis_crossing(t.contour, 80.0) - t.x_rear for t in (a, b))
