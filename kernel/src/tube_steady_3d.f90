@@ -21,6 +21,11 @@
 !> volume centroid at first order, and re-centring then spoiled every line search at level 2
 !> (stalled at 2e-4 V); the written shape is re-centred.
 !>
+!> Where an attempt from the guess fails (a mapped shape far from the 3D mesh's own, or one
+!> whose short waves spoil the line search), the guess is time-stepped by the run's own RK2 in
+!> short warm-ups, with a Newton attempt after each; every attempt and the whole solve have a
+!> budget of velocity evaluations, and a solve that spends it ends `failed` saying so.
+!>
 !> Stability: the last GMRES cycle's Arnoldi relation gives Ritz values of the projected
 !> Jacobian (ritz_growth_rate); a shape whose largest converged one has a real part above
 !> stable_rate_limit_3d is written with stable = 0 and its message says NOT STABLE.
@@ -58,6 +63,20 @@ module tube_steady_3d
    !> Krylov vectors per GMRES cycle and GMRES products per Newton step at most.
    integer, parameter :: krylov_dim = 120, max_products = 600
    integer, parameter :: max_newton = 20
+   !> Velocity evaluations at most: for each Newton attempt, and for the whole solve (warm-ups
+   !> included). A level-3 case converges from the axisymmetric guess in ~150.
+   integer, parameter :: attempt_evaluations = 400, max_evaluations = 3000
+   !> Residual (V) below which an attempt is not cut at attempt_evaluations: from there Newton
+   !> converged within a few steps wherever it got there (level 2, a/l 0.4-0.9).
+   real(dp), parameter :: near_root = 1.0e-3_dp
+   !> The preconditioner is rebuilt at the current shape after a Newton step whose GMRES
+   !> needed more products than this (it was built at a shape that no longer resembles x).
+   integer, parameter :: rebuild_products = 60
+   !> Time-stepped warm-ups (l/V of the run's own RK2, continued from the guess) between failed
+   !> Newton attempts: they damp the membrane's short waves that the mapped guess excites, and
+   !> bring a guess far from the 3D mesh's own shape nearer; warm_up_time each, up to
+   !> max_warm_up_time in all.
+   real(dp), parameter :: warm_up_time = 0.5_dp, max_warm_up_time = 3.0_dp
    !> Largest node displacement of one Newton step, in capsule radii.
    real(dp), parameter :: max_step = 0.05_dp
    !> A steady shape is flagged as not stable when the largest Ritz growth rate exceeds this
@@ -101,9 +120,11 @@ contains
       character(len=*), intent(in) :: checkpoint_path
       type(case_summary_t), intent(inout) :: summary
       integer, intent(out) :: steady_index
-      real(dp) :: area, t0
+      real(dp) :: area, t0, warmed
+      real(dp), allocatable :: warm(:, :)
+      character(len=:), allocatable :: source
       logical :: converged
-      character(len=:), allocatable :: how
+      character(len=:), allocatable :: how, first_attempt
 
       steady_index = 0
       summary%dt = 0
@@ -112,7 +133,26 @@ contains
       t0 = omp_get_wtime()
       call axisymmetric_guess(self, opts, checkpoint_path)
       self%seconds_guess = omp_get_wtime() - t0
-      call newton_krylov(self, newton_tol_3d, opts%quiet, converged, how)
+      warm = self%positions
+      source = self%guess_source
+      first_attempt = ''
+      self%newton_iterations = 0
+      call newton_krylov(self, newton_tol_3d, attempt_evaluations, opts%quiet, converged, how)
+      warmed = 0
+      do while (.not. converged .and. self%velocity_evaluations < max_evaluations .and. warmed < max_warm_up_time)
+         ! Another attempt from the guess time-stepped warm_up_time further.
+         if (warmed == 0) first_attempt = '; the first attempt, from the '//source//' shape, stopped: '//how
+         self%positions = warm
+         call rk2_warm_up(self, warm_up_time, opts%quiet)
+         warm = self%positions
+         warmed = warmed + warm_up_time
+         self%guess_source = 'warmed-up ('//source//', then '//num(warmed)//' l/V of RK2)'
+         call newton_krylov(self, newton_tol_3d, min(self%velocity_evaluations + attempt_evaluations, max_evaluations), &
+                            opts%quiet, converged, how)
+      end do
+      if (.not. converged .and. warmed > 0) how = how//' (the last of '//int_text(nint(warmed / warm_up_time) + 1)// &
+                                                  ' attempts; the budget: '//int_text(max_evaluations)// &
+                                                  ' velocity evaluations, '//num(max_warm_up_time)//' l/V of warm-up)'
       ! Mid-tube, on the axis, as the time-stepped run keeps it (the velocity barely notices).
       call recentre(self%mesh, self%positions, axial_only=.false.)
       self%t = 0
@@ -135,12 +175,14 @@ contains
          else
             summary%message = summary%message//'; largest growth rate '//num(self%growth_rate)//' V/l'
          end if
+         summary%message = summary%message//first_attempt
          steady_index = self%n_rec
       else
          summary%status = 'failed'
          summary%message = 'Newton-Krylov from the '//self%guess_source//' shape did not converge: '//how// &
                            ' (residual '//num(self%residual)//' V after '//int_text(self%newton_iterations)// &
-                           ' Newton steps)'
+                           ' Newton steps and '//int_text(self%velocity_evaluations)//' velocity evaluations)'// &
+                           first_attempt
       end if
       summary%volume_change = 0
    end subroutine steady_run
@@ -223,19 +265,38 @@ contains
       self%guess_source = 'axisymmetric'
    end subroutine axisymmetric_guess
 
-   !> Newton's iterations on P u(x) = 0 (P the projection off the constraint directions at x).
-   subroutine newton_krylov(self, tol, quiet, converged, how)
+   !> The run's own RK2 steps (tube_capsule's, at its dt) for `duration` l/V from the current
+   !> positions.
+   subroutine rk2_warm_up(self, duration, quiet)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: duration
+      logical, intent(in) :: quiet
+      integer :: k, n_steps
+      n_steps = ceiling(duration / self%dt)
+      if (.not. quiet) write (*, '(a,i0,a)') 'capsim: Newton attempt failed; ', n_steps, ' RK2 steps of warm-up'
+      do k = 1, n_steps
+         call self%advance()
+         self%velocity_evaluations = self%velocity_evaluations + 2
+      end do
+   end subroutine rk2_warm_up
+
+   !> Newton's iterations on P u(x) = 0 (P the projection off the constraint directions at x),
+   !> until the run has spent `evaluation_budget` velocity evaluations in all.
+   subroutine newton_krylov(self, tol, evaluation_budget, quiet, converged, how)
       class(tube_steady_capsule_t), intent(inout) :: self
       real(dp), intent(in) :: tol
+      integer, intent(in) :: evaluation_budget
       logical, intent(in) :: quiet
       logical, intent(out) :: converged
       character(len=:), allocatable, intent(out) :: how
       real(dp), allocatable :: x(:, :), r(:, :), pr(:, :), delta(:, :), x_try(:, :), r_try(:, :), pr_try(:, :)
       real(dp) :: res2, res2_try, res2_prev, alpha, eta
-      integer :: n, products
+      integer :: n, products, steps
       logical :: solved
 
       converged = .false.
+      steps = 0
+      self%growth_rate = huge(1.0_dp)
       how = 'no Newton step taken'
       n = self%mesh%n_nodes
       allocate (x(3, n), r(3, n), pr(3, n), delta(3, n), x_try(3, n), r_try(3, n), pr_try(3, n))
@@ -247,7 +308,6 @@ contains
       call project(self, pr)
       res2 = norm2(pr)
       res2_prev = res2
-      self%newton_iterations = 0
       call build_preconditioner(self, x)
       do
          self%residual = maxval(abs(pr))
@@ -258,22 +318,29 @@ contains
             ' velocity evaluations'
          if (self%residual < tol) then
             converged = .true.
-            ! The growth rate is the last step's; where there is none (the guess was the root,
-            ! or no Ritz value of that step converged), one cycle on the residual gives it.
+            ! The growth rate is this attempt's last; where there is none (the guess was the
+            ! root, or no Ritz value converged), one full cycle on the residual gives it.
             if (self%growth_rate == huge(1.0_dp)) then
-               call gmres(self, x, r, -pr, 1.0e-3_dp * res2, delta, products, solved)
+               call gmres(self, x, r, -pr, 0.0_dp, krylov_dim, delta, products, solved)
                self%gmres_products = self%gmres_products + products
             end if
             return
          end if
-         if (self%newton_iterations >= max_newton) then
+         if (steps >= max_newton) then
             how = 'no convergence in '//int_text(max_newton)//' Newton steps'
+            return
+         end if
+         ! An attempt that is near the root goes on, to the solve's whole budget.
+         if (self%velocity_evaluations >= max_evaluations .or. &
+             (self%velocity_evaluations >= evaluation_budget .and. self%residual > near_root)) then
+            how = 'the budget of '//int_text(min(evaluation_budget, max_evaluations))//' velocity evaluations was spent'
             return
          end if
          ! Eisenstat-Walker forcing: loose far from the root, tighter as Newton converges.
          eta = 0.1_dp
          if (self%newton_iterations > 0) eta = min(0.1_dp, max(1.0e-3_dp, 0.9_dp * (res2 / res2_prev)**2))
-         call gmres(self, x, r, -pr, max(eta * res2, 0.1_dp * tol), delta, products, solved)
+         call gmres(self, x, r, -pr, max(eta * res2, 0.1_dp * tol), &
+                    min(max_products, max_evaluations - self%velocity_evaluations), delta, products, solved)
          self%gmres_products = self%gmres_products + products
          ! A step larger than max_step a is along a direction the Jacobian barely sees (GMRES's
          ! loose first solve at a/l 0.4, Ca_s 0.05 moved nodes by 0.86 l): cut to that length.
@@ -307,16 +374,19 @@ contains
          res2_prev = res2
          res2 = res2_try
          self%newton_iterations = self%newton_iterations + 1
+         steps = steps + 1
+         if (products > rebuild_products) call build_preconditioner(self, x)
       end do
    end subroutine newton_krylov
 
    !> Right-preconditioned GMRES(krylov_dim) on J_P delta = b from delta = 0, with
    !> J_P v = P (u(x + e v) - u(x)) / e and delta = P M^-1 y (M the stiffness preconditioner),
-   !> until |b - J_P delta| <= tol_abs or max_products products. Sets the growth rate from the
+   !> until |b - J_P delta| <= tol_abs or product_limit products. Sets the growth rate from the
    !> last cycle (ritz_growth_rate).
-   subroutine gmres(self, x, r, b, tol_abs, delta, products, solved)
+   subroutine gmres(self, x, r, b, tol_abs, product_limit, delta, products, solved)
       class(tube_steady_capsule_t), intent(inout) :: self
       real(dp), intent(in) :: x(:, :), r(:, :), b(:, :), tol_abs
+      integer, intent(in) :: product_limit
       real(dp), intent(out) :: delta(:, :)
       integer, intent(out) :: products
       logical, intent(out) :: solved
@@ -371,7 +441,7 @@ contains
             g(j + 1) = -sn(j) * g(j)
             g(j) = cs(j) * g(j)
             k = j
-            if (abs(g(j + 1)) <= tol_abs .or. products >= max_products .or. arnoldi(j + 1, j) == 0.0_dp) exit
+            if (abs(g(j + 1)) <= tol_abs .or. products >= product_limit .or. arnoldi(j + 1, j) == 0.0_dp) exit
          end do
          do i = k, 1, -1
             y(i) = (g(i) - dot_product(h(i, i + 1:k), y(i + 1:k))) / h(i, i)
@@ -384,7 +454,7 @@ contains
             solved = .true.
             return
          end if
-         if (products >= max_products) return
+         if (products >= product_limit) return
          ! Restart from the true residual.
          call jacobian_product(self, x, r, delta, w)
          products = products + 1
