@@ -302,11 +302,7 @@ contains
       allocate (x(3, n), r(3, n), pr(3, n), delta(3, n), x_try(3, n), r_try(3, n), pr_try(3, n))
       x = self%positions
       call restore_volume_and_centre(self, x, .true.)
-      call evaluate(self, x, r)
-      call constraint_basis(self, x)
-      pr = r
-      call project(self, pr)
-      res2 = norm2(pr)
+      call residual_at(self, x, r, pr, res2)
       res2_prev = res2
       call build_preconditioner(self, x)
       do
@@ -349,11 +345,7 @@ contains
          do
             x_try = x + alpha * delta
             call restore_volume_and_centre(self, x_try, .false.)
-            call evaluate(self, x_try, r_try)
-            call constraint_basis(self, x_try)
-            pr_try = r_try
-            call project(self, pr_try)
-            res2_try = norm2(pr_try)
+            call residual_at(self, x_try, r_try, pr_try, res2_try)
             if (res2_try < (1.0_dp - 1.0e-4_dp * alpha) * res2) exit
             alpha = 0.5_dp * alpha
             if (alpha < 1.0_dp / 32) then
@@ -660,6 +652,19 @@ contains
       w = (w - r) / e
       call project(self, w)
    end subroutine jacobian_product
+
+   !> The velocity r at x, the constraint directions there, and the projected residual pr = P r
+   !> with its norm: what each Newton iterate and each line-search trial is judged by.
+   subroutine residual_at(self, x, r, pr, res2)
+      class(tube_steady_capsule_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: r(:, :), pr(:, :), res2
+      call evaluate(self, x, r)
+      call constraint_basis(self, x)
+      pr = r
+      call project(self, pr)
+      res2 = norm2(pr)
+   end subroutine residual_at
 
    subroutine evaluate(self, x, u)
       class(tube_steady_capsule_t), intent(inout) :: self
