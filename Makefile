@@ -46,7 +46,7 @@ MODULE_ORDER := capsim_kinds lapack_interfaces blas_threads text_format text_par
            axisymmetric_bending \
             stokes_single_layer stokes_double_layer interface_equation tube_wall_mesh duct_poiseuille duct_wall_mesh wall_mesh_quality triangle_cells wall_single_layer self_single_layer surface_diagnostics background_flow shear_implicit \
            run_options case_output state_vector capsule_model tube_history capsule_dynamics \
-           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_continuation axisymmetric_tube tube_branch tube_capsule tube_steady_3d
+           axisymmetric_wall axisymmetric_operator axisymmetric_integrators axisymmetric_steady axisymmetric_continuation axisymmetric_tube tube_branch tube_capsule tube_steady_3d tube_branch_3d
 MODULES := $(foreach m,$(MODULE_ORDER),$(if $(wildcard kernel/src/$(m).f90),$(m)))
 MOD_OBJS := $(addprefix $(BUILD)/,$(addsuffix .o,$(MODULES)))
 # Test programs: every kernel/tests/*.f90 is a program that measures and prints.

@@ -119,13 +119,15 @@ module option_table
                     help='steady state when the area varies by less than steady_tol 4 pi a^2 over one time unit'), &
       option_spec_t(name='--max-length', arg='LENGTH', group='end of run', unit='a (capsule radius)', &
                     help='continuous elongation is declared when the half-length L1 exceeds this, > 1'), &
-      option_spec_t(name='--branch-ca', arg='CA1,CA2,...', group='steady branch (tube axi)', unit='dimensionless', &
-                    default_note='none: one case at --ca', &
-                    help='follow the steady branch over these ascending Ca_s (one case file each, --out with {ca})', &
-                    contexts='tube-axi'), &
-      option_spec_t(name='--branch-summary', arg='FILE.h5', group='steady branch (tube axi)', default_note='none', &
+      option_spec_t(name='--branch-ca', arg='CA1,CA2,...', group='steady branch (axi, 3d newton)', &
+                    unit='dimensionless', default_note='none: one case at --ca', &
+                    help='follow the steady branch over these ascending Ca_s (a case file each, --out with {ca}); '// &
+                         '3d: --integrator newton', &
+                    contexts='tube-axi tube-3d'), &
+      option_spec_t(name='--branch-summary', arg='FILE.h5', group='steady branch (axi, 3d newton)', &
+                    default_note='none', &
                     help='with --branch-ca: the branch file (its points, the critical Ca_s where it ends)', &
-                    contexts='tube-axi'), &
+                    contexts='tube-axi tube-3d'), &
       option_spec_t(name='--out', arg='FILE.h5', group='output and checkpoint', required=.true., &
                     help='path of the HDF5 case file to write (checkpoints go to FILE.h5.ckpt)'), &
       option_spec_t(name='--record-every', arg='TIME', group='output and checkpoint', unit=time_unit, &

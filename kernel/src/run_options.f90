@@ -97,7 +97,7 @@ module run_options
       real(dp) :: t_max = 60.0_dp
       integer :: threads = 0
       character(len=path_len) :: out = ''
-      !> Steady branch (tube axi): the requested Ca_s as given ('0.01,0.02,...', '' = one case at
+      !> Steady branch (tube axi, or 3d with --integrator newton): the requested Ca_s as given ('0.01,0.02,...', '' = one case at
       !> --ca), and the branch file. --out then holds '{ca}', replaced by each value's text.
       character(len=path_len) :: branch_ca = ''
       character(len=path_len) :: branch_summary = ''
@@ -1180,7 +1180,8 @@ contains
    end function words_joined
 
    !> A steady branch needs its list (ascending, each value a valid --ca), its branch file,
-   !> and '{ca}' in --out (each case has its own file, named by its value's text).
+   !> the steady solver for the 3d model, and '{ca}' in --out (each case has its own file,
+   !> named by its value's text).
    subroutine validate_branch(opts, errmsg)
       type(run_options_t), intent(in) :: opts
       character(len=:), allocatable, intent(inout) :: errmsg
@@ -1194,6 +1195,11 @@ contains
          return
       else if (index(opts%out, '{ca}') == 0) then
          errmsg = '--out: with --branch-ca it must hold {ca} (one case file per Ca_s), got "'//trim(opts%out)//'"'
+         return
+      else if (trim(opts%model) == '3d' .and. trim(opts%integrator) /= 'newton') then
+         ! The 3D branch continues steady shapes: only the steady solver has them.
+         errmsg = '--branch-ca: the 3d model follows a branch with --integrator newton, got "'// &
+                  trim(opts%integrator)//'"'
          return
       end if
       call branch_ca_values(opts, values, ok)

@@ -23,6 +23,7 @@ module tube_branch
    use capsim_kinds, only: dp, code_version, schema_version
    use file_ops, only: path_kind, path_regular, replace_file
    use hdf5_writer, only: h5_file_t
+   use membrane_law, only: membrane_law_t
    use run_options, only: run_options_t, option_signature, branch_ca_values, branch_case_path
    use case_output, only: case_summary_t, close_case_file, write_checkpoint, read_checkpoint
    use capsule_model, only: num
@@ -34,7 +35,7 @@ module tube_branch
    use axisymmetric_tube, only: axisymmetric_tube_t, meridian_stretch_limit
    implicit none
    private
-   public :: run_tube_branch
+   public :: run_tube_branch, start_branch_file, finish_branch_file, log_columns, branch_end_none
 
    !> Phases of the branch: no branch point held (cases are time-stepped), on the branch, ended.
    integer, parameter :: phase_stepping = 0, phase_on_branch = 1, phase_ended = 2
@@ -45,6 +46,10 @@ module tube_branch
    character(len=*), parameter :: log_names(log_columns) = [character(len=16) :: 'Ca_s', 'L_z', 'L_p', 'v_c', &
                                                            'growth_rate', 'stretch', 'source']
    character(len=*), parameter :: log_units(log_columns) = [character(len=16) :: '1', 'l', 'l', 'V', 'V/l', '1', '1']
+   !> What the source column means in the axisymmetric branch log.
+   character(len=*), parameter :: axi_sources = '0 time-stepped start, 1 requested Ca_s, 2 arclength point'
+   !> critical_kind of a branch that does not end within the requested Ca_s.
+   character(len=*), parameter :: branch_end_none = 'none: the branch does not end within the requested Ca_s'
 
 contains
 
@@ -382,52 +387,84 @@ contains
       character(len=:), allocatable, intent(out) :: errmsg
       type(h5_file_t) :: f
       real(dp) :: critical_ca
-      character(len=:), allocatable :: kind, path
-      integer :: c
-      path = trim(opts%branch_summary)
+      character(len=:), allocatable :: kind
       critical_ca = ieee_value(1.0_dp, ieee_quiet_nan)
-      kind = 'none: the branch does not end within the requested Ca_s'
+      kind = branch_end_none
       if (phase == phase_ended) then
          critical_ca = exp(critical_log_ca)
          kind = merge('fold      ', 'mesh_limit', outcome == end_fold)
          kind = trim(kind)
+         call start_branch_file(opts, model%law, 'axi', branch_log, critical_ca, kind, &
+                                axi_sources, threads, wall_time, &
+                                f, stat, errmsg, end_text(outcome, critical_log_ca))
+      else
+         call start_branch_file(opts, model%law, 'axi', branch_log, critical_ca, kind, &
+                                axi_sources, threads, wall_time, &
+                                f, stat, errmsg)
       end if
-      call f%create(path//'.tmp', stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'n_meridian', opts%n_meridian, stat, errmsg)
+      call finish_branch_file(f, trim(opts%branch_summary), stat, errmsg)
+   end subroutine write_branch_file
+
+   !> The part of a branch file that the tube models share (the readers of the workflow rely
+   !> on it): root attributes naming the case and the branch's end (critical_Ca_s, NaN where
+   !> it did not end; critical_kind; critical_message where given), and the branch log
+   !> (columns log_names) as datasets under /branch, whose attribute `source` says what the
+   !> source codes mean. Written to BRANCH.tmp, left open for the model's own attributes;
+   !> finish_branch_file puts it in place.
+   subroutine start_branch_file(opts, law, model_name, branch_log, critical_ca, kind, source_text, threads, &
+                                wall_time, f, stat, errmsg, message)
+      type(run_options_t), intent(in) :: opts
+      type(membrane_law_t), intent(in) :: law
+      character(len=*), intent(in) :: model_name, kind, source_text
+      real(dp), intent(in) :: branch_log(:, :), critical_ca, wall_time
+      integer, intent(in) :: threads
+      type(h5_file_t), intent(inout) :: f
+      integer, intent(out) :: stat
+      character(len=:), allocatable, intent(out) :: errmsg
+      character(len=*), intent(in), optional :: message
+      integer :: c
+      call f%create(trim(opts%branch_summary)//'.tmp', stat, errmsg)
       if (stat /= 0) return
       call f%write_attr('/', 'schema_version', schema_version, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'code_version', code_version, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'flow', 'tube', stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'model', 'axi', stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'law', model%law%name(), stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'nu_s', model%law%nu_s, stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'C', model%law%c, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'model', model_name, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'law', law%name(), stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'nu_s', law%nu_s, stat, errmsg)
+      if (stat == 0) call f%write_attr('/', 'C', law%c, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'a_over_l', opts%a_over_l, stat, errmsg)
-      if (stat == 0) call f%write_attr('/', 'n_meridian', opts%n_meridian, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'requested_Ca_s', trim(opts%branch_ca), stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'critical_Ca_s', critical_ca, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'critical_kind', kind, stat, errmsg)
-      if (stat == 0 .and. phase == phase_ended) call f%write_attr('/', 'critical_message', &
-                                                                  end_text(outcome, critical_log_ca), stat, errmsg)
+      if (stat == 0 .and. present(message)) call f%write_attr('/', 'critical_message', message, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'wall_time_s', wall_time, stat, errmsg)
       if (stat == 0) call f%write_attr('/', 'threads', threads, stat, errmsg)
       if (stat == 0) call f%make_group('/branch', stat, errmsg)
-      if (stat == 0) call f%write_attr('/branch', 'source', '0 time-stepped start, 1 requested Ca_s, 2 arclength point', &
-                                       stat, errmsg)
+      if (stat == 0) call f%write_attr('/branch', 'source', source_text, stat, errmsg)
       do c = 1, log_columns
          if (stat == 0) call f%write_dataset('/branch/'//trim(log_names(c)), branch_log(c, :), trim(log_units(c)), &
                                              stat, errmsg)
       end do
+   end subroutine start_branch_file
+
+   !> Closes a branch file opened by start_branch_file and, if everything was written (stat
+   !> 0 on entry), renames it into place; nothing where it could not be created.
+   subroutine finish_branch_file(f, path, stat, errmsg)
+      type(h5_file_t), intent(inout) :: f
+      character(len=*), intent(in) :: path
+      integer, intent(inout) :: stat
+      character(len=:), allocatable, intent(inout) :: errmsg
+      integer :: ignored
+      character(len=:), allocatable :: ignored_msg
+      if (.not. f%is_open()) return
       if (stat == 0) then
          call f%close(stat, errmsg)
       else
-         block
-            integer :: ignored
-            character(len=:), allocatable :: ignored_msg
-            call f%close(ignored, ignored_msg)
-         end block
+         call f%close(ignored, ignored_msg)
       end if
       if (stat == 0) call replace_file(path//'.tmp', path, stat, errmsg)
-   end subroutine write_branch_file
+   end subroutine finish_branch_file
 
    !> Whether the branch can go on from a converged point: linearly stable, and within what
    !> the mesh resolves.
