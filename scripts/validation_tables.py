@@ -252,9 +252,33 @@ def shear_rows() -> str:
                       "D12/Ca_s vs small-deformation limit"], rows)
 
 
+def duct_rows() -> str:
+    """The square-duct database per law and a/w: its rows, the steady ones, those of them whose
+    level-2 companion is steady too (a mesh error), those that are not steady (status and Ca_s),
+    and the largest mesh error its steady rows state (levels 2 and 3)."""
+    from capsmech.io.database import load_database
+
+    db = load_database("duct-dev")
+    rows = []
+    for law, table in db.laws.items():
+        c = table.columns
+        for size in np.unique(c["a_over_l"]):
+            here = c["a_over_l"] == size
+            steady = here & table.steady
+            others = "; ".join(f"{c['Ca_s'][i]:g} {table.status[i]}" for i in np.flatnonzero(here & ~table.steady))
+            stated = [c[f"{name}_mesh_error_rel"][steady] for name in ("L_z", "L_p", "vc_over_V")]
+            errors = [100 * float(np.max(e[np.isfinite(e)])) if np.isfinite(e).any() else math.nan for e in stated]
+            checked = int(np.isfinite(c["L_z_mesh_error_rel"][steady]).sum())
+            rows.append([law, f"{size:g}", str(int(here.sum())), str(int(steady.sum())), str(checked), others or "—",
+                         f"{c['Ca_s'][steady].max():g}" if steady.any() else "—",
+                         " / ".join("—" if math.isnan(e) else f"{e:.2f} %" for e in errors)])
+    return _markdown(["law", "a/w", "rows", "steady", "with a mesh error", "not steady (Ca_s status)", "last steady Ca_s",
+                      "largest mesh error L_z / L_p / v_c"], rows)
+
+
 TABLES: dict[str, Callable[[], str]] = {"databases": databases, "tube-steady-range": tube_steady_range,
                                         "tube-folds": tube_folds,
-                                        "shear-rows": shear_rows,
+                                        "shear-rows": shear_rows, "duct-rows": duct_rows,
                                         "compare-methods": compare_methods, "example-fits": example_fits,
                                         "diagnosis-confusion": diagnosis_confusion,
                                         "interval-coverage": interval_coverage,

@@ -23,7 +23,7 @@ from capsmech.io.catalog import (
 from capsmech.io.database import DatabaseError, load_database
 
 NAMES = ["tube-paper", "shear-paper", "tube-prestress", "tube-kb", "offcentre", "shear-microrheometry",
-         "tube-smoke", "shear-smoke", "tube-dev", "shear-dev"]
+         "tube-smoke", "shear-smoke", "tube-dev", "shear-dev", "duct-dev"]
 DATABASES = [name for name in NAMES if CATALOG[name].kind == "database"]
 
 

@@ -9,7 +9,9 @@ Root attributes (identity and provenance)
     ``format``, ``format_version``, ``flow``, ``grid_name``, ``grid`` (the whole grid as
     JSON), ``settings`` (the flow's mesh and time settings as JSON), ``code_version`` (of
     the kernel that wrote every case), ``created`` (UTC, ISO 8601), ``case_count``,
-    ``profile_points``, ``capsmech_version``, ``length_scale``.
+    ``profile_points``, ``capsmech_version``, ``length_scale``; a tube database also
+    ``channel`` (``tube``, ``square`` or ``rect``) and ``aspect`` (the duct's height over its
+    width), read as ``'tube'`` and 1 from a file made before they were recorded.
     Files made before the identity was recorded gained it with ``scripts/label_databases.py``.
 ``/<law key>`` (``NH``, ``SK_C1``, ``GH_nu0.5`` ...), attributes ``law``, ``nu_s``, ``C``
 (NaN when the law has no such parameter), ``case_count``, ``steady_count``; one row per
@@ -20,6 +22,12 @@ case of the grid, in grid order, with 1-D datasets
 and 2-D ``profile_r``/``profile_z`` (tube meridian, pole to pole) or ``profile_y``/
 ``profile_z`` (shear-plane contour, closed), (rows, profile_points), resampled at equal
 arclength. Every dataset has a ``units`` attribute ('1' for dimensionless, '' for text).
+
+In a duct database (``channel`` square or rect) the length scale is the duct's half-width w:
+``a_over_l`` is a/w and the lengths' unit ``l`` stands for w (``length_scale`` says so, as the
+kernel's case files do); ``profile_r``/``profile_z`` is the capsule's outline in the plane y = 0
+(x > 0), the section through the duct's mid-plane that a microscope focused there shows (the
+projected silhouette would hide the rear dimple of a parachute).
 
 Rows that did not reach a steady state keep their parameters, status and message, and
 carry NaN in every result column and profile: they are recorded, never dropped.
@@ -74,15 +82,20 @@ RESULTS: dict[str, dict[str, tuple[str, str, str]]] = {
 #: Profile coordinates and their units (tube lengths in l, shear lengths in a).
 PROFILES: dict[str, tuple[tuple[str, ...], str]] = {"tube": (("r", "z"), "l"), "shear": (("y", "z"), "a")}
 LENGTH_SCALE = {"tube": "l (tube radius)", "shear": "a (capsule radius)"}
+#: The length scale of a duct database (channel square or rect), as the kernel writes it.
+DUCT_LENGTH_SCALE = "w (duct half-width)"
 TEXT_COLUMNS = ("status", "message")
 #: Accuracy columns a database may hold (read as NaN where a file made before them lacks them):
 #: name -> units. Shear: the estimated relative change of D12 still to come when the run stopped
 #: (time), the D12 of the same case on the grid's other mesh level (``mesh_check``: the finer
 #: one, or the cases' own level where the rows come from the finer one), the estimated relative
 #: mesh error of the row's D12 from the two (:func:`mesh_error_rel`), and the mesh level the
-#: row's values come from.
+#: row's values come from. Tube (3D model, ``tube.mesh_check``): for L_z, L_p and vc_over_V the
+#: value of the same case on the other mesh level (``<column>_mesh_check``) and the estimated
+#: relative mesh error of the row's value (``<column>_mesh_error_rel``), and the row's level.
 ACCURACY_COLUMNS: dict[str, dict[str, str]] = {
-    "tube": {},
+    "tube": {"L_z_mesh_check": "l", "L_p_mesh_check": "l", "vc_over_V_mesh_check": "1",
+             "L_z_mesh_error_rel": "1", "L_p_mesh_error_rel": "1", "vc_over_V_mesh_error_rel": "1", "mesh_level": "1"},
     "shear": {"D12_time_error_rel": "1", "D12_mesh_check": "1", "D12_mesh_error_rel": "1", "mesh_level": "1"},
 }
 #: Observed order of the shear D12's mesh convergence is about 2.4 (levels 2-4, validation page
@@ -94,14 +107,15 @@ MESH_ERROR_ORDER = 2.0
 CRITICAL_GROUP = "critical"
 
 
-def mesh_error_rel(d12: ArrayLike, d12_finer: ArrayLike, levels_apart: int, of: str = "coarse") -> np.ndarray:
-    """Estimated relative mesh error of D12 from the same case on two meshes (Richardson), with
-    ``r = 2**levels_apart`` (each level halves the element size) and ``p = MESH_ERROR_ORDER``:
-    of the coarser value (``of='coarse'``), ``|D12_finer - D12| / D12 * r**p / (r**p - 1)``;
-    of the finer value (``of='finer'``), ``|D12_finer - D12| / D12_finer / (r**p - 1)``.
-    NaN where either is missing."""
+def mesh_error_rel(d12: ArrayLike, d12_finer: ArrayLike, levels_apart: int, of: str = "coarse",
+                   order: float = MESH_ERROR_ORDER) -> np.ndarray:
+    """Estimated relative mesh error of a quantity (D12, L_z ...) from the same case on two
+    meshes (Richardson), with ``r = 2**levels_apart`` (each level halves the element size) and
+    ``p = order``: of the coarser value (``of='coarse'``), ``|D12_finer - D12| / D12 * r**p /
+    (r**p - 1)``; of the finer value (``of='finer'``), ``|D12_finer - D12| / D12_finer /
+    (r**p - 1)``. NaN where either is missing."""
     d, f = np.asarray(d12, dtype=float), np.asarray(d12_finer, dtype=float)
-    gain = (2.0 ** levels_apart) ** MESH_ERROR_ORDER
+    gain = (2.0 ** levels_apart) ** order
     with np.errstate(invalid="ignore", divide="ignore"):
         if of == "finer":
             return np.abs(f - d) / np.abs(f) / (gain - 1.0)
@@ -267,6 +281,19 @@ class Database:
         """str: the name of the grid the database was computed from."""
         return str(self.provenance.get("grid_name", ""))
 
+    @property
+    def channel(self) -> str:
+        """str: the tube flow's channel, ``'tube'`` (circular, lengths in the radius l),
+        ``'square'`` or ``'rect'`` (a duct, lengths in its half-width w); ``'tube'`` for a file
+        made before the channel was recorded, and for a shear database."""
+        return str(self.provenance.get("channel", "tube"))
+
+    @property
+    def aspect(self) -> float:
+        """float: the duct's height over its width (1 for a tube, a square duct, or a file made
+        before it was recorded)."""
+        return float(self.provenance.get("aspect", 1.0))
+
     def __repr__(self) -> str:
         grid = json.loads(self.provenance.get("grid", "{}")).get(self.flow, {})
         axes = " x ".join(f"{len(grid[axis])} {label}" for axis, label in (("a_over_l", "a/l"), ("Ca_s", "Ca_s"))
@@ -274,7 +301,8 @@ class Database:
         keys = list(self.laws)
         laws = ", ".join(keys[:6]) + (f" (+{len(keys) - 6} more)" if len(keys) > 6 else "")
         size = f"{self.provenance.get('case_count', sum(len(t) for t in self.laws.values()))} cases"
-        return (f"<{type(self).__name__} {self.name or self.path!r}: {self.flow}, laws {laws}; "
+        flow = self.flow if self.channel == "tube" else f"{self.flow} ({self.channel} duct, lengths in w)"
+        return (f"<{type(self).__name__} {self.name or self.path!r}: {flow}, laws {laws}; "
                 f"{size}{f' ({axes} per law)' if axes else ''}>")
 
     @property

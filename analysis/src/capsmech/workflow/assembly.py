@@ -18,6 +18,7 @@ from capsmech.io.case import EFFECT_DEFAULTS, CaseResult, decode_str
 from capsmech.io.database import (
     ACCURACY_COLUMNS,
     CRITICAL_GROUP,
+    DUCT_LENGTH_SCALE,
     FORMAT,
     FORMAT_VERSION,
     LENGTH_SCALE,
@@ -31,9 +32,9 @@ from capsmech.io.database import (
 )
 from capsmech.version import __version__
 from capsmech.workflow.grid import (
-    SHEAR_DEFAULT_LEVEL,
     Branch,
     Case,
+    case_level,
     expand_branches,
     expand_cases,
     flow_settings,
@@ -111,8 +112,21 @@ def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
         numbers.append((name, wanted_effects.get(name, neutral), result.effects.get(name, neutral)))
     mismatch += [f"{name} {found!r}, grid wants {want!r}" for name, want, found in numbers
                  if not math.isclose(want, found, rel_tol=1e-12, abs_tol=1e-15)]
+    if case.flow == "tube":
+        mismatch += _channel_mismatch(case, path)
     if mismatch:
         raise DatabaseError(f"{path}: not the case of the grid: " + "; ".join(mismatch))
+
+
+def _channel_mismatch(case: Case, path: Path) -> list[str]:
+    """A tube case file's channel against the grid's (a file without one is the circular tube's)."""
+    settings = dict(case.settings)
+    want = (str(settings.get("channel", "tube")), float(settings.get("aspect", 1.0)))
+    with h5py.File(path, "r") as f:
+        found = (decode_str(f.attrs.get("channel", "tube")), float(f.attrs.get("aspect", 1.0)))
+    if found[0] != want[0] or not math.isclose(found[1], want[1], rel_tol=1e-12):
+        return [f"channel {found[0]} aspect {found[1]:g}, grid wants {want[0]} aspect {want[1]:g}"]
+    return []
 
 
 def _read_case_file(case: Case, cases_dir: Path, what: str) -> tuple[str, str, str, CaseResult | None]:
@@ -127,8 +141,9 @@ def _read_case_file(case: Case, cases_dir: Path, what: str) -> tuple[str, str, s
     return status, message, code_version, result
 
 
-def _shear_level(case: Case) -> int:
-    return int(dict(case.settings).get("level", SHEAR_DEFAULT_LEVEL))
+def _steady(result: CaseResult | None, source: str) -> float:
+    """A case's steady value of ``source``, NaN unless it is steady."""
+    return result.steady_value(source) if result is not None and result.is_steady else math.nan
 
 
 def _mesh_accuracy(case: Case, coarse: CaseResult | None, companion: Case, finer: CaseResult | None,
@@ -136,21 +151,39 @@ def _mesh_accuracy(case: Case, coarse: CaseResult | None, companion: Case, finer
     """A shear row's mesh columns from its two levels: the other level's D12, the estimated
     relative mesh error of the row's D12 (of the coarse or of the finer value) and the row's
     level; the error is NaN unless both levels are steady."""
-    d12_coarse = coarse.steady_value("D12") if coarse is not None and coarse.is_steady else math.nan
-    d12_finer = finer.steady_value("D12") if finer is not None and finer.is_steady else math.nan
+    d12_coarse, d12_finer = _steady(coarse, "D12"), _steady(finer, "D12")
     use_finer = rows_from == "finer" and not math.isnan(d12_finer)
-    levels = _shear_level(companion) - _shear_level(case)
-    return {"mesh_level": float(_shear_level(companion) if use_finer else _shear_level(case)),
+    levels = case_level(companion) - case_level(case)
+    return {"mesh_level": float(case_level(companion) if use_finer else case_level(case)),
             "D12_mesh_check": d12_coarse if use_finer else d12_finer,
             "D12_mesh_error_rel": float(mesh_error_rel(d12_coarse, d12_finer, levels,
                                                        of="finer" if use_finer else "coarse"))}
 
 
+def _tube_mesh_accuracy(case: Case, own: CaseResult | None, companion: Case, other: CaseResult | None,
+                        orders: Mapping[str, float]) -> dict[str, float]:
+    """A 3D tube row's mesh columns (its values are its own level's): per result column the
+    companion level's value and the estimated relative mesh error of the row's value, Richardson
+    with that column's observed order (of the finer value where the companion is coarser, of the
+    coarser value where it is finer); NaN unless both levels are steady."""
+    apart = case_level(companion) - case_level(case)
+    columns: dict[str, float] = {"mesh_level": float(case_level(case))}
+    for name, (source, _, _) in RESULTS["tube"].items():
+        mine, check = _steady(own, source), _steady(other, source)
+        coarse, finer = (check, mine) if apart < 0 else (mine, check)
+        columns[f"{name}_mesh_check"] = check
+        columns[f"{name}_mesh_error_rel"] = float(mesh_error_rel(coarse, finer, abs(apart), of="finer" if apart < 0
+                                                                 else "coarse", order=float(orders[name])))
+    return columns
+
+
 def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None = None,
-              rows_from: str = "coarse") -> dict[str, Any]:
+              rows_from: str = "coarse", orders: Mapping[str, float] | None = None) -> dict[str, Any]:
     """Read one case file (or failure record) into a database row; a shear case with a mesh
     check (``companion``, the same case on a finer level) takes its values from the finer
-    level when ``rows_from`` is ``'finer'`` and that run is steady, else from its own level."""
+    level when ``rows_from`` is ``'finer'`` and that run is steady, else from its own level; a
+    tube case with a mesh check keeps its own level's values, its error estimated with ``orders``
+    (``tube.mesh_check.orders``)."""
     path = cases_dir / case.relative_path
     status, message, code_version, result = _read_case_file(case, cases_dir, "case file")
     flow = case.flow
@@ -164,14 +197,17 @@ def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None =
         if finer_version != code_version:
             raise DatabaseError(f"{cases_dir / companion.relative_path}: written by kernel {finer_version}, "
                                 f"its case {path} by {code_version}: rerun the workflow")
-        row.update(_mesh_accuracy(case, result, companion, finer, rows_from))
-        if rows_from == "finer" and finer is not None and finer.is_steady:
+        if flow == "tube":
+            row.update(_tube_mesh_accuracy(case, result, companion, finer, orders or {}))
+        else:
+            row.update(_mesh_accuracy(case, result, companion, finer, rows_from))
+        if flow == "shear" and rows_from == "finer" and finer is not None and finer.is_steady:
             path, status, message, result = cases_dir / companion.relative_path, finer_status, finer_message, finer
-        elif rows_from == "finer":
-            message = (f"level {_shear_level(companion)} {finer_status} ({finer_message}); "
-                       f"values of level {_shear_level(case)}: {message}")
-    elif flow == "shear":
-        row["mesh_level"] = float(_shear_level(case))
+        elif flow == "shear" and rows_from == "finer":
+            message = (f"level {case_level(companion)} {finer_status} ({finer_message}); "
+                       f"values of level {case_level(case)}: {message}")
+    elif flow == "shear" or dict(case.settings).get("model") == "3d":
+        row["mesh_level"] = float(case_level(case))
     row.update(status=status, message=message, code_version=code_version,
                wall_time_s=math.nan if result is None else result.wall_time_s)
     if result is None or status != "steady":
@@ -264,6 +300,15 @@ def write_critical_group(group: h5py.Group, rows: Mapping[str, Sequence[Any]],
         _write_dataset(ends, "message", rows["message"], "", text=True)
 
 
+def _channel_attrs(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A tube database's channel, aspect and length scale (a duct's lengths are in its half-width)."""
+    channel = str(settings.get("channel", "tube"))
+    attrs: dict[str, Any] = {"channel": channel, "aspect": float(settings.get("aspect", 1.0))}
+    if channel != "tube":
+        attrs["length_scale"] = DUCT_LENGTH_SCALE
+    return attrs
+
+
 def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path, out: str | Path,
                       *, created: str | None = None, branches_dir: str | Path | None = None) -> Path:
     """Assemble the case files of one flow of a grid into a database file.
@@ -302,11 +347,12 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
     points = int(grid.get("profile_points", 64))
     cases_dir, out = Path(cases_dir), Path(out)
     rows: dict[str, list[dict[str, Any]]] = {}
-    companions = mesh_check_cases(grid) if flow == "shear" else {}
+    companions = mesh_check_cases(grid)
     rows_from = mesh_check_rows(grid)
+    orders = grid[flow].get("mesh_check", {}).get("orders")
     for case in cases:
         rows.setdefault(case.law.key, []).append(
-            _case_row(case, cases_dir, points, companions.get(case.relative_path), rows_from))
+            _case_row(case, cases_dir, points, companions.get(case.relative_path), rows_from, orders))
     versions = sorted({row["code_version"] for law_rows in rows.values() for row in law_rows})
     if len(versions) != 1:
         raise DatabaseError(f"{cases_dir}: {flow} cases were written by several kernel versions {versions}: "
@@ -327,6 +373,8 @@ def assemble_database(grid: Mapping[str, Any], flow: str, cases_dir: str | Path,
             "case_count": len(cases), "profile_points": points,
             "capsmech_version": __version__, "length_scale": LENGTH_SCALE[flow],
         })
+        if flow == "tube":
+            f.attrs.update(_channel_attrs(flow_settings(grid, flow)))
         effects = {case.law.key: case.effects for case in cases}
         for key, law_rows in rows.items():
             law = parse_law(key)

@@ -22,6 +22,7 @@ same cases (same names, same kernel arguments but ``--ca``); only how they are c
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +41,8 @@ FLOWS = ("tube", "shear")
 SETTING_FLAGS = {
     "tube": {"n_meridian": "--n-meridian", "tube_length": "--tube-length",
              "integrator": "--integrator", "t_max": "--t-max", "model": "--model", "level": "--level",
-             "wall_h_far": "--wall-h-far", "wall_h_centre": "--wall-h-centre"},
+             "wall_h_far": "--wall-h-far", "wall_h_centre": "--wall-h-centre",
+             "channel": "--channel", "aspect": "--aspect"},
     "shear": {"level": "--level", "dt": "--dt", "t_max": "--t-max", "integrator": "--integrator", "k_b": "--kb"},
 }
 
@@ -88,8 +90,8 @@ class Case:
     settings : tuple of (str, Any)
         The flow's kernel settings (mesh, time limit), sorted by name.
     variant : str
-        '' for a grid case; ``level4`` for the companion of a shear case on the finer mesh of
-        ``shear.mesh_check`` (:func:`mesh_check_cases`), not a database row of its own.
+        '' for a grid case; ``level<N>`` for the companion of a case on the other mesh level of
+        its flow's ``mesh_check`` (:func:`mesh_check_cases`), not a database row of its own.
     """
 
     flow: str
@@ -229,10 +231,57 @@ def _schema_errors(grid: Mapping[str, Any]) -> list[str]:
     return [f"{_key_path(e.absolute_path)}: {e.message}" for e in errors]
 
 
-#: The kernel's shear mesh level when a grid does not set one (capsim --level).
-SHEAR_DEFAULT_LEVEL = 3
+#: The kernel's mesh level (shear, 3D tube) when a grid does not set one (capsim --level).
+DEFAULT_LEVEL = 3
 #: Tube settings that apply to one tube model only (the kernel's option table says the same).
 TUBE_MODEL_SETTINGS = {"n_meridian": ("axi",), "level": ("3d",), "wall_h_far": ("3d",), "wall_h_centre": ("3d",)}
+#: Channels of the tube flow (capsim --channel): the circular tube, and the square and rectangular
+#: ducts, which exist in the 3D model only; ``aspect`` (height over width) is the rectangle's.
+DUCT_CHANNELS = ("square", "rect")
+
+
+def case_level(case: Case) -> int:
+    """The mesh level of a shear or 3D tube case (its ``level`` setting, else the kernel's default)."""
+    return int(dict(case.settings).get("level", DEFAULT_LEVEL))
+
+
+def _channel_problems(spec: Mapping[str, Any]) -> list[str]:
+    """What capsim would refuse (exit 2) in a tube grid's channel settings."""
+    settings = spec.get("settings", {})
+    channel = settings.get("channel", "tube")
+    problems = []
+    if channel in DUCT_CHANNELS and settings.get("model", "axi") != "3d":
+        problems.append(f"tube.settings.channel: a {channel} duct needs tube.settings.model: 3d")
+    if "aspect" in settings and channel != "rect" and float(settings["aspect"]) != 1.0:
+        problems.append(f"tube.settings.aspect: only for tube.settings.channel: rect (a {channel} has aspect 1)")
+    if channel == "rect":
+        largest = 0.9 * min(1.0, float(settings.get("aspect", 1.0)))
+        too_large = [a for a in spec["a_over_l"] if float(a) > largest]
+        if too_large:
+            problems.append(f"tube.a_over_l: {too_large} do not fit the duct (a/w <= 0.9 min(1, aspect) = {largest:g})")
+    return problems
+
+
+def _mesh_check_problems(grid: Mapping[str, Any], flow: str) -> list[str]:
+    """A flow's ``mesh_check`` against its cases' mesh: shear checks on a finer level; a tube
+    check needs the 3D model (the level is its mesh) and another level than the cases'."""
+    check = grid[flow].get("mesh_check")
+    if not check:
+        return []
+    settings = grid[flow].get("settings", {})
+    level = int(settings.get("level", DEFAULT_LEVEL))
+    if flow == "shear":
+        problems = []
+        if int(check["level"]) <= level:
+            problems.append(f"shear.mesh_check.level: {check['level']} is not finer than the cases' level {level}")
+        if check.get("rows", "coarse") not in MESH_CHECK_ROWS:
+            problems.append(f"shear.mesh_check.rows: {check['rows']!r} is not one of {', '.join(MESH_CHECK_ROWS)}")
+        return problems
+    if settings.get("model", "axi") != "3d":
+        return ["tube.mesh_check: needs tube.settings.model: 3d (the mesh level is the 3D model's)"]
+    if int(check["level"]) == level:
+        return [f"tube.mesh_check.level: {check['level']} is the cases' own level"]
+    return []
 
 
 def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
@@ -291,12 +340,8 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                     if model not in TUBE_MODEL_SETTINGS[name]:
                         problems.append(f"tube.settings.{name}: applies to tube.settings.model: "
                                         f"{' or '.join(TUBE_MODEL_SETTINGS[name])} only (this grid's model is {model})")
-            check = grid[flow].get("mesh_check") if flow == "shear" else None
-            level = int(grid[flow].get("settings", {}).get("level", SHEAR_DEFAULT_LEVEL))
-            if check and int(check["level"]) <= level:
-                problems.append(f"shear.mesh_check.level: {check['level']} is not finer than the cases' level {level}")
-            if check and check.get("rows", "coarse") not in MESH_CHECK_ROWS:
-                problems.append(f"shear.mesh_check.rows: {check['rows']!r} is not one of {', '.join(MESH_CHECK_ROWS)}")
+                problems += _channel_problems(grid[flow])
+            problems += _mesh_check_problems(grid, flow)
             for name in ("laws", "Ca_s", "a_over_l"):
                 values = grid[flow].get(name, [])
                 if len(set(values)) != len(values):
@@ -362,19 +407,22 @@ def mesh_check_rows(grid: Mapping[str, Any]) -> str:
 
 
 def mesh_check_cases(grid: Mapping[str, Any]) -> dict[str, Case]:
-    """The companion cases of ``shear.mesh_check``: for every shear case with Ca_s >= Ca_s_min,
-    the same case on the finer mesh level (variant ``level<N>``), keyed by the grid case's
-    relative path. Empty when the grid has no mesh check."""
-    check = grid.get("shear", {}).get("mesh_check")
-    if not check:
-        return {}
-    level = int(check["level"])
+    """The companion cases of ``shear.mesh_check`` and ``tube.mesh_check``: for every case with
+    Ca_s_min <= Ca_s <= Ca_s_max, the same case on the check's mesh level (variant ``level<N>``;
+    finer in shear, finer or coarser in the 3D tube), keyed by the grid case's relative path.
+    Empty when the grid has no mesh check."""
     companions = {}
-    for case in expand_cases(grid, "shear"):
-        if case.Ca_s < float(check.get("Ca_s_min", 0.0)):
+    for flow in FLOWS:
+        check = grid.get(flow, {}).get("mesh_check")
+        if not check:
             continue
-        settings = tuple(sorted({**dict(case.settings), "level": level}.items()))
-        companions[case.relative_path] = Case("shear", case.law, case.Ca_s, None, settings, variant=f"level{level}")
+        level = int(check["level"])
+        for case in expand_cases(grid, flow):
+            if not float(check.get("Ca_s_min", 0.0)) <= case.Ca_s <= float(check.get("Ca_s_max", math.inf)):
+                continue
+            settings = tuple(sorted({**dict(case.settings), "level": level}.items()))
+            companions[case.relative_path] = Case(flow, case.law, case.Ca_s, case.a_over_l, settings,
+                                                  variant=f"level{level}")
     return companions
 
 
