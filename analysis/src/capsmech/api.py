@@ -122,6 +122,81 @@ def _capsules(capsules: CapsulesLike, flow: str) -> list[Capsule]:
     return items
 
 
+#: A database's channel in words, with the length its lengths are in.
+CHANNEL_WORDS = {"tube": "a circular tube (lengths in its radius)",
+                 "square": "a square channel (lengths in its half-width)",
+                 "rect": "a rectangular channel (lengths in its half-width)"}
+#: The measurement column that gives each channel's length scale.
+CHANNEL_COLUMN = {"tube": "tube_radius", "square": "half_width"}
+#: A channel as an adjective, and the channel with its article.
+_CHANNEL_KIND = {"tube": "circular-tube", "square": "square-channel", "rect": "rectangular-channel"}
+_CHANNEL_NOUN = {"tube": "a circular tube", "square": "a square channel", "rect": "a rectangular channel"}
+
+
+def check_channel(capsules: Sequence[Capsule], database: Database, source: str) -> None:
+    """Refuse capsules measured in another channel than the one ``database`` was computed for:
+    its lengths are in that channel's length scale (``Capsule.channel``, ``Database.channel``).
+
+    Raises
+    ------
+    MeasurementError
+        Naming the measurements' column, the database and what to do.
+    """
+    channel = database.channel
+    measured = {capsule.channel for capsule in capsules}
+    if channel not in CHANNEL_COLUMN or database.aspect != 1.0:
+        raise MeasurementError(f"{source}: {_label(database)} is a database of channel {channel!r}, aspect "
+                               f"{database.aspect:g}; capsules are fitted in circular tubes (tube_radius) and square "
+                               "channels (half_width) only")
+    other = measured - {channel}
+    if other:
+        given = other.pop()
+        raise MeasurementError(f"{source}: the capsules were measured in {_CHANNEL_NOUN[given]} (column "
+                               f"{CHANNEL_COLUMN[given]}), but {_label(database)} is a {_CHANNEL_KIND[channel]} database: "
+                               f"fit them against a {_CHANNEL_KIND[given]} database, or give {CHANNEL_COLUMN[channel]} "
+                               f"if they flowed in {_CHANNEL_NOUN[channel]}")
+
+
+def channel_of(capsules: Sequence[Capsule], database: Database) -> dict[str, Any]:
+    """The channel the fit was made in, as the results state it: ``channel``, its ``aspect``
+    (height over width) and each capsule's ``length_scale`` [m] (id -> l: the tube's radius or
+    the channel's half-width)."""
+    return {"channel": database.channel, "channel_aspect": database.aspect,
+            "length_scale": {capsule.id: capsule.length_scale for capsule in capsules}}
+
+
+#: The columns that state the channel in fit-tube's written results (``with_channel_columns``).
+CHANNEL_RESULT_UNITS = {"channel": "", "channel_aspect": "1", "length_scale": "m"}
+
+
+def with_channel_columns(results: pd.DataFrame) -> pd.DataFrame:
+    """``fit_tube``'s results with the channel stated in every row, as ``capsmech fit-tube``
+    writes them: ``channel``, ``channel_aspect`` and the capsule's ``length_scale`` [m] after
+    ``law`` (from ``attrs["channel"]``; the results unchanged without it)."""
+    channel = results.attrs.get("channel")
+    if channel is None:
+        return results
+    out = results.copy()
+    at = list(out.columns).index("law") + 1 if "law" in out.columns else len(out.columns)
+    out.insert(at, "length_scale", [channel["length_scale"].get(i, math.nan) for i in out["id"]])
+    out.insert(at, "channel_aspect", float(channel["channel_aspect"]))
+    out.insert(at, "channel", str(channel["channel"]))
+    out.attrs["units"] = _channel_units(results.attrs.get("units", {}))
+    return out
+
+
+def _channel_units(units: Mapping[str, str]) -> dict[str, str]:
+    """Results' units with ``CHANNEL_RESULT_UNITS`` after ``law``'s."""
+    names = list(units)
+    cut = names.index("law") + 1 if "law" in names else len(names)
+    return {**{n: units[n] for n in names[:cut]}, **CHANNEL_RESULT_UNITS, **{n: units[n] for n in names[cut:]}}
+
+
+def _source(capsules: CapsulesLike) -> str:
+    """The measurements' name in a message: the file, or 'measurements'."""
+    return str(capsules) if isinstance(capsules, (str, Path)) else "measurements"
+
+
 def _frame(rows: Sequence[Mapping[str, Any]], units: Mapping[str, str]) -> pd.DataFrame:
     frame = pd.DataFrame(list(rows), columns=list(units))
     frame.attrs["units"] = dict(units)
@@ -175,17 +250,27 @@ def fit_tube(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", laws
         H/a, residuals, the law's critical Ca_s at the fitted a/l and the fitted Ca_s over it
         (where the database records its folds: ``Database.critical``; a fit above it is flagged
         ``above_fold``), ``flag`` (code, empty when fitted) and ``reason``; units in
-        ``attrs["units"]``. Rows without a value raise one ``OutsideDatabaseWarning``.
+        ``attrs["units"]``; the channel in ``attrs["channel"]`` (``channel_of``: l is the tube's
+        radius, or a square channel's half-width). Rows without a value raise one
+        ``OutsideDatabaseWarning``.
+
+    Raises
+    ------
+    MeasurementError
+        Also when the capsules were measured in another channel than the database's
+        (``tube_radius``: a circular tube; ``half_width``: a square channel).
     """
     db = as_database(database, "tube", "fit_tube")
     keys = check_laws(db, laws)
     measured = _capsules(capsules, "tube")
+    check_channel(measured, db, _source(capsules))
     try:
         rows = fit_tube_rows(measured, db, keys, progress=progress)
     except DatabaseError as err:
         raise _naming_database(err, db) from None
     add_fold_columns(rows, db)
     frame = _frame(rows, TUBE_RESULT_UNITS)
+    frame.attrs["channel"] = channel_of(measured, db)
     _warn_unfitted(frame, db)
     _warn_implausible_modulus(frame)
     return frame
@@ -224,7 +309,7 @@ def read_results(path: str | Path) -> pd.DataFrame:
     from capsmech.io.results import read_results_table
 
     rows, units = read_results_table(path, required=())
-    for known in (TUBE_RESULT_UNITS, SHEAR_RESULT_UNITS, POPULATION_UNITS):
+    for known in (TUBE_RESULT_UNITS, _channel_units(TUBE_RESULT_UNITS), SHEAR_RESULT_UNITS, POPULATION_UNITS):
         # An HDF5 file without its column order lists the columns by name: the command's order back.
         if set(units) == set(known):
             units = {name: units[name] for name in known}
@@ -360,8 +445,13 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
     if effect_databases is None:
         from capsmech.io.catalog import effect_database_paths
 
-        effect_databases = list(effect_database_paths())
+        # The shipped effect databases are circular tubes'.
+        effect_databases = list(effect_database_paths()) if base.channel == "tube" else []
     effects = [as_database(d, "tube", "diagnose (effect database)") for d in effect_databases]
+    for effect in effects:
+        if (effect.channel, effect.aspect) != (base.channel, base.aspect):
+            raise DatabaseError(f"diagnose: effect database {_label(effect)} is of {CHANNEL_WORDS.get(effect.channel)}, "
+                                f"the base {_label(base)} of {CHANNEL_WORDS.get(base.channel)}")
     databases = DatabaseSet([base, *effects])
     check_laws(base, [law], "law")
     for key in other_laws or []:
@@ -403,6 +493,7 @@ def diagnose(capsules: CapsulesLike, database: DatabaseLike = "tube-paper", law:
         return found
 
     batch = _capsules(capsules, "tube")
+    check_channel(batch, base, _source(capsules))
     if max_effects == 1:
         return diagnose_round(batch, databases, law, library(law), offcentre_table=table, progress=progress)
     names = {c.name for c in library(law)}

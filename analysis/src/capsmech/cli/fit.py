@@ -1,8 +1,11 @@
 """``capsmech fit-tube`` and ``capsmech fit-shear``: a measurement CSV fitted against a database.
 
-Prints one line per (capsule, law) with units; writes the results (``--out``: .csv or .h5, both
-read back by ``population`` and ``capsmech.read_results``) and ``--json``. Exit status 1 when no
-capsule could be fitted by any law (the reasons are printed), 2 for bad input.
+Prints one line per (capsule, law) with units, and for ``fit-tube`` the channel the fit was made
+in; writes the results (``--out``: .csv or .h5, both read back by ``population`` and
+``capsmech.read_results``) and ``--json``, ``fit-tube``'s with the channel in every row
+(``channel``, ``channel_aspect``, ``length_scale``: ``capsmech.api.with_channel_columns``).
+Exit status 1 when no capsule could be fitted by any law (the reasons are printed), 2 for bad
+input (a measurement file of another channel than the database's among them).
 
 The job walks CLI -> ``capsmech.api`` once: the database is loaded once (``api.as_database``,
 whose object the fit and the results' provenance share) and the laws are checked once, by the
@@ -17,7 +20,7 @@ from typing import Any
 
 import pandas as pd
 
-from capsmech.api import as_database, fit_shear, fit_tube
+from capsmech.api import CHANNEL_WORDS, as_database, check_channel, fit_shear, fit_tube, with_channel_columns
 from capsmech.cli.common import (
     TABLE_SUFFIXES,
     add_database_option,
@@ -60,6 +63,19 @@ def fit_summary(results: pd.DataFrame) -> dict[str, Any]:
             "unfitted_by_flag": {str(code): int(n) for code, n in unfitted["flag"].value_counts().items()}}
 
 
+def channel_summary(results: pd.DataFrame, database: Database) -> str | None:
+    """The channel of a fit-tube run in one line (None without one): which channel, its aspect,
+    and the length scale l the lengths were divided by."""
+    channel = results.attrs.get("channel")
+    if channel is None:
+        return None
+    scales = sorted({round(v * 1e6, 6) for v in channel["length_scale"].values()})
+    name = "half-width" if channel["channel"] != "tube" else "radius"
+    scale = f"{scales[0]:.4g}" if len(scales) == 1 else f"{scales[0]:.4g}-{scales[-1]:.4g}"
+    return (f"channel: {CHANNEL_WORDS.get(channel['channel'], channel['channel'])}, aspect "
+            f"{channel['channel_aspect']:g}, l = {name} {scale} um (database {database.name or database.path})")
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     """``fit-tube`` / ``fit-shear``: fit, print the table, write the results."""
     flow = "tube" if args.command == "fit-tube" else "shear"
@@ -67,19 +83,27 @@ def cmd_fit(args: argparse.Namespace) -> int:
     json_out = plan_output(args.json, "--json", (".json",), args.force) if args.json else None
     database = as_database(args.database, flow, args.command)
     capsules = read_measurements(args.measurements, flow, contours_anywhere=args.contours_anywhere)
+    if flow == "tube":
+        # Here, where the message can name the file (the API sees the capsules).
+        check_channel(capsules, database, str(args.measurements))
     with warnings.catch_warnings():
         # The table's flag column says it per row, and the summary below in one line.
         warnings.simplefilter("ignore", OutsideDatabaseWarning)
         results = _fit(flow, args.command, capsules, database, args.law)
-    units = results.attrs["units"]
     laws = list(dict.fromkeys(results["law"])) if not results.empty else list(args.law or [])
-    print(format_table(records(results), SHOWN[flow], units))
+    print(format_table(records(results), SHOWN[flow], results.attrs["units"]))
+    channel = channel_summary(results, database)
+    if channel:
+        print(channel)
+    results = with_channel_columns(results)
+    units = results.attrs["units"]
     for out in outs:
         print(out.wrote(write_results(records(results), units, out.path, database)))
     summary = fit_summary(results)
     if json_out is not None:
         payload = {"measurements": str(args.measurements), "database": str(database.path),
                    "database_code_version": str(database.provenance.get("code_version", "")), "laws": laws,
+                   **({"channel": database.channel, "channel_aspect": database.aspect} if flow == "tube" else {}),
                    **summary, **table_json(results)}
         print(json_out.wrote(write_json(json_out.path, args.command, payload)))
     unfitted = summary["fits"] - summary["fitted"]

@@ -335,9 +335,19 @@ def _nearest(inv: TubeInverter, points: np.ndarray, table: NeighbourTable | None
     if asked.size:
         distance, nearest = inv._p_tree.query(points[asked], k=k + 1)
         index[:, asked] = nearest[:, :k].T
-        # The allowance covers the round-off of the distances themselves.
-        margin[asked] = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+        margin[asked] = _half_gap(distance, k)
     return index, margin
+
+
+def _half_gap(distance: np.ndarray, k: int) -> np.ndarray:
+    """Half the gap between the k-th and (k+1)-th distances of each row of a KD-tree's answer
+    (m, k + 1), less an allowance for the distances' own round-off; infinite where the database
+    has only k points (the tree's (k+1)-th distance is then infinite: the k nearest never change)."""
+    far = distance[:, k]
+    gap = np.full(len(distance), np.inf)
+    some = np.isfinite(far)
+    gap[some] = 0.5 * (far[some] - distance[some, k - 1]) - 1e-12 * far[some]
+    return gap
 
 
 class NeighbourTable:
@@ -360,7 +370,7 @@ class NeighbourTable:
         # Neighbour-major (14, cells), in the smallest integer type: the look-ups gather from
         # all over the table, and a smaller one stays in the cache.
         self.index = np.ascontiguousarray(index[:, :k].T).astype(np.min_scalar_type(len(inv._p) - 1))
-        self.half_gap = 0.5 * (distance[:, k] - distance[:, k - 1]) - 1e-12 * distance[:, k]
+        self.half_gap = _half_gap(distance, k)
         self.centres = centres
 
     def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

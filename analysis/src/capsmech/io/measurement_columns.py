@@ -34,13 +34,20 @@ EXAMPLE_UNITS = {"length": "um", "velocity": "mm/s", "viscosity": "mPa s", "rate
 TUBE_COLUMNS = {"L_z": ("length", True), "L_p": ("length", True), "tube_radius": ("length", True),
                 "v_c": ("velocity", False), "mu": ("viscosity", False), "V": ("velocity", False),
                 "pixel_size": ("length", False), "contour": ("length", False), "contour_noise": ("length", False),
-                "tube_radius_sigma": ("length", False)}
+                "tube_radius_sigma": ("length", False), "half_width": ("length", False),
+                "half_width_sigma": ("length", False)}
 SHEAR_COLUMNS = {"L1": ("length", True), "L2": ("length", True), "shear_rate": ("rate", True),
                  "mu": ("viscosity", True), "pixel_size": ("length", False), "theta": ("angle", False),
                  "D12_err": ("number", False)}
 FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
+#: The channel a tube file's length-scale column says, with that column's uncertainty column: a
+#: circular tube gives its radius, a square channel its half-width (the radius of its inscribed
+#: circle). A file gives one of them; either stands for the required ``tube_radius``.
+CHANNEL_COLUMNS = {"tube_radius": ("tube", "tube_radius_sigma"), "half_width": ("square", "half_width_sigma")}
+#: A required column -> the columns that may stand in its place.
+ALTERNATIVES = {"tube_radius": ("half_width",)}
 #: Columns where zero is a measurement (no rear dimple; an exact value), not a slip.
-ZERO_ALLOWED = frozenset({"L_p", "tube_radius_sigma", "D12_err"})
+ZERO_ALLOWED = frozenset({"L_p", "tube_radius_sigma", "half_width_sigma", "D12_err"})
 #: Text columns ``capsmech extract`` writes for the reader of the file (not for the fit): skipped
 #: without the warning an unknown column gets.
 NOTE_COLUMNS = frozenset({"width_check"})

@@ -11,7 +11,9 @@ names in any case; lines starting with ``#`` are comments. Tube::
 required ``id``, ``L_z``, ``L_p``, ``tube_radius`` (``v_c`` and ``mu`` for G_s); optional ``V``,
 ``pixel_size`` (lengths then in ``px``), ``contour`` (a contour file's path relative to the
 table's folder, in the unit of the header; ``capsmech.io.contours``), ``contour_noise`` and
-``tube_radius_sigma``. Shear::
+``tube_radius_sigma``. Capsules in a square channel give its ``half_width`` (and
+``half_width_sigma``) instead of ``tube_radius`` (and its sigma): the column says the channel
+(``Capsule.channel``), and a file gives one of the two. Shear::
 
     id,L1 [um],L2 [um],shear_rate [1/s],mu [Pa s]
     s01,52.1,23.5,350,0.756
@@ -49,6 +51,8 @@ from capsmech.errors import CapsmechError, InputWarning
 from capsmech.io import plausibility
 from capsmech.io.contours import ContourError, contour_problem, read_contour
 from capsmech.io.measurement_columns import (
+    ALTERNATIVES,
+    CHANNEL_COLUMNS,
     EXAMPLE_UNITS,
     FLOWS,
     NOTE_COLUMNS,
@@ -92,6 +96,10 @@ class Capsule:
         Line of the file it came from.
     contour : np.ndarray or None
         Contour (n, 2) of image coordinates [m] (x along the tube axis), when the row names one.
+
+    ``capsule["tube_radius"]`` (and ``"tube_radius_sigma"``) is the channel's length scale l, in
+    which the tube databases hold their lengths, whichever column gave it: a tube's radius or a
+    square channel's half-width (``half_width``, the radius of the channel's inscribed circle).
     """
 
     id: str
@@ -100,7 +108,24 @@ class Capsule:
     contour: np.ndarray | None = None
 
     def __getitem__(self, name: str) -> float:
+        if name not in self.values and name in _LENGTH_SCALE_STANDS_IN:
+            name = _LENGTH_SCALE_STANDS_IN[name]
         return self.values.get(name, math.nan)
+
+    @property
+    def channel(self) -> str:
+        """str: ``'square'`` for a capsule measured in a square channel (its row gives
+        ``half_width``), else ``'tube'`` (a circular tube; and a shear capsule)."""
+        return "square" if "half_width" in self.values else "tube"
+
+    @property
+    def length_scale(self) -> float:
+        """float: the channel's length scale l [m]: the tube's radius or the channel's half-width."""
+        return self["tube_radius"]
+
+
+#: The tube radius's columns -> the square channel's that stand for them (``Capsule.__getitem__``).
+_LENGTH_SCALE_STANDS_IN = {"tube_radius": "half_width", "tube_radius_sigma": "half_width_sigma"}
 
 
 @dataclass(frozen=True)
@@ -134,7 +159,22 @@ def _names(row: Sequence[object]) -> list[str | None]:
 
 
 def _missing(names: set[str], flow: str) -> list[str]:
-    return [c for c, (_, required) in FLOWS[flow].items() if required and c not in names]
+    return [c for c, (_, required) in FLOWS[flow].items()
+            if required and c not in names and not names & set(ALTERNATIVES.get(c, ()))]
+
+
+def _check_channel_columns(origin: TableOrigin, line: int, names: set[str]) -> None:
+    """One channel per file: one length-scale column (``CHANNEL_COLUMNS``), and its own sigma."""
+    given = [name for name in CHANNEL_COLUMNS if name in names]
+    if len(given) > 1:
+        raise MeasurementError(f"{origin.at(line)}: columns {' and '.join(repr(n) for n in given)} both given: a file "
+                               "is of one channel, a circular tube (tube_radius) or a square channel (half_width)")
+    for name, (channel, sigma) in CHANNEL_COLUMNS.items():
+        if sigma in names and name not in names:
+            raise MeasurementError(f"{origin.at(line)}: column {sigma!r} is the uncertainty of {name!r} "
+                                   f"({channel}), which the file does not give"
+                                   + "".join(f"; with {other!r}, give {CHANNEL_COLUMNS[other][1]!r}"
+                                             for other in given))
 
 
 def _infer_flow(origin: TableOrigin, line: int, row: Sequence[object]) -> str:
@@ -190,6 +230,7 @@ def _parse_header(origin: TableOrigin, line: int, row: Sequence[object],
         raise MeasurementError(f"{origin.at(line)}: column(s) {', '.join(unitless)} without a unit; write it in "
                                f"{where}, e.g. '{unitless[0]} [{EXAMPLE_UNITS[kind]}]' ({kind} units: "
                                f"{accepted_units(kind)})")
+    _check_channel_columns(origin, line, seen)
     missing = _missing(seen, flow)
     if "id" not in seen:
         missing.insert(0, "id")
@@ -272,7 +313,7 @@ def _parse_row(origin: TableOrigin, line: int, row: Sequence[object], parsed: li
             continue
         value = _number(origin, line, name, cell)
         if value is None:
-            if columns[name][1]:
+            if columns[name][1] or name in CHANNEL_COLUMNS:
                 raise MeasurementError(f"{origin.at(line)}: field {name!r} is empty")
             continue
         raw[name] = (value, unit, scale)

@@ -58,7 +58,7 @@ _PIXEL = Plausible(1e-8, 1e-4, "m", ((1e-3, "a pixel size in um under an [mm] he
 
 #: Measurement column -> its plausible range (columns not named here are not checked).
 COLUMNS: dict[str, Plausible] = {
-    "mu": _VISCOSITY, "L_z": _LENGTH, "L_p": _LENGTH, "tube_radius": _LENGTH, "L1": _LENGTH, "L2": _LENGTH,
+    "mu": _VISCOSITY, "L_z": _LENGTH, "L_p": _LENGTH, "tube_radius": _LENGTH, "half_width": _LENGTH, "L1": _LENGTH, "L2": _LENGTH,
     "v_c": _VELOCITY, "V": _VELOCITY, "shear_rate": _RATE, "pixel_size": _PIXEL,
 }
 
