@@ -8,11 +8,13 @@ The capsules are those of ``bench_inverse.py`` (uniform in the NH steady region 
 database, 2 % noise on the lengths). Prints, for each path, the wall and CPU seconds (the
 best of ``--repeats`` runs each, the paths taking turns), the ratios before/after on as many
 threads, whether the flags are the same and the largest relative difference of a/l, Ca_s,
-v_c/V against the committed one-thread result; nothing asserted.
+v_c/V against the committed one-thread result; nothing asserted. With ``--laws N``, the same
+comparison (flags, largest relative differences) for N capsules of each law of the database,
+drawn the same way in each law's region, the working tree on every core.
 On a loaded machine the wall time of the threaded path says little: its CPU time, and its
 wall time against its own one-thread run, do.
 
-    .venv/bin/python bench/bench_lengths_inversion.py [--capsules 100000] [--rev HEAD] [--repeats 2]
+    .venv/bin/python bench/bench_lengths_inversion.py [--capsules 100000] [--rev HEAD] [--repeats 2] [--laws 20000]
 """
 from __future__ import annotations
 
@@ -30,10 +32,12 @@ from types import ModuleType
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_inverse import capsules, inverter  # noqa: E402
+from bench_inverse import DATABASE, capsules, inverter  # noqa: E402
 
+from capsmech.inversion.fitting import tube_inverter  # noqa: E402
 from capsmech.inversion.inverters import TubeFits  # noqa: E402
 from capsmech.inversion.tube_batch import default_workers, fit_batch  # noqa: E402
+from capsmech.io.database import load_database  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 MODULE = "analysis/src/capsmech/inversion/tube_batch.py"
@@ -72,6 +76,8 @@ def main() -> None:
     parser.add_argument("--capsules", type=int, default=100_000)
     parser.add_argument("--rev", default="HEAD", help="the committed version to compare with")
     parser.add_argument("--repeats", type=int, default=2, help="runs of each path (the best is kept)")
+    parser.add_argument("--laws", type=int, default=0, metavar="N",
+                        help="also compare the results on N capsules of each law of the database")
     args = parser.parse_args()
     inv = inverter()
     fit_batch_before = committed_module(args.rev).fit_batch
@@ -106,6 +112,15 @@ def main() -> None:
     for name in names[1:]:
         print(f"{name} against {names[0]}: {differences(results[name], results[names[0]])}; "
               f"{int(results[name].ok.sum())} valid")
+    if args.laws:
+        database = load_database(DATABASE)
+        for law in database.laws:
+            law_inverter = tube_inverter(database, law)
+            l_z, l_p = capsules(law_inverter, args.laws, seed=1)
+            before = fit_batch_before(law_inverter, l_z, l_p, workers=1)
+            after = fit_batch(law_inverter, l_z, l_p, workers=workers)
+            print(f"{law}, {args.laws} capsules, after ({workers} threads) against before (1 thread): "
+                  f"{differences(after, before)}; {int(after.ok.sum())} valid")
 
 
 if __name__ == "__main__":

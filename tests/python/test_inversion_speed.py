@@ -5,10 +5,10 @@ cycling between neighbour sets) to ``_fit_exact_many``, ``fit``'s own arithmetic
 the capsules: it must be ``fit``'s result bit for bit, flags included. The stacked weighted
 quadratic fits (normal equations over neighbour-major arrays, SVD where the basis is
 rank-deficient) must equal one ``np.linalg.lstsq`` per capsule to round-off. ``tube_batch.fit_batch``
-(threads over chunks, its own refinement and minimum-norm fits, its own arithmetic also for the
-refinements that cycle unless round-off could have changed their path, the neighbours from its
-table for large batches) must give ``fit``'s flags and values to round-off, the same on one
-thread as on two. The capsules are
+(threads over chunks, its steps in blocks, its own refinement and minimum-norm fits, its own
+arithmetic also for the refinements that cycle unless round-off could have changed their path,
+the neighbours from its table for large batches) must give ``fit``'s flags and values to
+round-off, the same on one thread as on two and whatever the chunks and blocks. The capsules are
 drawn here, from the database's rows by the test's own triangulation, with 2 % noise on the
 lengths; no timing is asserted (``bench/bench_lengths_inversion.py`` measures it).
 """
@@ -154,6 +154,26 @@ def test_threads_do_not_change_the_result(tube_db, monkeypatch):
     assert one.flag == two.flag
     for name in ("a_over_l", "Ca_s", "vc_over_V"):
         assert np.array_equal(getattr(one, name), getattr(two, name), equal_nan=True), name
+
+
+def test_blocks_and_chunks_do_not_change_the_result(tube_db, monkeypatch):
+    """Each capsule's arithmetic is its own: the batch in chunks of 150 whose steps (the first
+    roots' fits, each refinement step) go in blocks of 37 capsules equals, bit for bit, the
+    batch in one chunk and one block, on the same thread; and it is ``fit``'s."""
+    inverter = tube_inverter(tube_db, "NH")
+    l_z, l_p = drawn_capsules(inverter.table, 400, seed=21)
+    monkeypatch.setattr(tube_batch, "CHUNK", 150)
+    monkeypatch.setattr(tube_batch, "BLOCK", 37)
+    blocks = tube_batch.fit_batch(inverter, l_z, l_p, workers=1)
+    monkeypatch.setattr(tube_batch, "CHUNK", 10**6)
+    monkeypatch.setattr(tube_batch, "BLOCK", 10**6)
+    whole = tube_batch.fit_batch(inverter, l_z, l_p, workers=1)
+    assert blocks.flag == whole.flag
+    for name in ("a_over_l", "Ca_s", "vc_over_V"):
+        assert np.array_equal(getattr(blocks, name), getattr(whole, name), equal_nan=True), name
+    assert 200 < whole.ok.sum() < len(l_z)
+    for i in range(0, len(l_z), 4):
+        assert_same_fit(inverter.fit(float(l_z[i]), float(l_p[i])), blocks.row(i), i)
 
 
 def test_local_fits_are_lstsq_in_fits_own_basis(tube_db):

@@ -10,7 +10,7 @@ one of method:
   path is ``fit``'s as long as round-off cannot have chosen other neighbours anywhere on it,
   which the margins of the neighbour sets (below) tell, and as long as the path does not
   grow round-off, which the same path from a start moved by ``_ROUND_OFF_PROBE`` tells
-  (``_probe_cycling``, the cycling capsules of all chunks at once). Only a capsule failing
+  (``_probe_cycling``, all the cycling capsules of a chunk at once). Only a capsule failing
   either gets ``fit``'s own arithmetic (``TubeInverter._fit_exact_many``, which ``fit_many``
   gives every cycling capsule: ~2 % of noisy capsules, a quarter of the CPU time before;
   here ~1 in 5000).
@@ -31,9 +31,15 @@ one of method:
   of one SVD per capsule; any other deficiency still gets lstsq's SVD.
 - The weighted moments are sums of products in one pass (einsum), the coefficients stored
   component-major (6, 2, m), so that the Newton steps work on contiguous vectors.
-- The capsules go in chunks, as many for each thread, to a pool of threads: numpy's
-  operations on whole chunks, the KD-tree's queries and LAPACK release the GIL, so the
-  chunks run on the cores together.
+- The capsules go in chunks, as many for each thread (one for 10^5 capsules on two), to a
+  pool of threads, each chunk fitted, probed and stored by one thread: numpy's operations on
+  whole chunks, the KD-tree's queries and LAPACK release the GIL, so the chunks run on the
+  cores together, and no step waits for all of them. Large chunks keep the refinement's last
+  steps (a few capsules still moving) few; the steps' arrays of 14 neighbours a capsule go in
+  blocks of at most ``BLOCK`` capsules, which numpy works through faster than whole chunks.
+- The first roots' Newton iterations work on the rows still moving, packed together, and
+  the refinement evaluates its last fit only where a row stops: the same arithmetic, row by
+  row, on fewer and smaller arrays.
 """
 from __future__ import annotations
 
@@ -42,7 +48,7 @@ import threading
 import weakref
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from functools import partial, reduce
 from typing import NamedTuple
 
 import numpy as np
@@ -50,10 +56,15 @@ import numpy as np
 from capsmech.inversion import inverters
 from capsmech.inversion.inverters import Modulus, TubeFits, TubeInverter
 
-#: Capsules in one chunk of work: enough that numpy's cost per call is spread over many (the
-#: refinement's last steps run on the few capsules still moving), few enough that 10^5
-#: capsules make chunks for two threads to end together.
-CHUNK = 16384
+#: Capsules in one chunk of work (at most): enough that numpy's cost per call is spread over
+#: many (the refinement's last steps run on the few capsules still moving: a chunk of 16384
+#: spent a fifth of its time there), few enough that 10^5 capsules make a chunk for each of
+#: two threads, to end together.
+CHUNK = 65536
+#: Capsules whose neighbour-major (14, m) arrays one step works on at once (measured on 10^5
+#: capsules: whole chunks of 50000 ~15 % slower, numpy's passes over larger arrays leaving the
+#: cache; blocks of 2048 ~10 % slower, numpy's cost per call again).
+BLOCK = 16384
 #: Side of the cells of ``NeighbourTable`` (scaled parameters), and the fewest capsules for
 #: which ``fit_batch`` builds one (its ~10^5 cells cost as many queries as ~10^5 capsules'
 #: refinements make a third of, and it is kept with the inverter).
@@ -115,45 +126,27 @@ def fit_batch(inverter: TubeInverter, L_z: np.ndarray, L_p: np.ndarray, v_c: np.
         return L_z[part], L_p[part], (np.ascontiguousarray(modulus[0][part]),
                                       np.ascontiguousarray(modulus[1][part])) if modulus else None
 
-    def roots_of(start: int) -> _ChunkRoots:
-        L_z_part, L_p_part, _ = chunk(start)
-        out, rows, q_star = inverter._screen(L_z_part, L_p_part)
-        return _ChunkRoots(out, rows, q_star, _roots(inverter, q_star, table) if rows.size else None)
-
-    def stored(start: int, found: _ChunkRoots) -> TubeFits:
+    def fitted(start: int) -> TubeFits:
         L_z_part, L_p_part, modulus_part = chunk(start)
-        roots = found.roots
-        if roots is not None:
-            inverter._store_roots(found.out, found.rows, roots.first, roots.scaled, roots.todo, roots.refined,
-                                  roots.no_root, modulus_part)
-            inverter._store_exact(found.out, found.rows[roots.fallback], L_z_part, L_p_part, modulus_part)
-        return found.out
+        out, rows, q_star = inverter._screen(L_z_part, L_p_part)
+        if rows.size:
+            roots = _roots(inverter, q_star, table)
+            _probe_cycling(inverter, q_star, roots, table)
+            inverter._store_roots(out, rows, roots.first, roots.scaled, roots.todo, roots.refined, roots.no_root,
+                                  modulus_part)
+            inverter._store_exact(out, rows[roots.fallback], L_z_part, L_p_part, modulus_part)
+        return out
 
     threads = min(threads, len(starts))
     if threads <= 1:
-        found = [roots_of(start) for start in starts]
-        _probe_cycling(inverter, found, table)
-        parts = [stored(start, roots) for start, roots in zip(starts, found)]
+        parts = [fitted(start) for start in starts]
     else:
         # Scipy builds some of the triangulation's arrays on first use: once, here, not in
         # two threads at once.
         inverter._velocity(np.zeros((1, 2)))
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            found = list(pool.map(roots_of, starts))
-            _probe_cycling(inverter, found, table)
-            parts = list(pool.map(stored, starts, found))
+            parts = list(pool.map(fitted, starts))
     return TubeFits.concatenate(parts)
-
-
-class _ChunkRoots(NamedTuple):
-    """One chunk's capsules between ``_roots`` and the storing of their results."""
-
-    #: The chunk's result, the flags of invalid lengths written.
-    out: TubeFits
-    #: The chunk's rows with valid lengths, their lengths q* (m, 2) and roots (None: no row).
-    rows: np.ndarray
-    q_star: np.ndarray
-    roots: _Roots | None
 
 
 class _Roots(NamedTuple):
@@ -192,25 +185,37 @@ def _roots(inv: TubeInverter, q_star: np.ndarray, table: NeighbourTable | None =
     # the nearest of them (in fit's coordinates), Newton from there.
     distance, index = inv._tree.query(q_star / inv._q_scale, k=inv.n_neighbours)
     index, distance = index.T, distance.T  # neighbour-major (n, m)
-    u = (inv._p[index, 0] - inv._p[index[0], 0]) / inv._p_scale[0]
-    v = (inv._p[index, 1] - inv._p[index[0], 1]) / inv._p_scale[1]
-    weight = (1 - (distance / (1.01 * distance[-1] + 1e-300)) ** 2) ** 2
-    values = [inv._q_z[index], inv._q_zp[index]]
-    # The basis is centred on fit's centre (neighbour 0): the fit is fit's wherever it has rank.
-    coefficients, _ = _local_fit(u, v, values, weight, np.zeros(m, dtype=np.intp), lambda columns: (
-        u[:, columns], v[:, columns]))
+    coefficients = np.empty((6, 2, m))
+    for start in range(0, m, BLOCK):
+        block = slice(start, start + BLOCK)
+        around = index[:, block]
+        u = (inv._p[around, 0] - inv._p[around[0], 0]) / inv._p_scale[0]
+        v = (inv._p[around, 1] - inv._p[around[0], 1]) / inv._p_scale[1]
+        weight = (1 - (distance[:, block] / (1.01 * distance[-1, block] + 1e-300)) ** 2) ** 2
+        values = [inv._q_z[around], inv._q_zp[around]]
+        # The basis is centred on fit's centre (neighbour 0): the fit is fit's wherever it has rank.
+        coefficients[:, :, block], _ = _local_fit(u, v, values, weight, np.zeros(u.shape[1], dtype=np.intp),
+                                                  partial(_columns_of, u, v))
     target = q_star.T.copy()
     x = np.zeros((2, m))
-    active = ~fallback
+    # The rows still moving, their coefficients, point and target packed together: gathered
+    # again only when some stop.
+    live = np.arange(m)
+    c_live: np.ndarray = coefficients
+    x_live: np.ndarray = x
+    target_live: np.ndarray = target
     for _ in range(50):
-        live = np.flatnonzero(active)
         if live.size == 0:
             break
-        x_new, norm, bad = _damped_newton_step(coefficients[:, :, live], x[:, live], target[:, live], 0.5)
-        x[:, live] = x_new
+        x_live, norm, bad = _damped_newton_step(c_live, x_live, target_live, 0.5)
         fallback[live[bad]] = True
-        active[live[(norm < 1e-12) | bad]] = False
-    q, _ = _quadratic_value_and_jacobian(coefficients, x)
+        stop = (norm < 1e-12) | bad
+        if stop.any():
+            x[:, live[stop]] = x_live[:, stop]
+            going = ~stop
+            live, c_live, x_live, target_live = live[going], c_live[:, :, going], x_live[:, going], target_live[:, going]
+    x[:, live] = x_live
+    q = _quadratic_value(coefficients, x)
     tolerance = 1e-6 * np.abs(q_star).max(axis=1)
     no_root = np.any(np.abs(q - target) > tolerance, axis=0) & ~fallback
     first = inv._p[index[0]] + x.T * inv._p_scale
@@ -223,26 +228,26 @@ def _roots(inv: TubeInverter, q_star: np.ndarray, table: NeighbourTable | None =
     return _Roots(first, refinement.scaled, no_root, todo, refined, fallback, np.flatnonzero(todo & refinement.moving))
 
 
-def _probe_cycling(inv: TubeInverter, chunks: list[_ChunkRoots], table: NeighbourTable | None) -> None:
-    """Hand to ``fit``'s arithmetic (``_Roots.fallback``) the cycling capsules of all the chunks
-    whose path grows round-off: their refinement again, from a start moved by
-    ``_ROUND_OFF_PROBE``, ends more than ``_ROUND_OFF_GROWTH`` times that away. All the chunks'
-    cycling capsules at once: each step of a few of them costs numpy's calls as much as many."""
-    found = [(chunk.q_star, chunk.roots) for chunk in chunks if chunk.roots is not None and chunk.roots.cycling.size]
-    if not found:
+def _columns_of(u: np.ndarray, v: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The columns ``columns`` of the neighbour-major coordinates u, v (fit's own, already)."""
+    return u[:, columns], v[:, columns]
+
+
+def _probe_cycling(inv: TubeInverter, q_star: np.ndarray, roots: _Roots, table: NeighbourTable | None) -> None:
+    """Hand to ``fit``'s arithmetic (``roots.fallback``) the cycling capsules (``roots.cycling``,
+    of the lengths q* (m, 2)) whose path grows round-off: their refinement again, from a start
+    moved by ``_ROUND_OFF_PROBE``, ends more than ``_ROUND_OFF_GROWTH`` times that away. All of
+    them at once: each step of a few of them costs numpy's calls as much as many."""
+    if not roots.cycling.size:
         return
-    target = np.concatenate([q_star[roots.cycling] for q_star, roots in found]).T.copy()
-    start = np.concatenate([roots.first[roots.cycling] for _, roots in found]) / inv._p_scale
-    end = np.concatenate([roots.scaled[roots.cycling] for _, roots in found])
-    probe = _refine(inv, target, start + _ROUND_OFF_PROBE, np.ones(len(start), dtype=bool), table)
-    grown = ~(np.abs(probe.scaled - end).max(axis=1) < _ROUND_OFF_GROWTH * _ROUND_OFF_PROBE)
-    offset = 0
-    for _, roots in found:
-        sensitive = roots.cycling[grown[offset:offset + roots.cycling.size]]
-        offset += roots.cycling.size
-        roots.fallback[sensitive] = True
-        roots.todo[sensitive] = False
-        roots.refined[sensitive] = False
+    start = roots.first[roots.cycling] / inv._p_scale
+    probe = _refine(inv, q_star[roots.cycling].T.copy(), start + _ROUND_OFF_PROBE,
+                    np.ones(len(start), dtype=bool), table)
+    grown = ~(np.abs(probe.scaled - roots.scaled[roots.cycling]).max(axis=1) < _ROUND_OFF_GROWTH * _ROUND_OFF_PROBE)
+    sensitive = roots.cycling[grown]
+    roots.fallback[sensitive] = True
+    roots.todo[sensitive] = False
+    roots.refined[sensitive] = False
 
 
 class _Refinement(NamedTuple):
@@ -276,17 +281,18 @@ def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.
     k = inv.n_neighbours
     m = len(scaled)
     scaled = scaled.copy()
-    last_coefficients = np.zeros((6, 2, m))
-    last_x = np.zeros((2, m))
+    # The last local fit's value at the point it stepped to, for the rows that stopped (or
+    # reached the last step); 0 for the rows never refined (the empty fit's value).
+    value_at_end = np.zeros((2, m))
     failed = np.zeros(m, dtype=bool)
     active = todo.copy()
-    # Per row: its 14 neighbours (neighbour-major), where they were asked for and the margin
+    # Per row: its 14 neighbours (a row each), where they were asked for and the margin
     # (half the gap between the 14th and 15th distances) within which they stay the 14 nearest.
-    neighbours = np.zeros((k, m), dtype=np.intp)
+    neighbours = np.zeros((m, k), dtype=np.intp)
     asked_at = np.full((m, 2), np.nan)
     margin = np.full(m, -1.0)
     slack = np.full(m, np.inf)
-    for _ in range(_REFINE_STEPS):
+    for step in range(_REFINE_STEPS):
         live = np.flatnonzero(active)
         if live.size == 0:
             break
@@ -295,46 +301,58 @@ def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.
         asked = ~(moved < margin[live])  # NaN (never asked) compares False: asked
         stale = live[asked]
         if stale.size:
-            neighbours[:, stale], margin[stale] = _nearest(inv, scaled[stale], table)
+            neighbours[stale], margin[stale] = _nearest(inv, scaled[stale], table)
             asked_at[stale] = scaled[stale]
             moved[asked] = 0.0
         # The neighbours stay the 14 nearest within margin - moved of the point.
         slack[live] = np.minimum(slack[live], margin[live] - moved)
-        index = neighbours[:, live]
-        u = inv._p_u[index] - s_live[:, 0]
-        v = inv._p_v[index] - s_live[:, 1]
-        distance = np.sqrt(u * u + v * v)
-        weight = (1 - (distance / (1.01 * distance.max(axis=0) + 1e-300)) ** 2) ** 2
-        values = [inv._q_z[index], inv._q_zp[index]]
-        nearest = np.argmin(distance, axis=0)
-        coefficients, x_here = _local_fit(u, v, values, weight, nearest,
-                                          partial(_fit_coordinates, inv, index, nearest))
-        x_new, norm, bad = _damped_newton_step(coefficients, x_here, target[:, live], 0.25)
-        scaled[live] = s_live + (x_new - x_here).T
-        last_coefficients[:, :, live] = coefficients
-        last_x[:, live] = x_new
-        failed[live[bad]] = True
-        active[live[(norm < _REFINE_TOLERANCE) | bad]] = False
-    value_at_end, _ = _quadratic_value_and_jacobian(last_coefficients, last_x)
+        # Blocks of at most BLOCK rows, all of one size.
+        size = -(-live.size // -(-live.size // BLOCK))
+        for start in range(0, live.size, size):
+            rows = live[start:start + size]
+            s_rows = s_live[start:start + size]
+            # Neighbour-major (14, m), each capsule's 14 together in memory, the layout these
+            # arrays have always had here: numpy's sums over the neighbours (and einsum's) add
+            # in an order that depends on it. The other layout sums several times faster, but
+            # moves the results by round-off, and with them a few knife-edge capsules' flags.
+            index = neighbours[rows].T
+            u = inv._p_u[index] - s_rows[:, 0]
+            v = inv._p_v[index] - s_rows[:, 1]
+            distance = np.sqrt(u * u + v * v)
+            # The largest distance row by row (numpy's max over the 14 of each capsule, which lie
+            # together in memory, costs three times as much).
+            farthest = reduce(np.maximum, distance)
+            weight = (1 - (distance / (1.01 * farthest + 1e-300)) ** 2) ** 2
+            values = [inv._q_z[index], inv._q_zp[index]]
+            nearest = np.argmin(distance, axis=0)
+            coefficients, x_here = _local_fit(u, v, values, weight, nearest,
+                                              partial(_fit_coordinates, inv, index, nearest))
+            x_new, norm, bad = _damped_newton_step(coefficients, x_here, target[:, rows], 0.25)
+            scaled[rows] = s_rows + (x_new - x_here).T
+            failed[rows[bad]] = True
+            stop = (norm < _REFINE_TOLERANCE) | bad
+            active[rows[stop]] = False
+            ending = np.ones_like(stop) if step == _REFINE_STEPS - 1 else stop
+            value_at_end[:, rows[ending]] = _quadratic_value(coefficients[:, :, ending], x_new[:, ending])
     return _Refinement(scaled, value_at_end, active, slack, failed)
 
 
 def _nearest(inv: TubeInverter, points: np.ndarray, table: NeighbourTable | None) -> tuple[np.ndarray, np.ndarray]:
     """The 14 database points nearest to each of ``points`` (m, 2) in scaled parameters,
-    neighbour-major (14, m), and the margin (m,) within which they stay the 14 nearest (half
+    a row (m, 14) for each point, and the margin (m,) within which they stay the 14 nearest (half
     the gap between the 14th and 15th distances, less an allowance for their round-off): from
     ``table`` where it has them, else from the KD-tree."""
     k = inv.n_neighbours
-    index = np.empty((k, len(points)), dtype=np.intp)
+    index = np.empty((len(points), k), dtype=np.intp)
     margin = np.empty(len(points))
     asked: np.ndarray = np.arange(len(points))
     if table is not None:
         found, index_found, margin_found = table.lookup(points)
-        index[:, found], margin[found] = index_found, margin_found
+        index[found], margin[found] = index_found.T, margin_found
         asked = np.flatnonzero(~found)
     if asked.size:
         distance, nearest = inv._p_tree.query(points[asked], k=k + 1)
-        index[:, asked] = nearest[:, :k].T
+        index[asked] = nearest[:, :k]
         margin[asked] = _half_gap(distance, k)
     return index, margin
 
@@ -367,9 +385,9 @@ class NeighbourTable:
         axes = [self.origin[i] + cell * (np.arange(self.counts[i]) + 0.5) for i in range(2)]
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
         distance, index = inv._p_tree.query(centres, k=k + 1)
-        # Neighbour-major (14, cells), in the smallest integer type: the look-ups gather from
+        # A row of 14 for each cell, in the smallest integer type: the look-ups gather rows from
         # all over the table, and a smaller one stays in the cache.
-        self.index = np.ascontiguousarray(index[:, :k].T).astype(np.min_scalar_type(len(inv._p) - 1))
+        self.index = index[:, :k].astype(np.min_scalar_type(len(inv._p) - 1))
         self.half_gap = _half_gap(distance, k)
         self.centres = centres
 
@@ -384,7 +402,7 @@ class NeighbourTable:
         margin = self.half_gap[cells] - np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
         # A margin of a tenth of a cell at least: a point asked again at once gains nothing.
         found = inside & (margin > 0.1 * self.cell)
-        return found, self.index[:, cells[found]], margin[found]
+        return found, self.index[cells[found]].T, margin[found]
 
 
 _NEIGHBOUR_TABLES: weakref.WeakKeyDictionary[TubeInverter, NeighbourTable] = weakref.WeakKeyDictionary()
@@ -531,36 +549,43 @@ def _normal_equations_fit(u: np.ndarray, v: np.ndarray, value_columns: list[np.n
     return coefficients, dropped, deficient
 
 
-def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted map's value (2, m) and Jacobian (2, 2, m) (rows: the lengths, columns: the
-    coordinates) at x (2, m), coefficients c (6, 2, m)."""
+def _quadratic_value(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The fitted map's value (2, m) at x (2, m), coefficients c (6, 2, m)."""
     u, v = x
-    value = c[0] + c[1] * u + c[2] * v + c[3] * u**2 + c[4] * (u * v) + c[5] * v**2
-    d_du = c[1] + c[3] * (2 * u) + c[4] * v
-    d_dv = c[2] + c[4] * u + c[5] * (2 * v)
-    return value, np.stack([d_du, d_dv], axis=1)
+    return c[0] + c[1] * u + c[2] * v + c[3] * u**2 + c[4] * (u * v) + c[5] * v**2
+
+
+def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fitted map's value (2, m) and its derivatives along the coordinates u and v (2, m
+    each; rows: the lengths) at x (2, m), coefficients c (6, 2, m)."""
+    u, v = x
+    return _quadratic_value(c, x), c[1] + c[3] * (2 * u) + c[4] * v, c[2] + c[4] * u + c[5] * (2 * v)
 
 
 def _damped_newton_step(c: np.ndarray, x: np.ndarray, target: np.ndarray, max_step: float
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``inverters._damped_newton_step_many``'s step, component-major (c (6, 2, m), x and
     target (2, m)): (new x (2, m), undamped step length (m,), rows whose step is not finite)."""
-    q, jac = _quadratic_value_and_jacobian(c, x)
+    q, d_du, d_dv = _quadratic_value_and_jacobian(c, x)
     r = target - q
-    a, b, cc, d = jac[0, 0], jac[0, 1], jac[1, 0], jac[1, 1]
+    a, b, cc, d = d_du[0], d_dv[0], d_du[1], d_dv[1]
     det = a * d - b * cc
     scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), np.maximum(np.abs(cc), np.abs(d)))
     singular = ~(np.abs(det) > 1e-6 * scale**2)
     det = np.where(singular, 1.0, det)
     step = np.stack([(d * r[0] - b * r[1]) / det, (a * r[1] - cc * r[0]) / det])
     if singular.any():
-        u_svd, s, vt = np.linalg.svd(jac[:, :, singular].transpose(2, 0, 1))
+        # The Jacobians (rows: the lengths, columns: the coordinates), one for each singular row.
+        jacobian = np.stack([d_du[:, singular], d_dv[:, singular]], axis=-1).transpose(1, 0, 2)
+        u_svd, s, vt = np.linalg.svd(jacobian)
         cutoff = np.finfo(float).eps * 2 * s[:, :1]
         s_inverse = np.where(s > cutoff, 1 / np.where(s > cutoff, s, 1.0), 0.0)
         step[:, singular] = np.einsum("mji,mj,mkj,mk->im", vt, s_inverse, u_svd, r[:, singular].T)
     norm = np.sqrt(step[0] * step[0] + step[1] * step[1])
     bad = ~np.isfinite(norm)
-    step[:, bad] = 0.0
+    if bad.any():
+        step[:, bad] = 0.0
     damp = norm > max_step
-    step[:, damp] *= max_step / norm[damp]
+    if damp.any():
+        step[:, damp] *= max_step / norm[damp]
     return x + step, norm, bad
