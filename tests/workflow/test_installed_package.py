@@ -57,7 +57,7 @@ def test_the_wheel_ships_every_database(installed: Path) -> None:
                          text=True, capture_output=True, timeout=300)
     assert run.returncode == 0, run.stderr[-4000:]
     rows = [line.split("\t") for line in run.stdout.splitlines()]
-    assert len(rows) == 10
+    assert len(rows) == 11
     for name, path, exists in rows:
         assert exists == "True", f"{name}: {path} missing"
         assert "site-packages" in path and not Path(path).resolve().is_relative_to(REPO.resolve()), path
