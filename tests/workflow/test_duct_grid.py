@@ -28,7 +28,7 @@ SETTINGS = ["--channel", "square", "--integrator", "newton", "--level", "3", "--
             "--tube-length", "6", "--wall-h-centre", "0.1", "--wall-h-far", "0.2"]
 LAW_ARGS = {"NH": ["--law", "NH"], "GH_nu0.5": ["--law", "GH", "--nu-s", "0.5"]}
 SIZES = ("0.6", "0.7", "0.8", "0.9")
-CAPILLARY = ("0.04", "0.06", "0.08", "0.1")
+CAPILLARY = ("0.02", "0.04", "0.06", "0.08", "0.1", "0.12", "0.15")
 #: Observed orders of mesh convergence of the duct (levels 2-4, a/w 0.8, Ca_s 0.05): from
 #: docs/validation/runs/duct_convergence.csv, where the level-2, 3 and 4 values give
 #: p = log2((X3 - X2) / (X4 - X3)): L_z 3.46, L_p 1.64, v_c 2.42.

@@ -126,7 +126,7 @@ CATALOG: dict[str, CatalogEntry] = {entry.name: entry for entry in (
                  "development grid of the example batches: NH, GH_nu0.5/0.2 (config/dev.yaml)"),
     CatalogEntry("duct-dev", "tube", "database", "duct-dev/tube.h5",
                  "square duct, lengths in its half-width w, outline in the mid-plane y = 0: NH, GH_nu0.5, "
-                 "a/w 0.6-0.9 x Ca_s 0.04-0.1, 3D model level 3 (config/duct-dev.yaml)"),
+                 "a/w 0.6-0.9 x Ca_s 0.02-0.15, 3D model level 3 (config/duct-dev.yaml)"),
 )}
 
 #: The tube databases of effect law groups that ``diagnose`` reads by default.
