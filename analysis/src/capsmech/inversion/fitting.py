@@ -108,7 +108,9 @@ def tube_inverter(database: TubeDatabase, law: str) -> TubeInverter:
     try:
         return TubeInverter(TubeTable(a_over_l=rows["a_over_l"], Ca_s=rows["Ca_s"], L_z=rows["L_z"],
                                       L_p=rows["L_p"], vc_over_V=rows["vc_over_V"],
-                                      profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z"), root=root))
+                                      profile_r=rows.get("profile_r"), profile_z=rows.get("profile_z"), root=root,
+                                      L_z_error_rel=rows.get("L_z_mesh_error_rel"),
+                                      L_p_error_rel=rows.get("L_p_mesh_error_rel")))
     except DatabaseError as err:
         raise _naming_database(err, database, law) from None
 

@@ -26,6 +26,7 @@ D12 below 0.35 is flagged as too imprecise (paper: +-20 % on D12 from blurred co
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -38,6 +39,9 @@ from capsmech.inversion.sharp_edge import largest_turn
 
 #: Neighbours of the diffuse approximation (paper section 4.2).
 N_NEIGHBOURS = 14
+#: Grid rows around a point whose stated errors bound the database's accuracy there (the
+#: corners of the grid cell that holds it).
+STATED_ERROR_ROWS = 4
 #: Shear: D12 below this is too imprecise to fit (paper section 4.3).
 MIN_SHEAR_D12 = 0.35
 #: The five fits of paper section 4.2: factors on (L_z, L_p).
@@ -85,6 +89,10 @@ class TubeTable:
     #: Whether each row is a root of the steady equations (``sharp_edge.is_steady_root``);
     #: None: all are.
     root: np.ndarray | None = None
+    #: Each row's own stated relative error of L_z and L_p (a database with a mesh check:
+    #: ``<column>_mesh_error_rel``); None, or NaN in a row: not stated.
+    L_z_error_rel: np.ndarray | None = None
+    L_p_error_rel: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         arrays = [np.asarray(getattr(self, k), dtype=float) for k in ("a_over_l", "Ca_s", "L_z", "L_p", "vc_over_V")]
@@ -103,6 +111,11 @@ class TubeTable:
         if root.shape != (n,):
             raise ValueError("tube table: root must be 1-D with one entry per row")
         object.__setattr__(self, "root", root[keep])
+        for name in ("L_z_error_rel", "L_p_error_rel"):
+            stated = np.full(n, np.nan) if getattr(self, name) is None else np.asarray(getattr(self, name), dtype=float)
+            if stated.shape != (n,):
+                raise ValueError(f"tube table: {name} must be 1-D with one entry per row")
+            object.__setattr__(self, name, stated[keep])
         if np.any(arrays[1][keep] <= 0):
             raise ValueError("tube table: Ca_s must be > 0")
         if keep.sum() < N_NEIGHBOURS:
@@ -252,6 +265,22 @@ class TubeInverter:
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
         #: The largest turn of each row's profile (triangle_turns), measured when first asked.
         self._turns: np.ndarray | None = None
+
+    def stated_error(self, a_over_l: float, Ca_s: float) -> tuple[float, float]:
+        """The database's own stated relative error of (L_z, L_p) near (a/l, Ca_s): the largest
+        that the grid rows around the point state (NaN where none states one)."""
+        if not (math.isfinite(a_over_l) and Ca_s > 0):
+            return math.nan, math.nan
+        point = np.array([a_over_l, math.log(Ca_s)]) / self._p_scale
+        _, index = self._p_tree.query(point, k=min(STATED_ERROR_ROWS, len(self.table.a_over_l)))
+        index = np.atleast_1d(index)
+
+        def largest(values: np.ndarray) -> float:
+            finite = values[index][np.isfinite(values[index])]
+            return float(finite.max()) if finite.size else math.nan
+
+        assert self.table.L_z_error_rel is not None and self.table.L_p_error_rel is not None
+        return largest(self.table.L_z_error_rel), largest(self.table.L_p_error_rel)
 
     def _local_forward_map(self, q_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Weighted quadratic fit of q(p) over the neighbours of q_star: (coefficients, centre, p0)."""

@@ -69,14 +69,16 @@ def tracing_noise(prepared: PreparedContour, meridian: np.ndarray, frames_noise:
 
 
 def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
-                 frames_noise: float = math.nan, tube_radius: float = math.nan) -> tuple[float, float]:
+                 frames_noise: float = math.nan, tube_radius: float = math.nan,
+                 stated_error_rel: tuple[float, float] = (math.nan, math.nan)) -> tuple[float, float]:
     """(chi2, sigma) of a contour against a profile (r, z), both in the contour's units: the sum
     over ``CHI2_POINTS`` of the squared residual over sigma^2 plus the square of the database's
     accuracy at the point (``profile_floor``: ``MODEL_FLOOR_REL`` of ``length``, more behind a
     sharp parachute edge; ``tube_radius`` in the contour's units), sigma measured on the contour,
-    or across the video frames where larger (``tracing_noise``). NaN where sigma is not positive."""
+    or across the video frames where larger (``tracing_noise``); ``stated_error_rel``: the
+    database rows' own stated errors there (``profile_floor``). NaN where sigma is not positive."""
     sigma = tracing_noise(prepared, meridian, frames_noise)
-    floor = profile_floor(meridian, length, CHI2_POINTS, tube_radius)
+    floor = profile_floor(meridian, length, CHI2_POINTS, tube_radius, stated_error_rel)
     variance = sigma ** 2 + floor ** 2
     if not (np.all(np.isfinite(variance)) and np.all(variance > 0)):
         return math.nan, sigma

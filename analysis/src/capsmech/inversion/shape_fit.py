@@ -176,8 +176,9 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
         return ShapeFit(flag=f"no database profile at a/l = {a_fit:.3f}, Ca_s = {ca_fit:.3g}")
     misfit, _ = profile_misfit(contour, meridian * tube_radius, prepared.axis_y)
     length = float(np.ptp(contour[:, 0])) if length is None else length
-    chi2, sigma = contour_chi2(prepared, meridian * tube_radius, length, frames_noise, tube_radius)
-    variance = sigma ** 2 + profile_floor(meridian * tube_radius, length, CHI2_POINTS, tube_radius) ** 2
+    stated = inverter.stated_error(a_fit, ca_fit)
+    chi2, sigma = contour_chi2(prepared, meridian * tube_radius, length, frames_noise, tube_radius, stated)
+    variance = sigma ** 2 + profile_floor(meridian * tube_radius, length, CHI2_POINTS, tube_radius, stated) ** 2
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
                     Delta=profile_elongation(meridian, a_fit), chi2=chi2,
                     covariance=fit_covariance(prepared, inverter, tube_radius, (a_fit, ca_fit), variance, chi2))

@@ -188,14 +188,19 @@ def parachute_depth(meridian: np.ndarray) -> float:
     return float(np.max(rearward * z) - rearward * z[-1])
 
 
-def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius: float = math.nan) -> np.ndarray:
+def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius: float = math.nan,
+                  stated_error_rel: tuple[float, float] = (math.nan, math.nan)) -> np.ndarray:
     """The databases' accuracy [the meridian's units] at each of ``points`` points placed at
     equal arclength along a database profile (r, z) from the front pole to the rear pole, as a
     residual profile places them: ``SMOOTH_FLOOR_REL`` of the capsule's ``length`` everywhere
     (the smooth shapes' accuracy), and from the profile's sharpest turn (the parachute's rim) to
     the rear pole the L_p accuracy of the turn's class (``row_accuracy``; its absolute part
     needs ``tube_radius``): the rim's position along the meridian is what the databases hold
-    least well, and the parachute's cavity behind it moves with it.
+    least well, and the parachute's cavity behind it moves with it. ``stated_error_rel``, the
+    relative errors of (L_z, L_p) that the database's own rows state around the fitted point
+    (``TubeInverter.stated_error``; NaN: not stated), raises the floor to that L_z share of
+    ``length`` everywhere and to that L_p share of the parachute's depth behind the rim (behind
+    the profile's middle where it has no turn): a database is no more accurate than it says.
 
     Measured (2026-11-26): capsules of the right law whose shape is the 128-element kernel's,
     traced with 0.45 px noise at a 100 px tube radius and fitted on the 64-element database,
@@ -203,13 +208,19 @@ def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius:
     nu_s 0.5 and 0.2, a/l 0.9, Ca_s 1.5 and 0.8; up to 1.1 px further back) and stay within
     the tracing noise in front of it: chi2/DOF 10-15 with the smooth floor alone, 0.7-3.0 with
     this one (docs/validation/databases.md)."""
-    floor = np.full(points, SMOOTH_FLOOR_REL * length)
+    L_z_rel, L_p_rel = (v if math.isfinite(v) else 0.0 for v in stated_error_rel)
+    floor = np.full(points, max(SMOOTH_FLOOR_REL, L_z_rel) * length)
     meridian = np.asarray(meridian, dtype=float)
+    # A database that states each row's own error (a mesh check): the parachute's rear holds
+    # no better than its L_p, whatever the turn's class says.
+    stated_rim = L_p_rel * parachute_depth(meridian)
     turn, where = sharpest_turn(meridian[:, 0], meridian[:, 1])
     if not math.isfinite(turn):
+        rear = np.arange(points) >= points // 2
+        floor[rear] = np.maximum(floor[rear], stated_rim)
         return floor
     accuracy = row_accuracy(turn)
-    rim = accuracy.L_p_rel * parachute_depth(meridian)
+    rim = max(accuracy.L_p_rel * parachute_depth(meridian), stated_rim)
     if math.isfinite(tube_radius):
         rim = max(rim, accuracy.L_p_abs * tube_radius)
     behind = np.arange(points) >= math.floor(where * (points - 1))
