@@ -160,6 +160,15 @@ def aitken_limit(t: np.ndarray, values: np.ndarray, t_end: float, spacing: float
     return float(x2 - (x2 - x1) ** 2 / ((x2 - x1) - (x1 - x0)))
 
 
+def newton_case(capsim, size: float, ca: float, work: Path):
+    """One level-2 Newton-Krylov case on the coarse test wall: its case and its root attributes."""
+    out = work / "newton.h5"
+    run_capsim(capsim, tube_3d_args(size, ca, 2, COARSE_WALL, work, out) + ["--integrator", "newton"], timeout=1800)
+    with h5py.File(out) as f:
+        attrs = dict(f.attrs)
+    return read_case(out), attrs
+
+
 @pytest.mark.validate
 def test_newton_finds_the_deep_parachute_that_time_stepping_approaches(capsim, tmp_path):
     """NH a/l 0.9, Ca_s 0.1 at level 2 on the coarse test wall: the level-2 shape is far from
@@ -168,12 +177,7 @@ def test_newton_finds_the_deep_parachute_that_time_stepping_approaches(capsim, t
     slow mode, time constant ~4 l/V), and stops by its rate criterion (1e-3 per l/V) short of
     the limit: the Newton shape is compared with the limit of its history (Aitken), within
     that criterion's 1e-3."""
-    out = tmp_path / "newton.h5"
-    run_capsim(capsim, tube_3d_args(0.9, 0.1, 2, COARSE_WALL, tmp_path, out) + ["--integrator", "newton"],
-               timeout=1800)
-    case = read_case(out)
-    with h5py.File(out) as f:
-        attrs = dict(f.attrs)
+    case, attrs = newton_case(capsim, 0.9, 0.1, tmp_path)
     assert case.status == "steady", case.message
     assert attrs["newton_residual"] < 1e-4
     # Not flagged unstable; the Ritz estimate may be unknown here (none converged), and the
@@ -203,12 +207,7 @@ def test_newton_ends_with_a_reason_within_its_budget(capsim, tmp_path):
     run_capsim(capsim, ["--flow", "tube", "--law", "NH", "--a-over-l", "0.9", "--ca", "0.2",
                         "--threads", "1", "--quiet", "--out", str(axi_out)])
     assert read_case(axi_out).status == "continuous_elongation"
-    out = tmp_path / "newton.h5"
-    run_capsim(capsim, tube_3d_args(0.9, 0.2, 2, COARSE_WALL, tmp_path, out) + ["--integrator", "newton"],
-               timeout=1800)
-    case = read_case(out)
-    with h5py.File(out) as f:
-        attrs = dict(f.attrs)
+    case, attrs = newton_case(capsim, 0.9, 0.2, tmp_path)
     assert case.status == "failed", case.message
     assert attrs["velocity_evaluations"] <= 3000 + 100
     assert "did not converge" in case.message and "budget" in case.message, case.message

@@ -213,14 +213,15 @@ def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius:
     meridian = np.asarray(meridian, dtype=float)
     # A database that states each row's own error (a mesh check): the parachute's rear holds
     # no better than its L_p, whatever the turn's class says.
-    stated_rim = L_p_rel * parachute_depth(meridian)
+    depth = parachute_depth(meridian)
+    stated_rim = L_p_rel * depth
     turn, where = sharpest_turn(meridian[:, 0], meridian[:, 1])
     if not math.isfinite(turn):
         rear = np.arange(points) >= points // 2
         floor[rear] = np.maximum(floor[rear], stated_rim)
         return floor
     accuracy = row_accuracy(turn)
-    rim = max(accuracy.L_p_rel * parachute_depth(meridian), stated_rim)
+    rim = max(accuracy.L_p_rel * depth, stated_rim)
     if math.isfinite(tube_radius):
         rim = max(rim, accuracy.L_p_abs * tube_radius)
     behind = np.arange(points) >= math.floor(where * (points - 1))
