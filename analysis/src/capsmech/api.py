@@ -542,7 +542,7 @@ class Extraction:
         One row per capsule passage: ``id``, ``good_frames``, ``frames``, ``L_z``, ``L_p``
         [um] with their spreads over the good frames, ``v_c`` [mm/s] with its standard error,
         ``tube_radius`` [um] with its standard uncertainty ``tube_radius_sigma`` (NaN: walls
-        given), ``flag`` (``""`` measured, ``too_few_frames``, ``not_moving``,
+        given; in a square channel ``half_width`` and ``half_width_sigma``), ``flag`` (``""`` measured, ``too_few_frames``, ``not_moving``,
         ``not_steady``) and ``reason`` (for a measured independent event: why it has no
         velocity); units in ``attrs["units"]``.
     frames : DataFrame
@@ -567,6 +567,7 @@ class Extraction:
     results: list[Any]
     measurements: list[Any]
     channel: Any = None
+    channel_shape: str = "tube"
 
 
 #: Columns of ``Extraction.capsules`` and their units (lengths as the measurement CSV has them).
@@ -590,7 +591,7 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
             progress: bool = False, background: str | Path | Any | None = None,
             walls: str | tuple[float, float] | None = None, channel_width: float | str | None = None,
             frame_times: str | Path | Any | None = None, tilt: float | None = None,
-            channel_width_tolerance: float = 0.02) -> Extraction:
+            channel_width_tolerance: float = 0.02, channel_shape: str = "tube") -> Extraction:
     """Measure the capsules of a stack of frames of a tube: lengths, velocity, contours.
 
     Parameters
@@ -634,6 +635,10 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         The tolerance of ``channel_width``, a fraction of it (default 0.02): a width found
         that differs by more than it plus twice its own uncertainty is a disagreement
         (``Extraction.channel.width_disagrees``).
+    channel_shape : {"tube", "square"}
+        What the walls bound: a circular tube (default; their half distance is its radius,
+        ``tube_radius``) or a square channel seen through a face (its half-width,
+        ``half_width``: the length scale of a square-channel database, which ``fit_tube`` checks).
 
     Returns
     -------
@@ -658,7 +663,11 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
         read_frames,
     )
     from capsmech.imaging.extraction_output import PIXEL_UNITS_UM, RATE_UNITS_HZ, check_id, default_ids
+    from capsmech.io.measurement_columns import CHANNEL_SHAPES, length_scale_columns
 
+    if channel_shape not in CHANNEL_SHAPES:
+        raise ExtractionError(f"channel_shape: {channel_shape!r} is none of {', '.join(CHANNEL_SHAPES)}")
+    scale, scale_sigma = length_scale_columns(channel_shape)
     paths = [frames] if isinstance(frames, (str, Path)) else list(frames)
     pixel_um = _quantity(pixel_size, "pixel_size", PIXEL_UNITS_UM, "um")
     rate = _quantity(frame_rate, "frame_rate", RATE_UNITS_HZ, "Hz")
@@ -709,16 +718,19 @@ def extract(frames: str | Path | Sequence[str | Path], pixel_size: float | str |
                      "L_z": cap.L_z_px * pixel_um, "L_z_spread": cap.L_z_spread_px * pixel_um,
                      "L_p": cap.L_p_px * pixel_um, "L_p_spread": cap.L_p_spread_px * pixel_um,
                      "v_c": cap.v_c_px_s * pixel_um * 1e-3, "v_c_se": cap.v_c_se_px_s * pixel_um * 1e-3,
-                     "tube_radius": channel.walls.radius_px * pixel_um,
-                     "tube_radius_sigma": channel.walls.radius_sigma_px * pixel_um,
+                     scale: channel.walls.radius_px * pixel_um,
+                     scale_sigma: channel.walls.radius_sigma_px * pixel_um,
                      "contour_noise": cap.contour_noise_px * pixel_um, "flag": flag,
                      "reason": cap.problem or cap.note})
     frame_rows = [{"index": r.index, "label": r.label, "time_s": r.time_s, "passage": r.passage, "flag": r.flag,
                    "objects": r.objects, "kind": r.kind, "contour_at": r.contour_at, "extent_px": r.extent_px,
                    "outer_extent_px": r.outer_extent_px, "L_z_px": r.L_z_px, "L_p_px": r.L_p_px,
                    "centroid_x_px": r.centroid_x, "asymmetry": r.asymmetry} for r in results]
-    return Extraction(_frame(rows, EXTRACTION_UNITS), pd.DataFrame(frame_rows), float(pixel_um), float(rate),
-                      channel.walls, stack, results, measurements, channel)
+    # The tube's columns named as the channel's (the same place, the same unit).
+    renamed = {"tube_radius": scale, "tube_radius_sigma": scale_sigma}
+    units = {renamed.get(name, name): unit for name, unit in EXTRACTION_UNITS.items()}
+    return Extraction(_frame(rows, units), pd.DataFrame(frame_rows), float(pixel_um), float(rate),
+                      channel.walls, stack, results, measurements, channel, channel_shape)
 
 
 def extract_shear(frames: str | Path | Sequence[str | Path], pixel_size: float | str | None = None, *,

@@ -19,6 +19,7 @@ from capsmech.cli.common import (
     write_json,
 )
 from capsmech.imaging.extraction import ExtractionError
+from capsmech.io.measurement_columns import CHANNEL_SHAPES, length_scale_columns
 
 
 def check_options(args: argparse.Namespace) -> None:
@@ -83,7 +84,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
                         capsule_id=args.id, max_asymmetry=args.max_asymmetry, max_line_width=args.max_line_width,
                         min_frames=args.min_frames, progress=sys.stderr.isatty(), background=args.background,
                         walls=args.walls, channel_width=args.channel_width, frame_times=args.frame_times,
-                        tilt=args.tilt, channel_width_tolerance=args.channel_width_tolerance / 100)
+                        tilt=args.tilt, channel_width_tolerance=args.channel_width_tolerance / 100,
+                        channel_shape=args.channel)
     except ExtractionError as err:
         # A calibration neither the files nor the options give: the API names its parameter,
         # the command line its option.
@@ -99,7 +101,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
     report = Path(args.report) if args.report else out.with_name(out.stem + "_frames.csv")
     write_frame_report(report, results)
     sigma = f" +- {walls.radius_sigma_px:.2f}" if math.isfinite(walls.radius_sigma_px) else ""
-    print(f"{len(stack)} frames of {stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px; tube radius "
+    scale, _ = length_scale_columns(args.channel)
+    print(f"{len(stack)} frames of {stack.frames[0].shape[1]}x{stack.frames[0].shape[0]} px; {scale.replace('_', ' ')} "
           f"{walls.radius_px:.2f}{sigma} px = {walls.radius_px * pixel_um:.4g} um, axis at row {walls.axis_row:.2f}; "
           f"pixel {pixel_um:g} um, {rate:g} frames/s")
     channel = found.channel
@@ -155,7 +158,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
     kept = [cap for cap in found.measurements if cap.ok]
     csv_path, _ = write_measurements(out, kept, results, walls, pixel_um, list(measured["id"]), mu,
                                      source=" ".join(str(f) for f in args.frames), flow_direction=channel.flow_direction,
-                                     channel=channel)
+                                     channel=channel, channel_shape=args.channel)
     print(format_table(records(measured), ["id", "good_frames", "L_z", "L_z_spread", "L_p", "L_p_spread", "v_c",
                                            "v_c_se"], capsules.attrs["units"]))
     if args.overlay:
@@ -165,7 +168,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
                 t = cap.trace
                 frame = replace(frame, contour=t.contour, x_front=t.x_front, x_rear=t.x_rear, x_rear_axis=t.x_rear_axis)
             title = (f"{row['id']}, frame {frame.index}: L_z = {row['L_z']:.4g} um, L_p = {row['L_p']:.4g} um, "
-                     f"tube radius {row['tube_radius']:.4g} um, v_c = {row['v_c']:.4g} mm/s")
+                     f"{scale.replace('_', ' ')} {row[scale]:.4g} um, v_c = {row['v_c']:.4g} mm/s")
             path = write_overlay(Path(args.overlay) / f"{row['id']}.png", channel.levelled(stack.frames[frame.index]),
                                  frame, walls, title)
             print(f"wrote {path}")
@@ -173,7 +176,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
     if json_out is not None:
         payload = {"frames": [str(f) for f in args.frames], "measurements": str(csv_path),
                    "frame_report": str(report), "pixel_size_um": pixel_um, "frame_rate_hz": rate,
-                   "tube_radius_um": walls.radius_px * pixel_um, "flow_direction": channel.flow_direction,
+                   "channel": args.channel, f"{scale}_um": walls.radius_px * pixel_um, "flow_direction": channel.flow_direction,
                    **table_json(capsules)}
         print(json_out.wrote(write_json(json_out.path, "extract", payload)))
     return 0
@@ -197,6 +200,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="image of the empty channel (default: the temporal median of the frames)")
     ext.add_argument("--walls", metavar="ROW1,ROW2",
                      help="rows of the two walls (px, at the image's centre column) instead of detecting them")
+    ext.add_argument("--channel", choices=CHANNEL_SHAPES, default="tube",
+                     help="what the walls bound: a circular tube (default; writes tube_radius) or a square channel "
+                          "seen through a face (writes its half_width, the length scale of a square-channel database)")
     ext.add_argument("--channel-width",
                      help="channel width, e.g. 20um (bare numbers: um): checked against the walls found, and used "
                           "to place a wall outside the view")

@@ -4,7 +4,8 @@ Every file is written to a temporary name and renamed, so it is whole or absent.
 
 - Measurement CSV (the tube format of ``capsmech.io.measurements``, read by ``fit-tube``):
   ``id,L_z [um],L_p [um],v_c [mm/s],tube_radius [um],pixel_size [um],[mu [Pa s],]contour [px],contour_noise [px],
-  tube_radius_sigma [um][,width_check]``;
+  tube_radius_sigma [um][,width_check]``; in a square channel (``channel="square"``) the walls' half
+  distance is the channel's ``half_width`` (and ``half_width_sigma``) instead of ``tube_radius``;
   comment lines above the header give, per capsule, its frames, the spread of the lengths
   over them and the standard error of v_c; ``contour_noise`` is one frame's tracing noise,
   from the spread of the capsule's contours over its good frames
@@ -37,6 +38,7 @@ import numpy as np
 from capsmech.errors import ExtractionError
 from capsmech.imaging.extraction import CapsuleMeasurement, Channel, FrameResult, Walls
 from capsmech.io.atomic import atomic_path, write_text_atomically
+from capsmech.io.measurement_columns import length_scale_columns
 
 
 def _write_text(path: Path, text: str) -> Path:
@@ -57,7 +59,7 @@ def contour_text(contour: np.ndarray) -> str:
 def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement], results: Sequence[FrameResult],
                        walls: Walls, pixel_size_um: float, ids: Sequence[str], mu_pa_s: float | None = None,
                        source: str = "", flow_direction: str = "right",
-                       channel: Channel | None = None) -> tuple[Path, list[Path]]:
+                       channel: Channel | None = None, channel_shape: str = "tube") -> tuple[Path, list[Path]]:
     """Write the measurement CSV and the contour file of each measured capsule.
 
     Parameters
@@ -81,6 +83,9 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     channel : Channel, optional
         The stack's channel: its check of a given width is written (a comment line and the
         ``width_check`` column).
+    channel_shape : {"tube", "square"}
+        What the walls bound: a circular tube (their half distance is its radius,
+        ``tube_radius``) or a square channel (its ``half_width``); the columns say it.
 
     Returns
     -------
@@ -94,7 +99,8 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
     lines = io.StringIO()
     lines.write(f"# capsmech extract: {source}\n")
     sigma = f" +- {walls.radius_sigma_px:.3f}" if math.isfinite(walls.radius_sigma_px) else ""
-    lines.write(f"# tube radius {walls.radius_px:.3f}{sigma} px (walls at rows {walls.top_row:.3f}, {walls.bottom_row:.3f}; "
+    scale, scale_sigma = length_scale_columns(channel_shape)
+    lines.write(f"# {scale.replace('_', ' ')} {walls.radius_px:.3f}{sigma} px (walls at rows {walls.top_row:.3f}, {walls.bottom_row:.3f}; "
                 f"{walls.source}), "
                 f"pixel size {pixel_size_um:g} um" + (", frames mirrored (flow in -x)" if flow_direction == "left" else "")
                 + "\n")
@@ -108,10 +114,10 @@ def write_measurements(path: str | Path, capsules: Sequence[CapsuleMeasurement],
                     f"{cap.L_p_spread_px:.3f} px (median +- std over the frames); v_c {cap.v_c_px_s:.5g} +- "
                     f"{cap.v_c_se_px_s:.2g} px/s (slope +- standard error); contour of frame {cap.representative}\n")
     writer = csv.writer(lines, lineterminator="\n")
-    header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", "tube_radius [um]", "pixel_size [um]"]
+    header = ["id", "L_z [um]", "L_p [um]", "v_c [mm/s]", f"{scale} [um]", "pixel_size [um]"]
     if mu_pa_s is not None:
         header.append("mu [Pa s]")
-    header += ["contour [px]", "contour_noise [px]", "tube_radius_sigma [um]"] + (["width_check"] if verdict else [])
+    header += ["contour [px]", "contour_noise [px]", f"{scale_sigma} [um]"] + (["width_check"] if verdict else [])
     writer.writerow(header)
     for cap_id, cap in zip(ids, capsules):
         contour_path = contour_dir / f"{check_id(cap_id, 'id')}.txt"

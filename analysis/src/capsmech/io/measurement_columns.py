@@ -44,6 +44,18 @@ FLOWS = {"tube": TUBE_COLUMNS, "shear": SHEAR_COLUMNS}
 #: circular tube gives its radius, a square channel its half-width (the radius of its inscribed
 #: circle). A file gives one of them; either stands for the required ``tube_radius``.
 CHANNEL_COLUMNS = {"tube_radius": ("tube", "tube_radius_sigma"), "half_width": ("square", "half_width_sigma")}
+#: The channels a tube file can be of (the shapes of ``CHANNEL_COLUMNS``).
+CHANNEL_SHAPES = tuple(shape for shape, _ in CHANNEL_COLUMNS.values())
+
+
+def length_scale_columns(channel: str) -> tuple[str, str]:
+    """The length-scale column of a channel's measurement file and its uncertainty column:
+    ``("tube_radius", "tube_radius_sigma")`` for ``"tube"``, ``("half_width", ...)`` for
+    ``"square"``."""
+    for name, (shape, sigma) in CHANNEL_COLUMNS.items():
+        if shape == channel:
+            return name, sigma
+    raise ValueError(f"channel: {channel!r} is none of {', '.join(CHANNEL_SHAPES)}")
 #: A required column -> the columns that may stand in its place.
 ALTERNATIVES = {"tube_radius": ("half_width",)}
 #: Columns where zero is a measurement (no rear dimple; an exact value), not a slip.
