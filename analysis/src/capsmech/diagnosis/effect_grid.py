@@ -62,17 +62,21 @@ def needed_grid(effect: str, laws: Sequence[str], database: TubeDatabase, a_over
     finite = finite[np.isfinite(finite)]
     if len(finite) and ca_spread != (1.0, 1.0):
         Ca_s = np.concatenate([finite, [finite.min() / ca_spread[0], finite.max() * ca_spread[1]]])
-    name = f"effects_{effect}"
+    # The shipped effect libraries (tube-<effect>) extend the axisymmetric circular tube: a grid
+    # for another model or channel (a square duct's 3D database) is named after its base, so that
+    # writing or refilling it never replaces a library of another geometry.
+    own = "" if tube.get("settings", {}).get("model", "axi") == "axi" else f"-{base['name']}"
+    name = f"effects_{effect}{own.replace('-', '_')}"
     grid: dict[str, Any] = {
         "name": name,
         "description": f"{effect} candidate of capsmech diagnose: {', '.join(laws)} around a batch's fitted points",
         # Where the shipped effect databases live, so that a refill is found by name (tube-<effect>).
-        "databases_dir": f"analysis/src/capsmech/databases/effects/{effect}",
+        "databases_dir": f"analysis/src/capsmech/databases/effects/{effect}{own}",
         "results_dir": f"results/{name}",
         "profile_points": int(base.get("profile_points", 64)),
         "tube": {"laws": list(laws), "a_over_l": bracketing_nodes(tube["a_over_l"], a_over_l),
                  "Ca_s": bracketing_nodes(tube["Ca_s"], Ca_s),
-                 "database": {"name": f"tube-{effect}", "version": 1,
+                 "database": {"name": f"tube-{effect}{own}", "version": 1,
                               "accuracy": "the mesh of the base database: " + str(tube.get("database", {}).get(
                                   "accuracy", "see its grid"))}},
     }
