@@ -147,6 +147,40 @@ def run_fold_branch(capsim: Path, branch: Branch, folds_dir: Path, code_version:
         return decode_str(f.attrs["critical_kind"]), wall
 
 
+#: How a 3D grid's branch ends are found: the 3D branch has no arclength continuation, so its
+#: end is where Newton-Krylov from the previous steady shape stops converging (bisected), which a
+#: fold causes but a hard solve can too.
+CRITICAL_METHOD_3D = ("continuation in Ca_s by Newton-Krylov from the previous steady shape (capsim --branch-ca, "
+                      "3D model, over the grid's Ca_s), the end bisected to 1 %; an end that the grid's own steady "
+                      "rows above it contradict is 'failed: branch lost', not a fold; NaN: no end inside the grid's Ca_s")
+
+
+def reconcile_3d_ends(rows: dict[str, dict[str, list]], database: Path) -> list[str]:
+    """Check each 3D branch end against the database's own rows, solved case by case: where a
+    row of the same law and a/l is steady above the end, the branch's Newton-Krylov lost the
+    branch there (no fold: the steady shapes go on), and the end becomes ``failed: branch lost``
+    with no critical Ca_s. Returns one line per end so changed."""
+    changed = []
+    with h5py.File(database, "r") as f:
+        for key, law in rows.items():
+            group = f[key]
+            a_rows, ca_rows = group["a_over_l"][()], group["Ca_s"][()]
+            steady = np.array([decode_str(v) for v in group["status"][()]]) == "steady"
+            for i, (a, critical, kind) in enumerate(zip(law["a_over_l"], law["Ca_s"], law["kind"])):
+                if kind != "fold" or not math.isfinite(critical):
+                    continue
+                above = np.isclose(a_rows, a) & steady & (ca_rows > critical)
+                if not above.any():
+                    continue
+                beyond = float(ca_rows[above].max())
+                law["kind"][i] = (f"failed: branch lost at Ca_s {critical:.4g} (Newton-Krylov from the branch found no "
+                                  f"steady shape), yet the grid's row at Ca_s {beyond:g} is steady: not a fold")
+                law["message"][i] = f"{law['message'][i]}; {law['kind'][i]}"
+                law["Ca_s"][i] = math.nan
+                changed.append(f"{key} a/l {a:g}: {law['kind'][i]}")
+    return changed
+
+
 def is_critical(name: str) -> bool:
     """Whether an HDF5 path lies in a law group's ``critical`` group."""
     parts = name.strip("/").split("/")
@@ -226,9 +260,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         list(pool.map(run, branches))
     rows = critical_rows(branches, folds_dir, code_version)
-    add_critical_groups(database, rows, {"kernel_settings": json.dumps(dict(branches[0].settings), sort_keys=True),
-                                         "requested_Ca_s": ",".join(f"{ca:g}" for ca in branches[0].Ca_s),
-                                         "code_version": code_version, "accuracy": FOLD_ACCURACY})
+    attrs = {"kernel_settings": json.dumps(dict(branches[0].settings), sort_keys=True),
+             "requested_Ca_s": ",".join(f"{ca:g}" for ca in branches[0].Ca_s),
+             "code_version": code_version, "accuracy": FOLD_ACCURACY}
+    if dict(branches[0].settings).get("model", "axi") == "3d":
+        attrs["method"] = CRITICAL_METHOD_3D
+        attrs["accuracy"] = ("the end of the rows' mesh, bisected to 1 % relative in Ca_s (the midpoint of the last "
+                             "steady and the first failed Ca_s, both in each message); the mesh's effect on it was not "
+                             "measured")
+        for line in reconcile_3d_ends(rows, database):
+            print(f"{database}: {line}")
+    add_critical_groups(database, rows, attrs)
     for key, law in rows.items():
         ends = ", ".join(f"{a:g}: {ca:.4g} ({kind.split(':')[0]})" for a, ca, kind in
                          zip(law["a_over_l"], law["Ca_s"], law["kind"]))
