@@ -47,3 +47,22 @@ def test_ends_other_than_folds_are_left_as_the_kernel_wrote_them(tmp_path):
                    "message": ["none"]}}
     assert add_folds.reconcile_3d_ends(rows, database) == []
     assert rows["NH"]["kind"] == ["none: the grid's top reached"] and math.isnan(rows["NH"]["Ca_s"][0])
+
+
+def test_branches_from_a_given_ca_cover_the_grids_top_and_reuse_a_longer_branch(tmp_path):
+    from capsmech.workflow.grid import load_grid
+
+    grid = load_grid(REPO / "config" / "duct-dev.yaml")
+    top = add_folds.fold_branches(grid, ["NH"], from_ca=0.08)
+    assert {b.Ca_s for b in top} == {(0.08, 0.1, 0.12, 0.15)} and len(top) == len(grid["tube"]["a_over_l"])
+    whole = add_folds.fold_branches(grid, ["NH"])[0]
+    # A branch file of the whole grid's Ca_s serves a request over its top; not the other way.
+    path = tmp_path / "a0.6.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["requested_Ca_s"] = ",".join(f"{ca:g}" for ca in whole.Ca_s)
+        f.attrs["code_version"] = "9.9.9"
+    assert add_folds._branch_file_is_current(path, top[0], "9.9.9")
+    assert not add_folds._branch_file_is_current(path, top[0], "9.9.8")
+    with h5py.File(path, "a") as f:
+        f.attrs["requested_Ca_s"] = "0.08,0.1,0.12,0.15"
+    assert not add_folds._branch_file_is_current(path, whole, "9.9.9")
