@@ -14,6 +14,11 @@ one of method:
   either gets ``fit``'s own arithmetic (``TubeInverter._fit_exact_many``, which ``fit_many``
   gives every cycling capsule: ~2 % of noisy capsules, a quarter of the CPU time before;
   here ~1 in 5000).
+- Likewise for the first root: a Newton iteration on the local fit in lengths that never
+  stops wanders about a fold of the fitted map, and where it stops is round-off's; if its
+  iterates came near a root (within ``_FIRST_ROOT_SLACK`` times the root test's tolerance: a few
+  capsules in 10^5), whether the last is a root is round-off's too, and the capsule gets
+  ``fit``'s own arithmetic.
 - The parameter-space refinement asks the KD-tree for the neighbours only where they can
   have changed: the query returns one neighbour more than the fit uses, and while the point
   stays within half the gap between the 14th and 15th distances of where it was asked, the
@@ -84,6 +89,13 @@ _ROUND_OFF_SLACK = 1e-8
 #: ``fit``'s differ by <~1e-13 at the start, so the ends stay within ~1e-10.
 _ROUND_OFF_PROBE = 1e-12
 _ROUND_OFF_GROWTH = 1e3
+#: How near (in tolerances of the root test) the iterates of a first-root Newton iteration
+#: that never stops must come to the lengths for the capsule to get ``fit``'s arithmetic:
+#: such an iteration wanders about a fold of the fitted map, and its least miss is the
+#: map's distance to the lengths, which ``fit``'s iterates and these reach alike (measured:
+#: within 1 % mostly, within a factor 2 at worst, on 20000 drawn capsules of each of the
+#: tube-paper database's five laws).
+_FIRST_ROOT_SLACK = 10.0
 
 
 #: The environment variable that bounds a process's threads (OpenMP's, which BLAS, batch
@@ -162,9 +174,10 @@ class _Roots(NamedTuple):
     todo: np.ndarray
     #: Capsules of ``todo`` whose refined root reproduces their lengths.
     refined: np.ndarray
-    #: Capsules left to ``fit``'s own arithmetic: a step not finite, or a refinement still
-    #: moving after its steps that passed within ``_ROUND_OFF_SLACK`` of a change of neighbours
-    #: (or, after ``_probe_cycling``, grows round-off).
+    #: Capsules left to ``fit``'s own arithmetic: a step not finite, a first-root iteration
+    #: that never stopped but came within ``_FIRST_ROOT_SLACK`` tolerances of a root, or a
+    #: refinement still moving after its steps that passed within ``_ROUND_OFF_SLACK`` of a
+    #: change of neighbours (or, after ``_probe_cycling``, grows round-off).
     fallback: np.ndarray
     #: The capsules of ``todo`` whose refinement still moved after its steps (indices).
     cycling: np.ndarray
@@ -198,25 +211,37 @@ def _roots(inv: TubeInverter, q_star: np.ndarray, table: NeighbourTable | None =
                                                   partial(_columns_of, u, v))
     target = q_star.T.copy()
     x = np.zeros((2, m))
+    # The least miss |q - q*| (largest component) of each row's iterates, for the rows that
+    # never stop.
+    least_miss = np.full(m, np.inf)
     # The rows still moving, their coefficients, point and target packed together: gathered
     # again only when some stop.
     live = np.arange(m)
     c_live: np.ndarray = coefficients
     x_live: np.ndarray = x
     target_live: np.ndarray = target
+    miss_live: np.ndarray = least_miss
     for _ in range(50):
         if live.size == 0:
             break
-        x_live, norm, bad = _damped_newton_step(c_live, x_live, target_live, 0.5)
+        x_live, norm, bad, residual = _damped_newton_step(c_live, x_live, target_live, 0.5)
+        miss_live = np.minimum(miss_live, np.maximum(np.abs(residual[0]), np.abs(residual[1])))
         fallback[live[bad]] = True
         stop = (norm < 1e-12) | bad
         if stop.any():
             x[:, live[stop]] = x_live[:, stop]
             going = ~stop
-            live, c_live, x_live, target_live = live[going], c_live[:, :, going], x_live[:, going], target_live[:, going]
+            live, c_live, x_live, target_live, miss_live = (live[going], c_live[:, :, going], x_live[:, going],
+                                                            target_live[:, going], miss_live[going])
     x[:, live] = x_live
     q = _quadratic_value(coefficients, x)
     tolerance = 1e-6 * np.abs(q_star).max(axis=1)
+    # A row still moving after its steps wanders about a fold of the fitted map (q* just
+    # outside its image, or at its edge), and where it stops is round-off's choice: if its
+    # iterates come near a root (within _FIRST_ROOT_SLACK of the tolerance), whether the last
+    # one is a root is round-off's too, and the capsule gets ``fit``'s own arithmetic.
+    least_miss[live] = np.minimum(miss_live, np.abs(q[:, live] - target[:, live]).max(axis=0))
+    fallback[live[least_miss[live] <= _FIRST_ROOT_SLACK * tolerance[live]]] = True
     no_root = np.any(np.abs(q - target) > tolerance, axis=0) & ~fallback
     first = inv._p[index[0]] + x.T * inv._p_scale
 
@@ -327,7 +352,7 @@ def _refine(inv: TubeInverter, target: np.ndarray, scaled: np.ndarray, todo: np.
             nearest = np.argmin(distance, axis=0)
             coefficients, x_here = _local_fit(u, v, values, weight, nearest,
                                               partial(_fit_coordinates, inv, index, nearest))
-            x_new, norm, bad = _damped_newton_step(coefficients, x_here, target[:, rows], 0.25)
+            x_new, norm, bad, _ = _damped_newton_step(coefficients, x_here, target[:, rows], 0.25)
             scaled[rows] = s_rows + (x_new - x_here).T
             failed[rows[bad]] = True
             stop = (norm < _REFINE_TOLERANCE) | bad
@@ -563,9 +588,10 @@ def _quadratic_value_and_jacobian(c: np.ndarray, x: np.ndarray) -> tuple[np.ndar
 
 
 def _damped_newton_step(c: np.ndarray, x: np.ndarray, target: np.ndarray, max_step: float
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``inverters._damped_newton_step_many``'s step, component-major (c (6, 2, m), x and
-    target (2, m)): (new x (2, m), undamped step length (m,), rows whose step is not finite)."""
+    target (2, m)): (new x (2, m), undamped step length (m,), rows whose step is not finite,
+    the residual target - q at x (2, m))."""
     q, d_du, d_dv = _quadratic_value_and_jacobian(c, x)
     r = target - q
     a, b, cc, d = d_du[0], d_dv[0], d_du[1], d_dv[1]
@@ -588,4 +614,4 @@ def _damped_newton_step(c: np.ndarray, x: np.ndarray, target: np.ndarray, max_st
     damp = norm > max_step
     if damp.any():
         step[:, damp] *= max_step / norm[damp]
-    return x + step, norm, bad
+    return x + step, norm, bad, r

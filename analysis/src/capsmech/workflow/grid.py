@@ -12,11 +12,13 @@ A key may add effects beyond the base model (issue 6), each a further database d
 ``NH+prestress0.05`` -> ``--law NH --prestress 0.05``, ``NH+kb0.01`` -> ``--law NH --kb 0.01``
 (``capsmech.io.laws.EFFECTS`` lists those the kernel has).
 
-A tube grid with ``settings.branch: true`` (axisymmetric model) computes its cases by
-continuation: one kernel run per (law, a/l), a :class:`Branch`, follows the steady branch up
-the grid's Ca_s and writes every case file of that (law, a/l) plus a branch file with the
-critical Ca_s where the steady branch ends (``capsim --branch-ca``). The case files are the
-same cases (same names, same kernel arguments but ``--ca``); only how they are computed differs.
+A tube grid with ``settings.branch: true`` computes its cases by continuation: one kernel run
+per (law, a/l), a :class:`Branch`, follows the steady branch up the grid's Ca_s and writes
+every case file of that (law, a/l) plus a branch file with the critical Ca_s where the steady
+branch ends (``capsim --branch-ca``). The case files are the same cases (same names, same
+kernel arguments but ``--ca``); only how they are computed differs. The axisymmetric model
+follows a branch with any integrator but rk2 (time steps only); the 3D model (tube or duct)
+with its steady solver only, ``integrator: newton``, as the kernel requires.
 """
 
 from __future__ import annotations
@@ -189,16 +191,29 @@ def uses_branches(grid: Mapping[str, Any]) -> bool:
     return bool(grid.get("tube", {}).get("settings", {}).get("branch", False))
 
 
+def follows_branches(settings: Mapping[str, Any]) -> bool:
+    """Whether the kernel follows a steady branch with these tube settings: the axisymmetric
+    model with any integrator but rk2 (time steps only), the 3D model with its steady solver
+    (``integrator: newton``) only (capsim refuses ``--branch-ca`` otherwise)."""
+    integrator = settings.get("integrator", "auto")
+    if settings.get("model", "axi") == "3d":
+        return bool(integrator == "newton")
+    return bool(integrator != "rk2")
+
+
 def by_continuation(settings: Mapping[str, Any] | None) -> dict[str, Any]:
     """Tube settings for cases computed on demand: ``settings`` with ``branch: true`` where the
-    model is axisymmetric (the 3D model has no continuation) and the integrator is not rk2.
+    model is axisymmetric and the kernel follows a branch with them (``follows_branches``).
 
     The cases are the same (same files, same kernel arguments but ``--ca``; equal to 3e-7 on the
     Skalak C = 2-8 grid of docs/validation/diagnosis.md); continuation reached them with 1.3
     times fewer CPU seconds there and 1.0-1.9 times over paper-grid law groups (kernel 0.3.4,
-    docs/validation/performance.md): less where many cases must be time-stepped all the same."""
+    docs/validation/performance.md): less where many cases must be time-stepped all the same.
+    The 3D model's cases stay one by one: its branch reports a fold where Newton-Krylov alone
+    finds a stable steady shape (tests/workflow/test_branch_3d_workflow.py), so that the
+    cases past it would not be the same."""
     out = dict(settings or {})
-    if out.get("model", "axi") == "axi" and out.get("integrator") != "rk2":
+    if out.get("model", "axi") == "axi" and follows_branches(out):
         out["branch"] = True
     return out
 
@@ -321,11 +336,13 @@ def validate_grid(grid: Mapping[str, Any], where: str = "grid") -> None:
                             problems.append(f"{flow}.laws[{i}]: law key {key!r}: {name} needs "
                                             f"tube.settings.model: {' or '.join(EFFECT_TUBE_MODELS[name])}")
             if flow == "tube" and uses_branches(grid):
-                model = grid[flow].get("settings", {}).get("model", "axi")
-                if model != "axi":
-                    problems.append(f"tube.settings.branch: continuation exists for the axisymmetric model only "
-                                    f"(this grid's model is {model})")
-                if grid[flow].get("settings", {}).get("integrator") == "rk2":
+                settings = grid[flow].get("settings", {})
+                integrator = settings.get("integrator", "auto")
+                if not follows_branches(settings) and settings.get("model", "axi") == "3d":
+                    problems.append(f"tube.settings.branch: the 3d model follows a branch with its steady solver, "
+                                    f"tube.settings.integrator: newton (this grid's is {integrator}); with another "
+                                    f"integrator continuation exists for the axisymmetric model only")
+                elif not follows_branches(settings):
                     problems.append("tube.settings.branch: continuation finds steady states by Newton's method; "
                                     "integrator rk2 (time steps only) contradicts it")
                 texts = [f"{float(ca):g}" for ca in grid[flow]["Ca_s"]]
