@@ -106,10 +106,13 @@ def test_the_duct_batch_gives_the_true_G_s_within_its_intervals(duct_fit):
     g_s = _truth_g_s()
     fitted = duct_fit[duct_fit["flag"] == ""]
     assert len(fitted) == len(read_measurements(DUCT_BATCH)), "every capsule of the batch fitted"
-    # Each capsule's contour fit within 10 % of the truth: the velocity's 2 % noise, the
-    # contour's +-1 px and the database's interpolation (measured: 5.3 % at most; the fit's
-    # stated standard error covers the contour's share only, docs/validation/inversion.md).
-    assert ((fitted["G_s_shape"] / g_s - 1).abs() < 0.10).all()
+    # Each capsule's contour fit within 12 % of the truth: the database's interpolation between
+    # rows 0.1 apart in a/w, the velocity's 2 % noise and the contour's +-1 px. The interpolation
+    # alone moves a capsule's G_s by -3.2 % to +9.3 % (noise-free contour fits of the kernel's own
+    # shapes at a/w 0.65-0.86, Ca_s 0.05-0.09; the most at a/w 0.86, next to the grid's edge):
+    # measured 11.6 % at most once the rows' outlines kept their poles (5.3 % before, on
+    # outlines that lacked them), docs/validation/inversion.md#square-channel.
+    assert ((fitted["G_s_shape"] / g_s - 1).abs() < 0.12).all()
     # The batch: NH's 95 % interval of the mean G_s (population's, with the database's
     # accuracy) holds the truth. Whether NH is also named the verdict depends on the contours'
     # goodness of fit, which the database's a/w spacing of 0.1 limits (docs/validation/inversion.md).
@@ -117,21 +120,34 @@ def test_the_duct_batch_gives_the_true_G_s_within_its_intervals(duct_fit):
     assert row["G_s_low"] <= g_s <= row["G_s_high"]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known defect: on duct-dev (a/w steps of 0.1) NH's interpolated profiles miss the NH batch's "
-    "contours (chi2/dof 1.83 > 1.74 with the rows' stated errors in the floor) and GH_nu0.5 is named "
-    "at 0.0319 [0.0273, 0.0366] N/m (truth NH, 0.04); docs/validation/inversion.md#square-channel"))
-def test_no_wrong_law_is_named_with_an_interval_that_misses_the_truth(duct_db):
-    # Fitted with both of the database's laws, the NH batch gets NH, or a tie whose one G_s
-    # interval holds the truth: never GH_nu0.5 alone. The contours' chi2 takes the database's
-    # own stated row errors (L_p about 3 % at level 3). Without Ca_s 0.02 in the grid this gave
-    # a tie (0.0266-0.0442 N/m); with it, GH_nu0.5 is named: the verdict turns on which rows the
-    # interpolation uses, so the interpolation's own error is what the chi2 still lacks.
-    g_s = _truth_g_s()
+@pytest.fixture(scope="module")
+def duct_verdict(duct_db):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutsideDatabaseWarning)
         results = fit_tube(DUCT_BATCH, duct_db)
-    verdict = capsmech.population(results)
+    return capsmech.population(results)
+
+
+def test_the_nh_duct_batch_is_never_named_gh_nu05(duct_verdict):
+    # Fitted with both of the database's laws, the NH batch is not given the wrong law: the
+    # contours' chi2 holds the database's interpolation error (rows 0.1 apart in a/w), so NH's
+    # best shapes reach the noise (chi2/dof 1.04 against the limit 1.74; 2.40 without it) and the
+    # contours cannot tell the two laws apart (p = 0.28). Before that, GH_nu0.5 was named at
+    # 0.0319 [0.0273, 0.0366] N/m.
+    assert duct_verdict.kind in ("law", "cannot_tell"), duct_verdict.reason
+    assert duct_verdict.best in (None, "NH"), duct_verdict.reason
+    assert "NH" in duct_verdict.candidates
+    low, high = duct_verdict.evidence["NH"].g_s_interval
+    assert low <= _truth_g_s() <= high
+
+
+def test_no_wrong_law_is_named_with_an_interval_that_misses_the_truth(duct_verdict):
+    # Fitted with both of the database's laws, the NH batch gets NH, or a tie whose one G_s
+    # interval holds the truth: never GH_nu0.5 alone. On duct-dev (a/w steps of 0.1) the
+    # contours cannot tell the two laws apart; the tie's interval is the hull of theirs, which
+    # do not overlap (knowing the law would narrow it).
+    g_s = _truth_g_s()
+    verdict = duct_verdict
     assert verdict.kind in ("law", "cannot_tell"), verdict.reason
     if verdict.kind == "law":
         assert verdict.best == "NH", verdict.reason

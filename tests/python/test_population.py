@@ -164,11 +164,16 @@ def test_two_laws_that_cannot_be_told_apart_give_cannot_tell():
     for law in ("X", "Y"):
         e = verdict.evidence[law]
         assert low <= e.g_s_interval[0] and e.g_s_interval[1] <= high
-    # Their G_s far apart (one twice the other): still no law, and no G_s interval.
+    # Their G_s far apart (one twice the other): still no law; G_s lies in the hull of their
+    # intervals whichever is right, and the reason says that knowing the law would narrow it.
     rows = (rows_with_contours("X", delta, g, misfit + 5e-4 * rng.standard_normal(14))
             + rows_with_contours("Y", delta, 2 * g, misfit + 5e-4 * rng.standard_normal(14)))
     verdict = population_verdict(rows)
-    assert verdict.kind == "cannot_tell" and verdict.g_s_interval is None
+    assert verdict.kind == "cannot_tell" and np.isnan(verdict.g_s)
+    low, high = verdict.g_s_interval
+    x, y = verdict.evidence["X"].g_s_interval, verdict.evidence["Y"].g_s_interval
+    assert x[1] < y[0] and (low, high) == (x[0], y[1])
+    assert "do not overlap" in verdict.reason and "whichever it is" in verdict.line()
 
 
 def test_a_law_fitting_fewer_than_half_is_never_the_verdict():

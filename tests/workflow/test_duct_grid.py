@@ -113,8 +113,10 @@ def test_assembly_of_real_duct_cases(tmp_path: Path) -> None:
             expected = abs(value - coarse) / abs(value) / (2.0 ** ORDERS[source] - 1.0)
             np.testing.assert_allclose(table.columns[f"{column}_mesh_error_rel"][row], expected, rtol=1e-12)
         if table.steady[row]:
-            # The outline starts at the kernel's front point, in the plane y = 0.
-            assert (table.profiles["profile_r"][row][0], table.profiles["profile_z"][row][0]) == end
+            # The outline (the mesh's section by y = 0) starts on the axis at the front pole,
+            # where the kernel's own outline starts when it keeps its pole (these cases do: r ~1e-9).
+            assert table.profiles["profile_r"][row][0] == 0.0 and abs(end[0]) < 1e-6
+            assert abs(table.profiles["profile_z"][row][0] - end[1]) < 1e-6
 
 
 def test_rows_beyond_the_mesh_check_have_no_companion(tmp_path: Path) -> None:

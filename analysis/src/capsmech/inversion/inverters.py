@@ -26,6 +26,7 @@ D12 below 0.35 is flagged as too imprecise (paper: +-20 % on D12 from blurred co
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,13 +36,24 @@ from scipy.interpolate import LinearNDInterpolator, PchipInterpolator
 from scipy.spatial import Delaunay, cKDTree
 
 from capsmech.errors import DatabaseError
-from capsmech.inversion.sharp_edge import largest_turn
+from capsmech.inversion.residuals import PreparedContour
+from capsmech.inversion.sharp_edge import BUCKLING_CA_S, CORNER_TURN, largest_turn
 
 #: Neighbours of the diffuse approximation (paper section 4.2).
 N_NEIGHBOURS = 14
 #: Grid rows around a point whose stated errors bound the database's accuracy there (the
 #: corners of the grid cell that holds it).
 STATED_ERROR_ROWS = 4
+#: Points along a profile's normalised arclength at which each row's interpolation error is kept
+#: (``row_interpolation_errors``).
+INTERPOLATION_ERROR_POINTS = 64
+#: Rows nearest a row (in the scaled parameters) among which the pairs on either side of it
+#: are sought, and how far off the line between them it may lie (a fraction of their distance):
+#: on it but for rounding, since a row off the line differs from the pair's interpolation by the
+#: profile's gradient times the offset too (on tube-paper, 5 % off the line tripled the
+#: estimates at the front pole). A grid's axes, and its diagonals where they are straight.
+INTERPOLATION_PAIR_ROWS = 8
+INTERPOLATION_PAIR_STRAIGHTNESS = 1e-6
 #: Shear: D12 below this is too imprecise to fit (paper section 4.3).
 MIN_SHEAR_D12 = 0.35
 #: The five fits of paper section 4.2: factors on (L_z, L_p).
@@ -265,6 +277,8 @@ class TubeInverter:
         self._velocity = LinearNDInterpolator(self._hull, table.vc_over_V)
         #: The largest turn of each row's profile (triangle_turns), measured when first asked.
         self._turns: np.ndarray | None = None
+        #: Each row's interpolation error (``row_interpolation_errors``), when first asked.
+        self._interpolation_errors: np.ndarray | None = None
 
     def stated_error(self, a_over_l: float, Ca_s: float) -> tuple[float, float]:
         """The database's own stated relative error of (L_z, L_p) near (a/l, Ca_s): the largest
@@ -281,6 +295,59 @@ class TubeInverter:
 
         assert self.table.L_z_error_rel is not None and self.table.L_p_error_rel is not None
         return largest(self.table.L_z_error_rel), largest(self.table.L_p_error_rel)
+
+    def interpolation_error(self, a_over_l: float, Ca_s: float, points: int) -> np.ndarray:
+        """The error [l] of the profile interpolated at (a/l, Ca_s) (``profile``), at ``points``
+        points placed at equal arclength from the front pole to the rear pole: point by point
+        the largest of the rows' own estimates (``row_interpolation_errors``, the most between
+        a row and its neighbours) at the vertices of the triangle holding the point, or, where
+        none of them has one, at the nearest rows that do; times where the point lies between
+        the vertices (barycentric weights w): a linear interpolation is exact at its rows and
+        misses most half-way between two, as t (1 - t) along an edge, so 4 sum_{i<j} w_i w_j
+        (1 at an edge's middle, at most 1). NaN where no row has an estimate, or outside the
+        database."""
+        if self.table.profile_r is None or self.table.profile_z is None:
+            return np.full(points, np.nan)
+        triangle = self._triangle(a_over_l, Ca_s)
+        if triangle is None:
+            return np.full(points, np.nan)
+        weights = triangle[1]
+        between = min(1.0, 2.0 * float(weights.sum() ** 2 - weights @ weights))
+        rows = self._row_interpolation_errors()
+        chosen = triangle[0][np.isfinite(rows[triangle[0], 0])]
+        if chosen.size == 0 and not np.any(self._smooth[triangle[0]]):
+            # Between rows that are not smooth the databases' floor holds the error.
+            return np.full(points, np.nan)
+        if chosen.size == 0:
+            point = np.array([a_over_l, math.log(Ca_s)]) / self._p_scale
+            _, nearest = self._p_tree.query(point, k=min(STATED_ERROR_ROWS, len(rows)))
+            nearest = np.atleast_1d(nearest)
+            chosen = nearest[np.isfinite(rows[nearest, 0])]
+        if chosen.size == 0:
+            return np.full(points, np.nan)
+        largest = rows[chosen].max(axis=0) * between
+        return np.interp(np.linspace(0.0, 1.0, points), np.linspace(0.0, 1.0, INTERPOLATION_ERROR_POINTS), largest)
+
+    @property
+    def _smooth(self) -> np.ndarray:
+        """Whether each row's shape is smooth in the parameters: no corner at its rim
+        (``sharp_edge.CORNER_TURN``) and above the rear's buckling (``sharp_edge.BUCKLING_CA_S``)."""
+        assert self.table.profile_r is not None and self.table.profile_z is not None
+        if self._turns is None:
+            self._turns = np.array([largest_turn(r, z) for r, z in zip(self.table.profile_r, self.table.profile_z)])
+        return ~(self._turns >= CORNER_TURN) & (self.table.Ca_s > BUCKLING_CA_S)
+
+    def _row_interpolation_errors(self) -> np.ndarray:
+        """``row_interpolation_errors`` of this table, computed once per table's content."""
+        if self._interpolation_errors is None:
+            assert self.table.profile_r is not None and self.table.profile_z is not None
+            key = hashlib.sha1(b"".join(np.ascontiguousarray(a, dtype=float).tobytes() for a in (
+                self._p_scaled, self.table.profile_r, self.table.profile_z))).hexdigest()
+            if key not in _ROW_INTERPOLATION_ERRORS:
+                _ROW_INTERPOLATION_ERRORS[key] = row_interpolation_errors(
+                    self._p_scaled, self.table.profile_r, self.table.profile_z, self._smooth)
+            self._interpolation_errors = _ROW_INTERPOLATION_ERRORS[key]
+        return self._interpolation_errors
 
     def _local_forward_map(self, q_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Weighted quadratic fit of q(p) over the neighbours of q_star: (coefficients, centre, p0)."""
@@ -675,6 +742,78 @@ class TubeInverter:
     def five_fits(self, L_z: float, L_p: float, v_c: float | None = None, mu: float | None = None) -> FiveFits:
         """Fits 1-5 of paper section 4.2 (L_z and L_p -+2 %, then L_p alone -+2 %)."""
         return FiveFits({name: self.fit(L_z * fz, L_p * fp, v_c, mu) for name, fz, fp in FIVE_FITS})
+
+
+#: ``row_interpolation_errors`` by table content: a database's law is estimated once a process.
+_ROW_INTERPOLATION_ERRORS: dict[str, np.ndarray] = {}
+
+
+def row_interpolation_errors(p_scaled: np.ndarray, profile_r: np.ndarray, profile_z: np.ndarray,
+                             smooth: np.ndarray | None = None) -> np.ndarray:
+    """Each row's estimate of the error [the profiles' units] of a profile linearly interpolated
+    between it and its neighbours (``TubeInverter.profile``), at ``INTERPOLATION_ERROR_POINTS``
+    points at equal arclength from the front pole to the rear pole; NaN for a row without a
+    neighbour on either side, and for the rows that are not ``smooth`` (default: all are).
+
+    Rows whose shape is not smooth in the parameters take no part (``TubeInverter`` leaves out
+    those with a corner at the rim, ``sharp_edge.CORNER_TURN``, and those at the rear's buckling,
+    ``sharp_edge.BUCKLING_CA_S``): there the rim moves from one material node to the next in
+    jumps, or the rear folds, and the databases' floor holds those errors already
+    (``sharp_edge.row_accuracy``); the differences between such rows measure the jumps, not the
+    grid's spacing.
+
+    Left out, a row is predicted from each pair of rows on either side of it (adjacent: no row
+    between; within ``INTERPOLATION_PAIR_STRAIGHTNESS`` of the line through them, among its
+    ``INTERPOLATION_PAIR_ROWS`` nearest in the scaled parameters ``p_scaled``: a grid's axes,
+    and its diagonals where straight), linearly at its position t along the pair; the error is the unsigned normal
+    distance between the prediction and the row's own profile, the axial shift that a contour's
+    residual leaves free removed (``PreparedContour.residual``). Linear interpolation misses
+    by the second derivative times t (1 - t) L^2 / 2 at a pair's distance L, and by at most
+    h^2 / 8 times the same derivative inside a cell of edge h: the left-out error is scaled by
+    max(t, 1 - t)^2 / (4 t (1 - t)) (1/4 at a grid's mid-points), the error the interpolation
+    makes between the row and its neighbours, from the grid's own rows. The point-by-point
+    largest over the directions is the row's estimate. (Measured on tube-paper, a/l every 0.05:
+    the second differences at a/l spacing 0.1 are 3.5-4.0 times those at 0.05, the median over
+    each law's rows; quadratic: 4.)"""
+    n = len(p_scaled)
+    errors = np.full((n, INTERPOLATION_ERROR_POINTS), np.nan)
+    used = np.ones(n, dtype=bool) if smooth is None else np.asarray(smooth, dtype=bool)
+    rows = np.flatnonzero(used)
+    if len(rows) < 3:
+        return errors
+    tree = cKDTree(p_scaled[rows])
+    _, nearest = tree.query(p_scaled[rows], k=min(INTERPOLATION_PAIR_ROWS + 1, len(rows)))
+    nearest = rows[nearest]
+
+    def off_line(point: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[float, float]:
+        """(position along start -> end, distance from the line over their distance)."""
+        segment = end - start
+        length2 = float(segment @ segment)
+        t = float((point - start) @ segment / length2)
+        return t, float(np.linalg.norm(start + t * segment - point)) / math.sqrt(length2)
+
+    for i, neighbours in zip(rows, nearest):
+        around = [int(j) for j in neighbours if j != i]
+        prepared: PreparedContour | None = None
+        for first, j in enumerate(around):
+            for k in around[first + 1:]:
+                t, off = off_line(p_scaled[i], p_scaled[j], p_scaled[k])
+                if not (0.0 < t < 1.0 and off <= INTERPOLATION_PAIR_STRAIGHTNESS):
+                    continue
+                if any(0.0 < u < 1.0 and d <= INTERPOLATION_PAIR_STRAIGHTNESS
+                       for m in around if m not in (j, k)
+                       for u, d in (off_line(p_scaled[m], p_scaled[i], p_scaled[end]) for end in (j, k))):
+                    continue
+                if prepared is None:
+                    # The row's profile as a contour: the meridian and its mirror image.
+                    half = np.column_stack([profile_z[i], profile_r[i]])
+                    mirror = np.column_stack([profile_z[i][::-1], -profile_r[i][::-1]])
+                    prepared = PreparedContour(np.vstack([half, mirror]), axis_y=0.0)
+                predicted = np.column_stack([(1 - t) * profile_r[j] + t * profile_r[k],
+                                             (1 - t) * profile_z[j] + t * profile_z[k]])
+                missed = np.abs(prepared.residual(predicted, points=INTERPOLATION_ERROR_POINTS)[1])
+                errors[i] = np.fmax(errors[i], missed * max(t, 1 - t) ** 2 / (4 * t * (1 - t)))
+    return errors
 
 
 def _damped_newton_step(coefficients: np.ndarray, x: np.ndarray, q_star: np.ndarray, max_step: float

@@ -94,8 +94,9 @@ named only if it also survives the drift test and every other law). Then:
   the 95 % interval of that mean (Student t; ``G_s_std`` is the spread between capsules);
 - several: ``kind = 'cannot_tell'`` ("cannot tell A from B"): neither the contours nor the
   drift separate them. No law and no single G_s; ``G_s_interval`` is the hull of the
-  candidates' intervals when these overlap (G_s lies in it whichever candidate is right),
-  else None;
+  candidates' intervals (G_s lies in it whichever candidate is right; the reason says when
+  their own intervals do not overlap, so that knowing the law would narrow it); None only
+  where a candidate has no interval;
 - none: ``kind = 'none'``, "no law of the database fits", with the reason (every law fits
   fewer than half of the capsules; every eligible law drifts; the closest law's shapes misfit
   the noise, by how much; or the contours favour a law whose G_s drifts, so that the two tests
@@ -662,13 +663,21 @@ def population_verdict(rows: Iterable[Mapping[str, Any]]) -> PopulationVerdict:
         kind = "cannot_tell"
         lows = [g_stats[law][2][0] for law in candidates]
         highs = [g_stats[law][2][1] for law in candidates]
-        if all(np.isfinite(lows + highs)) and max(lows) <= min(highs):
+        # G_s lies in the hull of the candidates' intervals whichever of them is right, also when
+        # they do not overlap: that is the answer the batch supports, and the gap between them is
+        # what telling the law would remove.
+        if all(np.isfinite(lows + highs)):
             interval = (min(lows), max(highs))
         top = candidates[0]
         ps = ", ".join(f"{law} p = {p_better[(top, law)]:.2g}" for law in candidates[1:])
+        apart = ("; their own intervals do not overlap: knowing the law would narrow G_s (capsules at larger "
+                 "deformation, where the laws' shapes differ most, tell them apart)"
+                 if interval is not None and max(lows) > min(highs) else "")
         reason = (f"the contours do not tell them apart ({top} fits best; against it {ps}) and the drift does "
                   "not separate them"
-                  + "; " + ", ".join(f"{law}: G_s = {g_stats[law][0]:.4g} N/m" for law in candidates))
+                  + "; " + ", ".join(f"{law}: G_s = {g_stats[law][0]:.4g} N/m "
+                                     f"[{g_stats[law][2][0]:.4g}, {g_stats[law][2][1]:.4g}]" for law in candidates)
+                  + apart)
     elif not eligible:
         most = max(order, key=lambda law: count[law]) if order else None
         reason = (f"no law of the database fits: every law fits fewer than half of the {n} usable capsules"

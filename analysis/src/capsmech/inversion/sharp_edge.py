@@ -99,9 +99,11 @@ SMOOTH_FLOOR_REL = 1e-3
 #: rows). From 90 degrees (a corner): mesh L_z 1.1 %, v_c 0.51 %, and L_p up to 0.0078 l where
 #: L_p < 0.5 l, up to 6.5 % of L_p on deeper parachutes (Ca_s 0.3-1.5, a/l 0.9-1.1: up to
 #: 0.10 l); path (221 rows) L_z 1.53 %, v_c 0.59 %, L_p 0.0035 l / 3.2 %: two stable corner shapes.
+#: The turn [degrees] from which a profile's rim is a corner (the last class of ``ACCURACY_BY_TURN``).
+CORNER_TURN = 90.0
 ACCURACY_BY_TURN: tuple[tuple[float, LengthAccuracy], ...] = (
     (30.0, LengthAccuracy(L_z_rel=SMOOTH_FLOOR_REL, L_p_abs=2e-3, L_p_rel=0.0, v_c_rel=2e-4)),
-    (90.0, LengthAccuracy(L_z_rel=3.5e-3, L_p_abs=7e-3, L_p_rel=0.0, v_c_rel=1e-3)),
+    (CORNER_TURN, LengthAccuracy(L_z_rel=3.5e-3, L_p_abs=7e-3, L_p_rel=0.0, v_c_rel=1e-3)),
     (math.inf, LengthAccuracy(L_z_rel=0.016, L_p_abs=0.008, L_p_rel=0.065, v_c_rel=6e-3)),
 )
 #: Rows at Ca_s up to ``BUCKLING_CA_S`` (the grids' Ca_s 0.01), whatever their turn: the rear of
@@ -189,7 +191,8 @@ def parachute_depth(meridian: np.ndarray) -> float:
 
 
 def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius: float = math.nan,
-                  stated_error_rel: tuple[float, float] = (math.nan, math.nan)) -> np.ndarray:
+                  stated_error_rel: tuple[float, float] = (math.nan, math.nan),
+                  interpolation_error: np.ndarray | None = None) -> np.ndarray:
     """The databases' accuracy [the meridian's units] at each of ``points`` points placed at
     equal arclength along a database profile (r, z) from the front pole to the rear pole, as a
     residual profile places them: ``SMOOTH_FLOOR_REL`` of the capsule's ``length`` everywhere
@@ -201,6 +204,10 @@ def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius:
     (``TubeInverter.stated_error``; NaN: not stated), raises the floor to that L_z share of
     ``length`` everywhere and to that L_p share of the parachute's depth behind the rim (behind
     the profile's middle where it has no turn): a database is no more accurate than it says.
+    ``interpolation_error``, the error of the profile's interpolation between the database's
+    rows at the ``points`` points [the meridian's units] (``TubeInverter.interpolation_error``;
+    None, or NaN at a point: not known), is added in quadrature: the rows' own accuracy and the
+    grid's spacing are independent errors.
 
     Measured (2026-11-26): capsules of the right law whose shape is the 128-element kernel's,
     traced with 0.45 px noise at a 100 px tube radius and fitted on the 64-element database,
@@ -219,11 +226,14 @@ def profile_floor(meridian: np.ndarray, length: float, points: int, tube_radius:
     if not math.isfinite(turn):
         rear = np.arange(points) >= points // 2
         floor[rear] = np.maximum(floor[rear], stated_rim)
+    else:
+        accuracy = row_accuracy(turn)
+        rim = max(accuracy.L_p_rel * depth, stated_rim)
+        if math.isfinite(tube_radius):
+            rim = max(rim, accuracy.L_p_abs * tube_radius)
+        behind = np.arange(points) >= math.floor(where * (points - 1))
+        floor[behind] = np.maximum(floor[behind], rim)
+    if interpolation_error is None:
         return floor
-    accuracy = row_accuracy(turn)
-    rim = max(accuracy.L_p_rel * depth, stated_rim)
-    if math.isfinite(tube_radius):
-        rim = max(rim, accuracy.L_p_abs * tube_radius)
-    behind = np.arange(points) >= math.floor(where * (points - 1))
-    floor[behind] = np.maximum(floor[behind], rim)
-    return floor
+    known = np.nan_to_num(np.asarray(interpolation_error, dtype=float), nan=0.0)
+    return np.hypot(floor, known)

@@ -14,6 +14,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from capsmech.imaging.mesh_section import SectionError, plane_section
 from capsmech.io.case import EFFECT_DEFAULTS, CaseResult, decode_str
 from capsmech.io.database import (
     ACCURACY_COLUMNS,
@@ -93,6 +94,62 @@ def resample_by_arclength(x: np.ndarray, y: np.ndarray, n: int, closed: bool) ->
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
     targets = np.linspace(0.0, s[-1], n, endpoint=not closed)
     return np.vstack([np.interp(targets, s, points[:, 0]), np.interp(targets, s, points[:, 1])])
+
+
+def mid_plane_meridian(nodes: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 3D capsule's outline in the plane y = 0, its half x >= 0 from the front pole to the rear
+    pole: the database profile of a 3D tube or duct case.
+
+    The kernel's own ``/profile`` of a 3D case keeps the membrane nodes near the plane, and
+    loses a pole whose node lies just off it (measured on duct-dev: the front pole of 9 of its
+    54 steady rows missing, their outline 0.008-0.031 w short at the front and ending 0.08-0.15 w
+    off the axis; the rear pole of 10, their outline ending 0.08-0.12 w off the axis on the
+    parachute's flank, short of its depth by 0.007-0.011 w). The section of the membrane mesh by
+    the plane, ``capsmech.imaging.mesh_section.plane_section``, is the outline a microscope
+    focused there sees, poles included, and what a measured contour is compared with.
+
+    Parameters
+    ----------
+    nodes : (n, 3) array
+        Membrane node positions [l]; the flow is along +z.
+    triangles : (m, 3) int array
+        The membrane's triangles (0-based).
+
+    Returns
+    -------
+    r, z : numpy.ndarray
+        The half-outline's points (x, z) [l], from the front pole (the larger z on the axis x = 0)
+        to the rear pole; both poles are where the section crosses x = 0.
+
+    Raises
+    ------
+    SectionError
+        If the plane does not cut the membrane in one closed curve, or that curve does not
+        cross the axis x = 0 exactly twice.
+    """
+    z, x = plane_section(nodes, triangles, normal_axis=1).T
+    ahead = x >= 0.0
+    following = np.roll(np.arange(len(x)), -1)
+    crossing = np.flatnonzero(ahead != ahead[following])
+    if len(crossing) != 2:
+        raise SectionError(f"the outline in the plane y = 0 crosses the axis x = 0 {len(crossing)} times, not twice")
+
+    def on_axis(k: int) -> tuple[float, float]:
+        j = following[k]
+        weight = x[k] / (x[k] - x[j])
+        return 0.0, float(z[k] + weight * (z[j] - z[k]))
+
+    first, second = (int(k) for k in crossing)
+    inside = np.arange(first + 1, second + 1) if ahead[following[first]] else \
+        np.arange(second + 1, first + 1 + len(x)) % len(x)
+    start, end = (first, second) if ahead[following[first]] else (second, first)
+    half = np.vstack([on_axis(start), np.column_stack([x[inside], z[inside]]), on_axis(end)])
+    # A node on the axis gives its crossing twice: keep each point once.
+    keep = np.concatenate([[True], np.any(np.diff(half, axis=0) != 0.0, axis=1)])
+    half = half[keep]
+    if half[0, 1] < half[-1, 1]:
+        half = half[::-1]
+    return half[:, 0].copy(), half[:, 1].copy()
 
 
 def _check_case_matches(case: Case, result: CaseResult, path: Path) -> None:
@@ -223,8 +280,14 @@ def _case_row(case: Case, cases_dir: Path, points: int, companion: Case | None =
         if result.unit(f"profile/{c}") != PROFILES[flow][1]:
             raise DatabaseError(f"{path}: '/profile/{c}' has units {result.unit(f'profile/{c}')!r}, "
                                 f"expected {PROFILES[flow][1]!r}")
-    resampled = resample_by_arclength(result.profile[names[0]], result.profile[names[1]], points,
-                                      closed=flow == "shear")
+    if flow == "tube" and "triangles" in result.mesh:
+        try:
+            r, z = mid_plane_meridian(result.mesh["nodes"], result.mesh["triangles"])
+        except SectionError as exc:
+            raise DatabaseError(f"{path}: the membrane mesh gives no outline in the plane y = 0 ({exc})") from None
+    else:
+        r, z = result.profile[names[0]], result.profile[names[1]]
+    resampled = resample_by_arclength(r, z, points, closed=flow == "shear")
     row.update({f"profile_{c}": resampled[i] for i, c in enumerate(names)})
     return row
 
