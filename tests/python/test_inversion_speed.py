@@ -331,8 +331,6 @@ def test_paths_agree_where_the_lengths_fit_folds(tube_db):
     assert_same_fit(reference, tube_batch.fit_batch(inverter, l_z, l_p, workers=1).row(9790), 9790)
 
 
-@pytest.mark.xfail(strict=True, reason="fit judges the last iterate of a first-root iteration that never stops: "
-                                       "the nearest iterate is inverters.py's to take")
 def test_fold_capsule_gets_the_root_the_rows_have(tube_db):
     """The database's rows reproduce the fold capsule's lengths: their C1 interpolant
     (Clough-Tocher) has one root in its grid cell, a/l 0.867, Ca_s 0.0149. Both paths find a

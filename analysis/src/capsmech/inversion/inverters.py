@@ -382,11 +382,20 @@ class TubeInverter:
             return TubeFit(flag=_beyond_reach(L_z, L_p))
         coefficients, centre, _ = self._local_forward_map(q_star)
         x = np.zeros(2)
+        closest, closest_miss = x, math.inf
         for _ in range(50):
             # Damped: stay within a few grid spacings of the neighbours the fit is valid over.
             x, norm = _damped_newton_step(coefficients, x, q_star, 0.5)
             if norm < 1e-12:
                 break
+            miss = float(np.abs(_quadratic_value_and_jacobian(coefficients, x)[0] - q_star).max())
+            if miss < closest_miss:
+                closest, closest_miss = x, miss
+        else:
+            # Never stopped: the iteration wanders about a fold of the fitted map (q* at the
+            # edge of its image), and where it ends is round-off's choice: the first root is
+            # the iterate nearest to the lengths.
+            x = closest
         q, _ = _quadratic_value_and_jacobian(coefficients, x)
         if np.any(np.abs(q - q_star) > 1e-6 * np.abs(q_star).max()):
             return TubeFit(flag=NO_ROOT_FLAG)
@@ -462,6 +471,8 @@ class TubeInverter:
             x[live] = x_new
             fallback[live[bad]] = True
             active[live[(norm < 1e-12) | bad]] = False
+        # An iteration that never stopped ends at ``fit``'s nearest iterate: ``fit``'s arithmetic.
+        fallback |= active
         q, _ = _quadratic_value_and_jacobian_many(coefficients, x)
         tolerance = 1e-6 * np.abs(q_star).max(axis=1)
         no_root = np.any(np.abs(q - q_star) > tolerance[:, None], axis=1) & ~fallback
@@ -577,6 +588,8 @@ class TubeInverter:
         sqrt_w = np.sqrt(weight)[..., None]
         coefficients = _lstsq_stack(sqrt_w * _quadratic_basis_stack(x_points), sqrt_w * self._q[index])
         x = np.zeros((m, 2))
+        # ``fit``'s iterate nearest to the lengths, for the iterations that never stop.
+        closest, closest_miss = np.zeros((m, 2)), np.full(m, np.inf)
         active = np.ones(m, dtype=bool)
         for _ in range(50):
             live = np.flatnonzero(active)
@@ -584,7 +597,12 @@ class TubeInverter:
                 break
             x[live], norm = _damped_newton_step_stack(coefficients[live], x[live], q_star[live], 0.5)
             outcome[live[~np.isfinite(norm)]] = _EXACT_LEFT
+            moving = live[norm >= 1e-12]
+            miss = np.abs(_quadratic_value_stack(coefficients[moving], x[moving]) - q_star[moving]).max(axis=1)
+            nearer = moving[miss < closest_miss[moving]]
+            closest[nearer], closest_miss[nearer] = x[nearer], miss[miss < closest_miss[moving]]
             active[live[~(norm >= 1e-12)]] = False
+        x[active] = closest[active]
         done &= outcome == _EXACT_OK
         q = _quadratic_value_stack(coefficients, x)
         tolerance = 1e-6 * np.abs(q_star).max(axis=1)
