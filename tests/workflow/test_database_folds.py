@@ -52,8 +52,31 @@ def _laws_with_folds(name: str) -> list[tuple[str, str]]:
     return [(name, key) for key, table in database.laws.items() if table.critical is not None]
 
 
-FOLDED = [pair for name in ("tube-smoke", "tube-dev", "tube-paper", "tube-kb", "tube-prestress")
+FOLDED = [pair for name in ("tube-smoke", "tube-dev", "tube-paper", "tube-kb", "tube-prestress", "duct-dev")
           for pair in _laws_with_folds(name)]
+
+
+def test_the_square_duct_records_where_its_3d_branches_end() -> None:
+    """duct-dev's ends come from the 3D branch (Newton-Krylov continuation, its end bisected to
+    1 %), checked against the rows solved case by case: every law and a/w has an end; a fold
+    has no steady row above it (an end with one is a lost branch, 'failed', without a value);
+    NH's largest capsule folds between its last steady row (0.12) and the row that failed
+    from the sphere (0.15), above the circular tube's fold at a/l 0.9 (tube-paper)."""
+    duct = load_database(database_path("duct-dev"))
+    for key, table in duct.laws.items():
+        ends = duct.critical(key)
+        assert sorted(ends["a_over_l"]) == sorted(set(table.columns["a_over_l"]))
+        for a_over_l, critical, kind in zip(ends["a_over_l"], ends["critical_Ca_s"], ends["kind"]):
+            at = np.isclose(table.columns["a_over_l"], a_over_l)
+            steady = table.columns["Ca_s"][at][table.status[at] == "steady"]
+            if kind == "fold":
+                assert steady.max() < critical and not np.any(steady > critical), (key, a_over_l)
+            else:
+                assert math.isnan(critical) and kind.startswith(("none", "failed")), (key, a_over_l, kind)
+    nh = duct.critical("NH").set_index("a_over_l")
+    assert nh.loc[0.9, "kind"] == "fold" and 0.12 < nh.loc[0.9, "critical_Ca_s"] < 0.15
+    tube = load_database(database_path("tube-paper")).critical("NH").set_index("a_over_l")
+    assert nh.loc[0.9, "critical_Ca_s"] > tube.loc[0.9, "critical_Ca_s"]
 
 
 @pytest.mark.parametrize("name,law", FOLDED, ids=[f"{n}:{k}" for n, k in FOLDED])
