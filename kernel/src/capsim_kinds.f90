@@ -7,7 +7,7 @@ module capsim_kinds
    integer, parameter :: dp = selected_real_kind(15, 307)
    real(dp), parameter :: pi = 3.14159265358979323846264338327950288_dp
    !> Version of the kernel written into every case file (provenance of databases).
-   character(len=*), parameter :: code_version = '0.3.5'
+   character(len=*), parameter :: code_version = '0.3.6'
    !> Layout version of the HDF5 case file.
    integer, parameter :: schema_version = 1
 end module capsim_kinds

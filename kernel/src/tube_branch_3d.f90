@@ -19,6 +19,12 @@
 !> is recorded as the bracket (last steady Ca_s, first failed Ca_s) and the bracket's
 !> midpoint as critical_Ca_s; every later case file is the last steady shape with status
 !> continuous_elongation, as in the axisymmetric branch.
+!> A steady shape flagged not stable (tube_steady_3d's growth-rate estimate above its limit)
+!> does not carry the branch, as in the axisymmetric branch (carries_branch): a continued
+!> trial that converges to one counts as failed, so that the bisection brackets the loss of
+!> stability as it brackets a fold, and the branch ends there with critical_kind `unstable`;
+!> a case solved as a single one (no steady point held) that is flagged is written as solved
+!> and not kept, so that the next Ca_s is solved as a single case again.
 !> A failed trial is a Newton attempt that found no root near the predicted shape: past a
 !> fold there is none, but a bisection that still fails within fold_resolution is also what a
 !> root that Newton cannot reach would give; the message says how the end was found.
@@ -34,7 +40,7 @@ module tube_branch_3d
    use text_format, only: int_text
    use tube_history, only: h_lz, h_lp, h_vc, h_stretch
    use tube_branch, only: start_branch_file, finish_branch_file, log_columns, branch_end_none
-   use tube_steady_3d, only: tube_steady_capsule_t
+   use tube_steady_3d, only: tube_steady_capsule_t, stability
    implicit none
    private
    public :: run_tube_branch_3d
@@ -51,7 +57,7 @@ module tube_branch_3d
 
    !> A steady point of the branch: Ca_s, the shape, and the solver's figures written with it.
    type :: steady_point_t
-      real(dp) :: ca = 0, growth_rate = 0, residual = 0, residual_full = 0
+      real(dp) :: ca = 0, growth_rate = 0, growth_residual = 0, residual = 0, residual_full = 0
       real(dp), allocatable :: x(:, :)
    end type steady_point_t
 
@@ -72,6 +78,10 @@ contains
       real(dp), allocatable :: values(:), branch_log(:, :)
       !> The first failed Ca_s of the branch's end; where the current case's continuation started.
       real(dp) :: failed_ca, from_ca
+      !> Whether the trial that failed at failed_ca converged to a shape flagged not stable (its
+      !> growth rate), rather than finding no steady shape.
+      logical :: failed_unstable
+      real(dp) :: failed_growth
       integer :: k, n_known, n_log, steady_index, case_evaluations, case_products, case_newton, trials
       integer(8) :: clock_start, clock_case, clock_now, clock_rate
       logical :: ok, ended
@@ -86,6 +96,8 @@ contains
       n_known = 0
       ended = .false.
       failed_ca = 0
+      failed_unstable = .false.
+      failed_growth = 0
       clock_case = clock_start
       do k = 1, size(values)
          case_opts = opts
@@ -105,7 +117,7 @@ contains
             model%ca = values(k)
             call model%run(case_opts, trim(opts%branch_summary)//'.ckpt', summary, steady_index)
             call count_solve()
-            if (steady_index > 0) then
+            if (steady_index > 0 .and. stability(model) /= 0) then
                call keep_point()
                call log_point(source_single)
             end if
@@ -128,8 +140,8 @@ contains
          call system_clock(clock_case)
       end do
       call system_clock(clock_now)
-      call write_branch_3d(opts, model, branch_log(:, 1:n_log), ended, last%ca, failed_ca, threads, &
-                           real(clock_now - clock_start, dp) / clock_rate, stat, errmsg)
+      call write_branch_3d(opts, model, branch_log(:, 1:n_log), ended, last%ca, failed_ca, failed_unstable, &
+                           failed_growth, threads, real(clock_now - clock_start, dp) / clock_rate, stat, errmsg)
 
    contains
 
@@ -140,12 +152,13 @@ contains
          real(dp), intent(in) :: target
          logical, intent(out) :: ok
          real(dp) :: step, ca
+         logical :: unstable
          from_ca = last%ca
          step = target - last%ca
          do
             ca = last%ca + step
             if (ca >= target * (1.0_dp - 1.0e-12_dp)) ca = target
-            call trial(ca, ok)
+            call trial(ca, ok, unstable)
             if (ok) then
                if (ca == target) return
                call log_point(source_bisection)
@@ -161,11 +174,10 @@ contains
                end if
             else
                failed_ca = ca
+               failed_unstable = unstable
+               if (unstable) failed_growth = model%growth_rate
                if (ca - last%ca <= fold_resolution * last%ca) then
-                  how = 'the steady branch ends between Ca_s = '//num(last%ca)//' (the last steady point) and '// &
-                        num(failed_ca)//' (Newton-Krylov from the branch found no steady shape; bisected '// &
-                        'down to '//num(fold_resolution)//' relative): critical Ca_s taken at the midpoint '// &
-                        num(0.5_dp * (last%ca + failed_ca))
+                  how = branch_end_text(last%ca, failed_ca, failed_unstable, failed_growth)
                   if (.not. opts%quiet) write (*, '(a)') 'capsim: '//how
                   return
                end if
@@ -175,10 +187,12 @@ contains
       end subroutine continue_to
 
       !> One Newton attempt at Ca_s = ca from the secant predictor through the last two steady
-      !> points (the last one alone when there is one); a converged trial becomes the last point.
-      subroutine trial(ca, converged)
+      !> points (the last one alone when there is one); a converged trial whose shape is not
+      !> flagged not stable becomes the last point (converged), a flagged one does not
+      !> (unstable).
+      subroutine trial(ca, converged, unstable)
          real(dp), intent(in) :: ca
-         logical, intent(out) :: converged
+         logical, intent(out) :: converged, unstable
          real(dp) :: ratio
          type(run_options_t) :: trial_opts
          model%ca = ca
@@ -199,6 +213,12 @@ contains
          call count_solve()
          trials = trials + 1
          converged = steady_index > 0
+         unstable = converged .and. stability(model) == 0
+         if (unstable) then
+            converged = .false.
+            if (.not. opts%quiet) write (*, '(a)') 'capsim: the steady shape at Ca_s = '//num(ca)// &
+               ' is flagged not stable (growth rate '//num(model%growth_rate)//' V/l): it does not carry the branch'
+         end if
          if (converged) call keep_point()
       end subroutine trial
 
@@ -215,6 +235,7 @@ contains
          last%ca = model%ca
          last%x = model%positions
          last%growth_rate = model%growth_rate
+         last%growth_residual = model%growth_residual
          last%residual = model%residual
          last%residual_full = model%residual_full
          n_known = min(n_known + 1, 2)
@@ -244,6 +265,7 @@ contains
          model%ca = last%ca
          model%positions = last%x
          model%growth_rate = last%growth_rate
+         model%growth_residual = last%growth_residual
          model%residual = last%residual
          model%residual_full = last%residual_full
          model%guess_source = 'previous branch point (Ca_s = '//num(last%ca)//')'
@@ -251,8 +273,8 @@ contains
          model%n_rec = 0
          call model%record()
          summary%status = 'continuous_elongation'
-         summary%message = 'no steady shape: '//how//'; the shape written is the last steady one, at Ca_s = '// &
-                           num(last%ca)
+         summary%message = trim(merge('no stable steady shape: ', 'no steady shape:        ', failed_unstable))// &
+                           ' '//how//'; the shape written is the last steady one, at Ca_s = '//num(last%ca)
          call write_case(0)
       end subroutine write_past_end
 
@@ -278,11 +300,12 @@ contains
    !> The branch file: the axisymmetric layout (start_branch_file), critical_Ca_s the midpoint
    !> of the bracket where the branch ended (NaN if it did not), and the bracket, its
    !> resolution and the 3D mesh as attributes of their own.
-   subroutine write_branch_3d(opts, model, branch_log, ended, last_ca, failed_ca, threads, wall_time, stat, errmsg)
+   subroutine write_branch_3d(opts, model, branch_log, ended, last_ca, failed_ca, failed_unstable, failed_growth, &
+                              threads, wall_time, stat, errmsg)
       type(run_options_t), intent(in) :: opts
       type(tube_steady_capsule_t), intent(in) :: model
-      real(dp), intent(in) :: branch_log(:, :), last_ca, failed_ca, wall_time
-      logical, intent(in) :: ended
+      real(dp), intent(in) :: branch_log(:, :), last_ca, failed_ca, failed_growth, wall_time
+      logical, intent(in) :: ended, failed_unstable
       integer, intent(in) :: threads
       integer, intent(out) :: stat
       character(len=:), allocatable, intent(out) :: errmsg
@@ -290,11 +313,9 @@ contains
       real(dp) :: nan
       nan = ieee_value(1.0_dp, ieee_quiet_nan)
       if (ended) then
-         call start_branch_file(opts, model%law, '3d', branch_log, 0.5_dp * (last_ca + failed_ca), 'fold', source_text, &
-                                threads, wall_time, f, stat, errmsg, &
-                                'the steady branch ends between Ca_s = '//num(last_ca)//' (last steady) and '// &
-                                num(failed_ca)//' (Newton-Krylov from the branch finds no steady shape; bisected '// &
-                                'down to '//num(fold_resolution)//' relative); critical Ca_s at the midpoint')
+         call start_branch_file(opts, model%law, '3d', branch_log, 0.5_dp * (last_ca + failed_ca), &
+                                trim(merge('unstable', 'fold    ', failed_unstable)), source_text, threads, wall_time, &
+                                f, stat, errmsg, branch_end_text(last_ca, failed_ca, failed_unstable, failed_growth))
          if (stat == 0) call f%write_attr('/', 'critical_Ca_s_last_steady', last_ca, stat, errmsg)
          if (stat == 0) call f%write_attr('/', 'critical_Ca_s_first_failed', failed_ca, stat, errmsg)
       else
@@ -310,5 +331,25 @@ contains
       if (stat == 0) call f%write_attr('/', 'aspect', opts%aspect, stat, errmsg)
       call finish_branch_file(f, trim(opts%branch_summary), stat, errmsg)
    end subroutine write_branch_3d
+
+   !> How the branch ended, between its last steady (and not unstable) Ca_s and the first failed
+   !> one, for messages and critical_message: no steady shape found there (a fold), or a steady
+   !> shape flagged not stable (its growth rate).
+   function branch_end_text(last_ca, failed_ca, unstable, growth) result(text)
+      real(dp), intent(in) :: last_ca, failed_ca, growth
+      logical, intent(in) :: unstable
+      character(len=:), allocatable :: text
+      if (unstable) then
+         text = 'the steady branch loses stability between Ca_s = '//num(last_ca)//' (the last steady point not '// &
+                'flagged) and '//num(failed_ca)//' (steady, flagged not stable: largest growth rate '//num(growth)// &
+                ' V/l; bisected down to '//num(fold_resolution)//' relative): critical Ca_s taken at the midpoint '// &
+                num(0.5_dp * (last_ca + failed_ca))
+      else
+         text = 'the steady branch ends between Ca_s = '//num(last_ca)//' (the last steady point) and '// &
+                num(failed_ca)//' (Newton-Krylov from the branch found no steady shape; bisected '// &
+                'down to '//num(fold_resolution)//' relative): critical Ca_s taken at the midpoint '// &
+                num(0.5_dp * (last_ca + failed_ca))
+      end if
+   end function branch_end_text
 
 end module tube_branch_3d

@@ -142,7 +142,11 @@ def test_tube_branch_past_the_fold_brackets_the_critical_ca(capsim, tmp_path):
                                                                    "--out", str(tmp_path / "t_Ca{ca}.h5")],
                timeout=3600)
     attrs = attrs_of(summary)
-    assert attrs["critical_kind"] == "fold"
+    # The branch ends where a continued shape is flagged not stable (growth rate above the
+    # limit), or where Newton-Krylov finds no steady shape, whichever comes first: at level 2
+    # (small wall) stability is lost between Ca_s 0.15875 and 0.16 (critical 0.1594), just
+    # before the fold (0.1631 measured when unstable shapes did not end a branch).
+    assert attrs["critical_kind"] in ("unstable", "fold")
     low, high = attrs["critical_Ca_s_last_steady"], attrs["critical_Ca_s_first_failed"]
     assert low < attrs["critical_Ca_s"] < high
     assert (high - low) / low <= attrs["critical_Ca_s_resolution_rel"] * (1 + 1e-12)

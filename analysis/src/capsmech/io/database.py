@@ -320,7 +320,8 @@ class Database:
         """Where the steady branch of one law ends, per a/l of the grid: columns ``a_over_l``,
         ``critical_Ca_s`` (NaN where the branch does not end inside the grid's Ca_s, or its
         search failed), ``kind`` (``fold``: the branch turns back, no steady shape above it,
-        continuous elongation; ``mesh_limit``: it leaves what the mesh resolves; ``none: ...``,
+        continuous elongation; ``mesh_limit``: it leaves what the mesh resolves; ``unstable``
+        (a 3D branch): its steady shapes stop being stable there; ``none: ...``,
         ``failed: ...``) and ``message`` (the kernel's words, where recorded). Empty where the
         database records no ends (``scripts/add_folds.py`` adds them); the KeyError of
         :meth:`law` for a law it does not have."""
