@@ -18,8 +18,9 @@ says whether
 study (about 10 core-minutes per 25 batches of a configuration); ``summarise`` turns its rows
 into the table of docs/validation (coverage with its 95 % Wilson interval). ``make validate``
 runs it at a reduced size; the figures in the docs (strengths and G_s) come from 50 batches per
-effect and strength on the 2-core machine: seeds 0-41 (2026-11-26, about 100 minutes) and 42-49
-(``--first 42 --batches 8``, 2026-11-27, about 13 minutes), with the same diagnosis code.
+effect and strength on the 2-core machine (seeds 0-49, every configuration; two processes, one
+with ``--first 35 --batches 15``, their rows merged; docs/validation/diagnosis.md says which
+code).
 """
 from __future__ import annotations
 
