@@ -259,13 +259,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise SystemExit(f"{grid_path}: no law {unknown[0]!r} in the grid ({', '.join(grid['tube']['laws'])})")
     rows_version = check_database_is_the_grids(database, grid)
     code_version = kernel_version(args.capsim)
+    branches = fold_branches(grid, args.laws, args.from_ca)
+    three_d = dict(branches[0].settings).get("model", "axi") == "3d"
     # A fold must come from the kernel of its rows, or from one that reproduces them; the 3D
     # branch's ends changed with its stability check (kernel 0.3.6), so a 3D grid needs its own.
-    three_d = dict(case_settings(grid, "tube", float(grid["tube"]["Ca_s"][0]))).get("model", "axi") == "3d"
     if code_version != rows_version and (three_d or not reproduces_results(code_version, rows_version, "tube")):
         raise SystemExit(f"{args.capsim} is kernel {code_version}, the rows are kernel {rows_version}: "
                          "a fold must come from the kernel of its rows")
-    branches = fold_branches(grid, args.laws, args.from_ca)
 
     def run(branch: Branch) -> None:
         kind, wall = run_fold_branch(args.capsim, branch, folds_dir, code_version, args.threads)
@@ -277,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     attrs = {"kernel_settings": json.dumps(dict(branches[0].settings), sort_keys=True),
              "requested_Ca_s": ",".join(f"{ca:g}" for ca in branches[0].Ca_s),
              "code_version": code_version, "accuracy": FOLD_ACCURACY}
-    if dict(branches[0].settings).get("model", "axi") == "3d":
+    if three_d:
         attrs["method"] = CRITICAL_METHOD_3D
         attrs["accuracy"] = ("the end of the rows' mesh, bisected to 1 % relative in Ca_s (the midpoint of the last "
                              "steady and the first failed Ca_s, both in each message); the mesh's effect on it was not "

@@ -79,11 +79,16 @@ def contour_chi2(prepared: PreparedContour, meridian: np.ndarray, length: float,
     database rows' own stated errors there (``profile_floor``). NaN where sigma is not positive."""
     sigma = tracing_noise(prepared, meridian, frames_noise)
     floor = profile_floor(meridian, length, CHI2_POINTS, tube_radius, stated_error_rel)
-    variance = sigma ** 2 + floor ** 2
+    return weighted_chi2(prepared, meridian, sigma ** 2 + floor ** 2), sigma
+
+
+def weighted_chi2(prepared: PreparedContour, meridian: np.ndarray, variance: np.ndarray) -> float:
+    """The contour's chi2 against a profile (r, z) in its units: the ``CHI2_POINTS`` residuals
+    squared over their ``variance``; NaN where a variance is not positive."""
     if not (np.all(np.isfinite(variance)) and np.all(variance > 0)):
-        return math.nan, sigma
+        return math.nan
     _, distance, _ = prepared.residual(meridian, points=CHI2_POINTS)
-    return float(np.sum(distance ** 2 / variance)), sigma
+    return float(np.sum(distance ** 2 / variance))
 
 
 @lru_cache(maxsize=64)

@@ -55,7 +55,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from capsmech.inversion.inverters import Fit, TubeInverter, profile_elongation
-from capsmech.inversion.noise import CHI2_POINTS, DOF, tracing_noise
+from capsmech.inversion.noise import CHI2_POINTS, DOF, tracing_noise, weighted_chi2
 from capsmech.inversion.residuals import PreparedContour
 from capsmech.inversion.sharp_edge import profile_floor
 from capsmech.io.contours import profile_misfit
@@ -181,21 +181,10 @@ def fit_shape(contour: np.ndarray, inverter: TubeInverter, tube_radius: float,
     interpolation = inverter.interpolation_error(a_fit, ca_fit, CHI2_POINTS) * tube_radius
     sigma = tracing_noise(prepared, scaled, frames_noise)
     variance = sigma ** 2 + profile_floor(scaled, length, CHI2_POINTS, tube_radius, stated, interpolation) ** 2
-    chi2 = shape_chi2(prepared, scaled, variance)
+    chi2 = weighted_chi2(prepared, scaled, variance)
     return ShapeFit(a_over_l=a_fit, Ca_s=ca_fit, H_over_a=misfit / (a_fit * tube_radius),
                     Delta=profile_elongation(meridian, a_fit), chi2=chi2,
                     covariance=fit_covariance(prepared, inverter, tube_radius, (a_fit, ca_fit), variance, chi2))
-
-
-def shape_chi2(prepared: PreparedContour, meridian: np.ndarray, variance: np.ndarray) -> float:
-    """The contour's chi2 against a profile (r, z) in its units: the ``CHI2_POINTS`` residuals
-    squared over their ``variance`` (``capsmech.inversion.noise.contour_chi2``'s sum, with the
-    variance that holds the database's interpolation error too); NaN where a variance is not
-    positive."""
-    if not (np.all(np.isfinite(variance)) and np.all(variance > 0)):
-        return math.nan
-    _, distance, _ = prepared.residual(meridian, points=CHI2_POINTS)
-    return float(np.sum(distance ** 2 / variance))
 
 
 def fit_covariance(prepared: PreparedContour, inverter: TubeInverter, tube_radius: float,
